@@ -1,0 +1,1 @@
+"""AE-NI console: the CLI and the Textual operator console."""

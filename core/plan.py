@@ -1,0 +1,158 @@
+"""Plans as data: the small immutable records that planner, driver, engine, journal and console share.
+
+Everything here is a frozen dataclass of plain numbers and strings so that the journal can store it
+and the console can show it without knowing who made it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+BlockKind = Literal["global", "local"]
+
+# Ledger categories, in the order the console lists them.
+LEDGER_CATEGORIES: tuple[str, ...] = (
+    "setup",
+    "lift",
+    "move",
+    "engage",
+    "drift",
+    "indent",
+    "hold",
+    "reconfigure",
+    "comeback",
+    "recovery",
+)
+
+
+@dataclass(frozen=True)
+class IndentSpec:
+    """One commanded indent in stage coordinates."""
+
+    x_um: float
+    y_um: float
+    hold_s: float
+
+
+@dataclass(frozen=True)
+class Block:
+    """One g×g local grid at one centre: what the instrument runs as a programmed array.
+
+    A ``global`` block opens a new program (setup under the lens, lift, move, engage, drift settle);
+    a ``local`` block continues the engaged program from the previous block's last indent (the
+    meta-grid "stay"), paying only moves, indents and, where a hop is ≥ the safety threshold,
+    a reconfiguration.
+    """
+
+    block_id: int
+    kind: BlockKind
+    center_x_um: float
+    center_y_um: float
+    grid_g: int
+    pitch_um: float
+    hold_s: float
+    indents: tuple[IndentSpec, ...]
+
+    @property
+    def n_indents(self) -> int:
+        return len(self.indents)
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One executed (or priced) instrument step: the unit of the cost ledger."""
+
+    category: str
+    seconds: float
+    block_id: int = -1
+    indent_index: int = -1
+
+
+@dataclass(frozen=True)
+class IndentResult:
+    """What the instrument reports for one finished indent."""
+
+    block_id: int
+    indent_index: int
+    commanded_x_um: float
+    commanded_y_um: float
+    actual_x_um: float
+    actual_y_um: float
+    hold_s: float
+    hardness_gpa: float
+    modulus_gpa: float
+    drift_rate_nm_s: float
+    t_s: float  # instrument clock when the indent finished
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A candidate the planner ranked but did not pick (shown to the operator)."""
+
+    center_x_um: float
+    center_y_um: float
+    kind: BlockKind
+    score: float
+    acquisition: float
+    cost_s: float
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A planner proposal with everything the operator and the journal need to judge it."""
+
+    block: Block
+    policy: str
+    acquisition: float  # raw acquisition value at the proposed centre (σ for UE)
+    score: float  # the ranking score (acquisition / cost for cost-aware policies)
+    predicted_cost_s: float
+    stay_score: float | None = None  # best local (no reconfiguration) score, where the policy has one
+    jump_score: float | None = None  # best global score, including the jump penalty
+    alternatives: tuple[Alternative, ...] = ()
+    reason: str = ""
+    # which planner phase produced it (seed, explore, exploit, grid ...), shown in the console
+    phase: str = ""
+    # hold-mode bookkeeping for the drift panel
+    hold_mode: str = "fixed"
+    area_error_pct: float | None = None
+
+    @property
+    def is_global_jump(self) -> bool:
+        return self.block.kind == "global"
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Operator-adjustable knobs (the console's adjust form edits these)."""
+
+    target_sem_gpa: float = 0.05
+    beta: float = 4.0
+    hold_policy: Literal["fixed", "adaptive"] = "fixed"
+    fixed_hold_s: float = 80.0
+    local_center_limit: int = 5
+    edge_penalty: float = 0.5
+    budget_s: float | None = None
+    indent_budget: int | None = None
+    sigma_target_gpa: float | None = None
+    mape_target_pct: float | None = None
+    avoid_centers_um: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+
+
+def local_grid(center_x_um: float, center_y_um: float, g: int, pitch_um: float, hold_s: float) -> tuple[IndentSpec, ...]:
+    """A g×g grid centred on (x, y), in boustrophedon order so consecutive indents are one pitch apart."""
+    if g < 1:
+        raise ValueError(f"grid size must be ≥ 1, got {g}")
+    half = (g - 1) / 2.0
+    out: list[IndentSpec] = []
+    for row in range(g):
+        cols = range(g) if row % 2 == 0 else range(g - 1, -1, -1)
+        for col in cols:
+            out.append(
+                IndentSpec(
+                    x_um=center_x_um + (col - half) * pitch_um,
+                    y_um=center_y_um + (row - half) * pitch_um,
+                    hold_s=hold_s,
+                )
+            )
+    return tuple(out)

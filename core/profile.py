@@ -1,0 +1,306 @@
+"""Instrument profiles: every step time and the move-time model, loaded from TOML.
+
+Numbers live in profiles, never in code, so a lab can calibrate its own stage.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import InputError
+
+BUILTIN_PROFILES = ("kla-imicro", "kla-imicro-film")
+
+
+@dataclass(frozen=True)
+class MoveModel:
+    """Seconds to move one stage axis by d µm: exponential below the breakpoint, linear beyond."""
+
+    short_a: float = 4196.41
+    short_b: float = 4.99e-7
+    short_c: float = 4195.05
+    long_slope: float = 1.53e-4
+    long_intercept: float = 2.60
+    breakpoint_um: float = 500.0
+
+    def axis_s(self, d_um: float) -> float:
+        d = abs(d_um)
+        if d < self.breakpoint_um:
+            return self.short_a * math.exp(self.short_b * d) - self.short_c
+        return self.long_slope * d + self.long_intercept
+
+    def axis_s_array(self, d_um: np.ndarray) -> np.ndarray:
+        d = np.abs(np.asarray(d_um, dtype=float))
+        short = self.short_a * np.exp(self.short_b * d) - self.short_c
+        long = self.long_slope * d + self.long_intercept
+        return np.where(d < self.breakpoint_um, short, long)
+
+
+@dataclass(frozen=True)
+class InstrumentProfile:
+    name: str = "kla-imicro"
+    description: str = ""
+    lift_s: float = 30.0
+    engage_s: float = 65.0
+    drift_settle_s: float = 300.0
+    comeback_s: float = 35.0
+    setup_s: float = 20.0
+    lens_travel_s: float = 20.0
+    indent_base_s: float = 40.0
+    default_hold_s: float = 80.0
+    allowed_holds_s: tuple[float, ...] = (0.0, 5.0, 80.0)
+    global_jump_s: float | None = None
+    move: MoveModel = MoveModel()
+    reconfig_threshold_um: float = 1000.0
+    reconfig_lift_s: float = 25.0
+    reconfig_engage_s: float = 65.0
+    reconfig_drift_s: float = 300.0
+    reverse_x: bool = True
+
+    @property
+    def reconfiguration_s(self) -> float:
+        """The safety-rule penalty for one ≥ threshold hop (390 s on the iMicro)."""
+        return self.reconfig_lift_s + self.reconfig_engage_s + self.reconfig_drift_s
+
+    @property
+    def global_overhead_s(self) -> float:
+        """Fixed seconds a new program costs, excluding moves (what a global jump pays)."""
+        if self.global_jump_s is not None:
+            return self.global_jump_s
+        return (
+            self.comeback_s
+            + self.setup_s
+            + self.lens_travel_s
+            + self.lift_s
+            + self.engage_s
+            + self.drift_settle_s
+        )
+
+    def move_s(self, dx_um: float, dy_um: float) -> float:
+        """Seconds for a stage move between two indents: t(|dx|) + t(|dy|), 0 when not moving."""
+        if dx_um == 0.0 and dy_um == 0.0:
+            return 0.0
+        return self.move.axis_s(dx_um) + self.move.axis_s(dy_um)
+
+    def needs_reconfiguration(self, dx_um: float, dy_um: float) -> bool:
+        t = self.reconfig_threshold_um
+        return abs(dx_um) >= t or abs(dy_um) >= t
+
+    def indent_s(self, hold_s: float) -> float:
+        return self.indent_base_s + hold_s
+
+    def check_hold(self, hold_s: float, source: str = "hold_s") -> float:
+        if not any(math.isclose(hold_s, h) for h in self.allowed_holds_s):
+            allowed = ", ".join(f"{h:g}" for h in self.allowed_holds_s)
+            raise InputError(source, f"hold {hold_s:g} s is not one of the profile's holds ({allowed})")
+        return hold_s
+
+
+_STEP_FIELDS = {
+    "lift_s",
+    "engage_s",
+    "drift_settle_s",
+    "comeback_s",
+    "setup_s",
+    "lens_travel_s",
+    "indent_base_s",
+    "default_hold_s",
+    "allowed_holds_s",
+    "global_jump_s",
+}
+_MOVE_FIELDS = {f.name for f in fields(MoveModel)}
+_RECONF_MAP = {
+    "threshold_um": "reconfig_threshold_um",
+    "lift_s": "reconfig_lift_s",
+    "engage_s": "reconfig_engage_s",
+    "drift_s": "reconfig_drift_s",
+}
+
+
+def _number(source: str, key: str, value: Any, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(source, f"field {key} must be a finite number, got {value!r}")
+    if value < 0 or (positive and value == 0):
+        raise InputError(source, f"field {key} must be {'> 0' if positive else '≥ 0'}, got {value!r}")
+    return float(value)
+
+
+def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> InstrumentProfile:
+    known = {"name", "description", "extends", "steps", "move", "reconfiguration", "display"}
+    for key in data:
+        if key not in known:
+            raise InputError(source, f"unknown section or field {key!r} (allowed: {', '.join(sorted(known))})")
+    updates: dict[str, Any] = {}
+    if "name" in data:
+        if not isinstance(data["name"], str) or not data["name"].strip():
+            raise InputError(source, "field name must be a non-empty string")
+        updates["name"] = data["name"]
+    if "description" in data:
+        updates["description"] = str(data["description"])
+    steps = data.get("steps", {})
+    if not isinstance(steps, dict):
+        raise InputError(source, "[steps] must be a table")
+    for key, value in steps.items():
+        if key not in _STEP_FIELDS:
+            raise InputError(source, f"unknown field steps.{key} (allowed: {', '.join(sorted(_STEP_FIELDS))})")
+        if key == "allowed_holds_s":
+            if not isinstance(value, list) or not value:
+                raise InputError(source, "field steps.allowed_holds_s must be a non-empty list of seconds")
+            updates[key] = tuple(sorted(_number(source, f"steps.{key}", v) for v in value))
+        elif key == "global_jump_s":
+            updates[key] = _number(source, f"steps.{key}", value, positive=True)
+        else:
+            updates[key] = _number(source, f"steps.{key}", value)
+    move = data.get("move", {})
+    if not isinstance(move, dict):
+        raise InputError(source, "[move] must be a table")
+    move_updates: dict[str, float] = {}
+    for key, value in move.items():
+        if key not in _MOVE_FIELDS:
+            raise InputError(source, f"unknown field move.{key} (allowed: {', '.join(sorted(_MOVE_FIELDS))})")
+        move_updates[key] = _number(source, f"move.{key}", value, positive=key == "breakpoint_um")
+    if move_updates:
+        updates["move"] = replace(base.move, **move_updates)
+    reconf = data.get("reconfiguration", {})
+    if not isinstance(reconf, dict):
+        raise InputError(source, "[reconfiguration] must be a table")
+    for key, value in reconf.items():
+        if key not in _RECONF_MAP:
+            raise InputError(
+                source, f"unknown field reconfiguration.{key} (allowed: {', '.join(sorted(_RECONF_MAP))})"
+            )
+        updates[_RECONF_MAP[key]] = _number(source, f"reconfiguration.{key}", value, positive=key == "threshold_um")
+    display = data.get("display", {})
+    if not isinstance(display, dict):
+        raise InputError(source, "[display] must be a table")
+    for key, value in display.items():
+        if key != "reverse_x" or not isinstance(value, bool):
+            raise InputError(source, f"field display.{key} is unknown or not true/false")
+        updates["reverse_x"] = value
+    profile = replace(base, **updates)
+    if profile.default_hold_s not in profile.allowed_holds_s:
+        raise InputError(source, f"steps.default_hold_s {profile.default_hold_s:g} is not in steps.allowed_holds_s")
+    return profile
+
+
+def _read_toml(text: str, source: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(source, f"not valid TOML ({exc})") from None
+
+
+def _builtin_text(name: str) -> str:
+    return resources.files("core").joinpath("profiles", f"{name}.toml").read_text(encoding="utf-8")
+
+
+def load_profile(name_or_path: str | Path | None = None) -> InstrumentProfile:
+    """A built-in profile by name (``kla-imicro``, ``kla-imicro-film``) or a TOML file."""
+    key = str(name_or_path) if name_or_path is not None else "kla-imicro"
+    if key in BUILTIN_PROFILES:
+        data = _read_toml(_builtin_text(key), f"profile {key}")
+        source = f"profile {key}"
+    else:
+        path = Path(key)
+        if not path.is_file():
+            raise InputError(
+                key, f"no such profile file (built-in profiles: {', '.join(BUILTIN_PROFILES)})"
+            )
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(key, f"cannot read profile ({exc})") from None
+        data = _read_toml(text, key)
+        source = key
+    base = InstrumentProfile()
+    parent = data.get("extends")
+    if parent is not None:
+        if parent not in BUILTIN_PROFILES:
+            raise InputError(source, f"extends {parent!r} is not a built-in profile ({', '.join(BUILTIN_PROFILES)})")
+        if parent != key:
+            base = load_profile(parent)
+    return _apply(base, data, source)
+
+
+def profile_to_dict(profile: InstrumentProfile) -> dict[str, Any]:
+    """Plain-data form for the journal and JSON output."""
+    out: dict[str, Any] = {}
+    for f in fields(profile):
+        value = getattr(profile, f.name)
+        if isinstance(value, MoveModel):
+            value = {mf.name: getattr(value, mf.name) for mf in fields(MoveModel)}
+        elif isinstance(value, tuple):
+            value = list(value)
+        out[f.name] = value
+    return out
+
+
+def profile_from_dict(data: dict[str, Any]) -> InstrumentProfile:
+    kwargs = dict(data)
+    kwargs["move"] = MoveModel(**kwargs["move"])
+    kwargs["allowed_holds_s"] = tuple(kwargs["allowed_holds_s"])
+    return InstrumentProfile(**kwargs)
+
+
+@dataclass(frozen=True)
+class MoveFit:
+    model: MoveModel
+    n_points: int
+    rmse_s: float
+
+
+def fit_move_model(csv_path: str | Path, base: MoveModel | None = None) -> MoveFit:
+    """Fit the piecewise move-time model to a lab's measured ``distance_um, seconds`` pairs."""
+    from scipy.optimize import curve_fit
+
+    base = base or MoveModel()
+    source = str(csv_path)
+    try:
+        with open(csv_path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            header = [h.strip() for h in (reader.fieldnames or [])]
+            if "distance_um" not in header or "seconds" not in header:
+                raise InputError(source, f"needs columns distance_um, seconds; found {', '.join(header) or 'none'}")
+            rows: list[tuple[float, float]] = []
+            for lineno, raw in enumerate(reader, start=2):
+                row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+                try:
+                    d, s = float(row["distance_um"]), float(row["seconds"])
+                except ValueError:
+                    raise InputError(source, f"line {lineno}: distance_um and seconds must be numbers") from None
+                if not (math.isfinite(d) and math.isfinite(s)) or d < 0 or s < 0:
+                    raise InputError(source, f"line {lineno}: distance_um and seconds must be finite and ≥ 0")
+                rows.append((d, s))
+    except OSError as exc:
+        raise InputError(source, f"cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise InputError(source, "not a UTF-8 text CSV") from None
+    if len(rows) < 4:
+        raise InputError(source, f"needs at least 4 measured moves, found {len(rows)}")
+    d = np.array([r[0] for r in rows])
+    s = np.array([r[1] for r in rows])
+    bp = base.breakpoint_um
+    short, long_ = d < bp, d >= bp
+    a, b, c = base.short_a, base.short_b, base.short_c
+    if short.sum() >= 3:
+        # a·exp(b·d) − c is nearly linear over the short range; fit slope and offset with a fixed and
+        # recover (b, c), which keeps the fit well-conditioned.
+        def f_short(x: np.ndarray, slope: float, offset: float) -> np.ndarray:
+            return a * np.exp((slope / a) * x) - (a - offset)
+
+        (slope, offset), _ = curve_fit(f_short, d[short], s[short], p0=(a * b, a - c))
+        b, c = slope / a, a - offset
+    slope_l, icpt_l = base.long_slope, base.long_intercept
+    if long_.sum() >= 2:
+        slope_l, icpt_l = (float(v) for v in np.polyfit(d[long_], s[long_], 1))
+    model = MoveModel(float(a), float(b), float(c), float(slope_l), float(icpt_l), bp)
+    resid = model.axis_s_array(d) - s
+    return MoveFit(model=model, n_points=len(rows), rmse_s=float(np.sqrt(np.mean(resid**2))))

@@ -1,0 +1,144 @@
+"""The read side of a run: frozen snapshots that the console renders and replay steps through.
+
+The engine writes a journal; a reader turns the journal into these records. The console never talks
+to the engine directly, so it can attach to a live run, a finished run or a replay alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from core.plan import Block, Decision, IndentSpec, PlannerSettings
+
+
+class EngineState(str, Enum):
+    IDLE = "idle"
+    RUNNING = "running"
+    PAUSING = "pausing"
+    PAUSED = "paused"
+    AWAITING_APPROVAL = "awaiting-approval"
+    STOPPING = "stopping"
+    STOPPED = "stopped"
+    FAILED = "failed"
+
+    @property
+    def label(self) -> str:
+        """What the status bar shows: the state in capitals."""
+        return self.value.replace("-", " ").upper()
+
+
+class CommandKind(str, Enum):
+    PAUSE = "pause"
+    RESUME = "resume"
+    APPROVE = "approve"
+    VETO = "veto"
+    ADJUST = "adjust"
+    STEP = "step"  # in step mode: run one block
+    STOP_AFTER_BLOCK = "stop-after-block"
+    ABORT = "abort"
+
+
+@dataclass(frozen=True)
+class Command:
+    """An operator command, as the console sends it and the journal records it."""
+
+    kind: CommandKind
+    author: str  # OS user
+    payload: dict[str, object] = field(default_factory=dict)  # adjust: field -> value; veto: centre
+    shown_scores: dict[str, float] = field(default_factory=dict)  # what the operator saw when deciding
+
+
+@dataclass(frozen=True)
+class QueueItem:
+    block_id: int
+    indent_index: int
+    spec: IndentSpec
+    grid_g: int
+    eta_s: float  # instrument seconds from now until this indent finishes
+
+
+@dataclass(frozen=True)
+class DriftStatus:
+    last_rate_nm_s: float | None
+    hold_mode: str  # "fixed 80 s", "adaptive: fast", ...
+    area_error_pct: float | None
+    threshold_pct: float = 2.0
+    events: tuple[tuple[float, float], ...] = ()  # (instrument t_s, drift rate nm/s) of detected events
+
+
+@dataclass(frozen=True)
+class GpStatus:
+    lengthscales_um: tuple[float, ...] = ()
+    noise_lengthscales_um: tuple[float, ...] = ()
+    collapse_alarm: bool = False
+    collapse_reason: str = ""
+    refit_s: float | None = None
+    snapshot_id: int | None = None  # id of the stored map fields for this fit
+
+
+@dataclass(frozen=True)
+class LogEvent:
+    wall_utc: str
+    t_s: float
+    level: str  # info, warn, error, command, decision
+    text: str
+
+
+@dataclass(frozen=True)
+class TestedCenter:
+    x_um: float
+    y_um: float
+    block_id: int
+    median_gpa: float
+
+
+@dataclass(frozen=True)
+class RunSnapshot:
+    """Everything the console shows, read at one moment."""
+
+    run_name: str
+    journal_path: str
+    state: EngineState
+    supervision: str  # auto | supervised | step
+    policy: str
+    profile_name: str
+    owner: str
+    can_command: bool  # the reader is the run's owner
+    instrument_s: float
+    wall_s: float
+    n_indents: int
+    n_blocks: int
+    reconfigurations: int
+    ledger: dict[str, float]
+    grid_baseline_s: float
+    queue: tuple[QueueItem, ...]
+    current_block: Block | None
+    pending: Decision | None  # waiting for approve / veto
+    last_decision: Decision | None
+    drift: DriftStatus
+    gp: GpStatus
+    mape_pct: float | None  # emulator runs only
+    max_found_gpa: float | None
+    tested: tuple[TestedCenter, ...]
+    settings: PlannerSettings
+    log: tuple[LogEvent, ...]
+    stage_bounds_um: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max of the calibrated area
+    reverse_x: bool
+    finished: bool  # the engine process has ended (stopped, failed, or done)
+
+
+@dataclass(frozen=True)
+class MapFields:
+    """The GP's four fields on the display lattice (Figure 8 a–d), in stage µm."""
+
+    snapshot_id: int
+    x_um: np.ndarray  # (nx,) column coordinates
+    y_um: np.ndarray  # (ny,) row coordinates
+    mean_gpa: np.ndarray  # (ny, nx)
+    epistemic_sd_gpa: np.ndarray
+    noise_sd_gpa: np.ndarray
+    total_sd_gpa: np.ndarray
+    next_candidate_um: tuple[float, float] | None = None

@@ -1,0 +1,1 @@
+"""Instrument drivers: simulated, KLA, replay. Never import the console."""

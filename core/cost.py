@@ -149,6 +149,13 @@ def price_sequence(
     return ledger
 
 
+def block_costs_for(
+    profile: InstrumentProfile, block: Block, start_um: tuple[float, float], program_open: bool
+) -> float:
+    """Seconds of one block from the current position, without the final comeback."""
+    return float(sum(s.seconds for s in block_steps(profile, block, start_um, program_open)))
+
+
 def price_block(
     profile: InstrumentProfile,
     block: Block,

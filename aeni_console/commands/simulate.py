@@ -1,0 +1,162 @@
+"""``aeni simulate``: one headless emulator campaign, start to finish."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from typing import Any
+
+from aeni_console.commands.common import dumps, ledger_table
+
+NOISE_CHOICES = ("hetero", "homo", "10pct")
+
+
+def _budget(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--budget-s must be a number of seconds, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"--budget-s must be > 0, got {text}")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seed must be a whole number, got {text!r}") from None
+    if not 0 <= v < 2**32:
+        raise argparse.ArgumentTypeError(f"--seed must be from 0 to 4294967295, got {v}")
+    return v
+
+
+def _progress(done_s: float, budget_s: float, blocks: int, mape: float | None, start: float) -> None:
+    frac = min(done_s / budget_s, 1.0) if budget_s else 0.0
+    width = 30
+    bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
+    m = f"{mape:5.2f} %" if mape is not None else "  —   "
+    sys.stderr.write(
+        f"\r[{bar}] {100 * frac:5.1f}%  t={done_s / 3600:6.1f} h  blocks={blocks:4d}  MAPE={m}  wall={time.monotonic() - start:5.1f} s"
+    )
+    sys.stderr.flush()
+
+
+def run_simulation(
+    policy: str,
+    seed: int,
+    scenario: str = "ternary",
+    truth: str | None = None,
+    noise: str | None = None,
+    drift: str | None = None,
+    budget_s: float | None = None,
+    lattice_n: int | None = None,
+    profile: str | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """One campaign; the dict has the CLI's JSON keys (a contract)."""
+    from core.campaign import Campaign, CampaignConfig, run_headless
+    from core.plan import PlannerSettings
+
+    config = CampaignConfig(
+        policy=policy,
+        scenario="csv" if truth else scenario,
+        noise=noise,
+        drift=drift,
+        truth_csv=truth,
+        seed=seed,
+        profile=profile,
+        lattice_n=lattice_n,
+        settings=PlannerSettings(budget_s=budget_s),
+    )
+    campaign = Campaign(config)
+    driver = campaign.make_sim_driver()
+    start = time.monotonic()
+    budget = campaign.settings.budget_s or campaign.grid_baseline_s
+
+    def on_block(decision: Any, results: Any, report: Any, res: Any) -> None:
+        if progress:
+            mape = res.trajectory[-1][1] if res.trajectory else None
+            _progress(res.instrument_s, budget, res.blocks, mape, start)
+
+    result = run_headless(campaign, driver, track_mape=True, on_block=on_block)
+    if progress:
+        sys.stderr.write("\n")
+    mape, max_found = campaign.metrics()
+    return {
+        "policy": policy,
+        "scenario": config.scenario,
+        "seed": seed,
+        "profile": campaign.profile.name,
+        "instrument_s": result.instrument_s,
+        "indents": result.indents,
+        "blocks": result.blocks,
+        "reconfigurations": result.ledger.reconfigurations,
+        "ledger": result.ledger.as_dict(),
+        "final_mape_pct": mape,
+        "max_found_gpa": max_found,
+        "true_max_gpa": float(campaign.scenario.truth.hardness_gpa(*_argmax_truth(campaign))),
+        "grid_baseline_s": campaign.grid_baseline_s,
+        "stop_reason": result.stop_reason,
+        "wall_s": time.monotonic() - start,
+        "trajectory": [{"t_s": t, "mape_pct": m} for t, m in result.trajectory],
+        "_ledger_obj": result.ledger,
+    }
+
+
+def _argmax_truth(campaign: Any) -> tuple[float, float]:
+    from core.emulator import truth_on_lattice
+
+    xs, ys, h = truth_on_lattice(campaign.scenario.truth, 100)
+    j, i = divmod(int(h.argmax()), h.shape[1])
+    return float(xs[i]), float(ys[j])
+
+
+def _handler(args: argparse.Namespace) -> int:
+    out = run_simulation(
+        policy=args.policy,
+        seed=args.seed,
+        scenario=args.scenario,
+        truth=args.truth,
+        noise=args.noise,
+        drift=args.drift,
+        budget_s=args.budget_s,
+        lattice_n=args.lattice_n,
+        profile=args.profile,
+        progress=not args.json and sys.stderr.isatty(),
+    )
+    ledger = out.pop("_ledger_obj")
+    if args.json:
+        print(dumps(out))
+        return 0
+    print(f"policy {out['policy']} on {out['scenario']} (seed {out['seed']}, profile {out['profile']})")
+    print(f"stopped: {out['stop_reason']}")
+    print(
+        f"instrument time {out['instrument_s']:,.0f} s ({out['instrument_s'] / 3600:.1f} h); "
+        f"grid baseline {out['grid_baseline_s']:,.0f} s"
+    )
+    print(f"{out['indents']} indents in {out['blocks']} blocks, {out['reconfigurations']} reconfigurations")
+    mape = out["final_mape_pct"]
+    print(f"final MAPE {mape:.2f} %" if mape is not None else "final MAPE: no model")
+    print(f"max hardness found {out['max_found_gpa']:.3f} GPa (true max {out['true_max_gpa']:.3f} GPa)")
+    print(ledger_table(ledger))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from core.policies.registry import policy_names
+
+    p = sub.add_parser("simulate", help="run one headless emulator campaign")
+    p.add_argument("--policy", choices=policy_names(), default="cost-aware")
+    p.add_argument("--seed", type=_seed, default=0)
+    p.add_argument("--scenario", default="ternary", help="emulator scenario (see `aeni scenarios`)")
+    p.add_argument("--truth", default=None, metavar="FILE.csv", help="ground truth CSV: x_um, y_um, hardness_gpa[, noise_sd_gpa]")
+    p.add_argument("--noise", choices=NOISE_CHOICES, default=None, help="noise scenario override")
+    p.add_argument("--drift", choices=("none", "good", "bad"), default=None, help="drift scenario override")
+    p.add_argument("--budget-s", type=_budget, default=None, help="instrument-time budget (default: the grid baseline's time)")
+    p.add_argument("--lattice-n", type=int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--profile", default=None, help="instrument profile name or TOML file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_handler)

@@ -1,0 +1,374 @@
+"""The planner loop that an engine (or a headless simulation) drives block by block.
+
+A Campaign owns the model side of a run: scenario, calibration, candidate lattice, surrogate and
+policy. It proposes a block, is told what the instrument measured, refits, and proposes again.
+It never touches an instrument: the driver does that, and the engine moves data between them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from core.cost import CostLedger, grid_baseline_blocks, price_sequence
+from core.emulator import Scenario, make_scenario, truth_on_lattice
+from core.errors import InputError
+from core.geometry import CandidateLattice
+from core.metrics import mape_pct
+from core.plan import Block, Decision, IndentResult, PlannerSettings
+from core.policies.base import DEFAULT_PITCH_UM, PlanContext
+from core.policies.registry import make_policy
+from core.profile import InstrumentProfile, load_profile
+from core.runview import MapFields
+from core.settings import adjust_settings, settings_from_dict, settings_to_dict
+from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
+
+VETO_HOLD_BLOCKS = 3
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    """What defines a run; stored in the journal as JSON."""
+
+    policy: str = "cost-aware"
+    scenario: str = "ternary"
+    noise: str | None = None
+    drift: str | None = None
+    truth_csv: str | None = None
+    seed: int = 0
+    profile: str | None = None
+    lattice_n: int | None = None
+    settings: PlannerSettings = field(default_factory=PlannerSettings)
+    name: str = "run"
+
+
+def campaign_config_to_dict(cfg: CampaignConfig) -> dict[str, Any]:
+    d = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
+    d["settings"] = settings_to_dict(cfg.settings)
+    return d
+
+
+def campaign_config_from_dict(data: dict[str, Any]) -> CampaignConfig:
+    d = dict(data)
+    d["settings"] = settings_from_dict(d.get("settings", {}))
+    return CampaignConfig(**d)
+
+
+@dataclass(frozen=True)
+class CentreRecord:
+    """One executed block collapsed to a robust value (the GP's training row)."""
+
+    block_id: int
+    x_um: float
+    y_um: float
+    median_gpa: float
+    spread_var_gpa2: float
+    n_indents: int
+
+
+@dataclass
+class _Veto:
+    x_um: float
+    y_um: float
+    until_blocks_done: int
+
+
+class Campaign:
+    def __init__(self, config: CampaignConfig, scenario: Scenario | None = None) -> None:
+        self.config = config
+        self.scenario = scenario or make_scenario(
+            config.scenario, config.seed, noise=config.noise, drift=config.drift, truth_csv=config.truth_csv
+        )
+        self.profile: InstrumentProfile = load_profile(config.profile or self.scenario.profile_name)
+        self.calibration = self.scenario.calibration
+        n = config.lattice_n or self.scenario.lattice_n
+        if n < 5:
+            raise InputError("lattice_n", f"{n} is too small: expected at least 5 candidates per side")
+        self.lattice = CandidateLattice.build(self.calibration, n, grid_halfwidth_um=2 * DEFAULT_PITCH_UM)
+        self.policy = make_policy(config.policy)
+        self.settings = config.settings
+        if self.settings.budget_s is None and self.settings.indent_budget is None:
+            # default horizon: the instrument time of the full grid baseline on this area
+            self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
+        pitch_uv = min(self.lattice.pitch_uv)
+        self.surrogate = HeteroskedasticGP(
+            heteroskedastic=True, lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005), seed=config.seed
+        )
+        self.centres: list[CentreRecord] = []
+        self.blocks: list[Block] = []
+        self.indents_xy: list[tuple[float, float]] = []
+        self.drift_rates: list[float] = []
+        self.vetoes: list[_Veto] = []
+        self.prediction: Prediction | None = None
+        self._last_fit: FitReport | None = None
+        self._truth_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._max_found: float | None = None
+
+    # -- static facts ----------------------------------------------------------------------------
+    @property
+    def grid_baseline_s(self) -> float:
+        x0, x1, y0, y1 = self.calibration.bounds_um
+        blocks = grid_baseline_blocks(
+            x1 - x0, y1 - y0, 9, 5, DEFAULT_PITCH_UM, self.profile.default_hold_s, origin_um=(x0, y0)
+        )
+        return price_sequence(self.profile, blocks).total_s
+
+    @property
+    def stage_bounds_um(self) -> tuple[float, float, float, float]:
+        return self.calibration.bounds_um
+
+    def start_position_um(self) -> tuple[float, float]:
+        """Where the stage starts: the calibrated area's centre under the lens."""
+        x0, x1, y0, y1 = self.calibration.bounds_um
+        return ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+
+    def make_sim_driver(self, speed: float | None = None) -> Any:
+        from core.emulator import Emulator
+        from drivers.simulated import SimulatedDriver
+
+        emulator = Emulator(
+            self.scenario.truth, self.scenario.drift, seed=self.config.seed, lateral_sd_um=self.scenario.lateral_sd_um
+        )
+        return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())
+
+    # -- planning --------------------------------------------------------------------------------
+    def _program_state(self) -> tuple[tuple[float, float] | None, float | None, int]:
+        centre: tuple[float, float] | None = None
+        hold: float | None = None
+        locals_run = 0
+        for b in self.blocks:
+            if b.kind == "global":
+                centre, hold, locals_run = (b.center_x_um, b.center_y_um), b.hold_s, 0
+            else:
+                locals_run += 1
+        return centre, hold, locals_run
+
+    def stop_reason(self, clock_s: float) -> str | None:
+        s = self.settings
+        if s.budget_s is not None and clock_s >= s.budget_s:
+            return f"instrument-time budget reached ({clock_s:,.0f} s ≥ {s.budget_s:,.0f} s)"
+        if s.indent_budget is not None and len(self.indents_xy) >= s.indent_budget:
+            return f"indent budget reached ({len(self.indents_xy)} indents)"
+        if s.sigma_target_gpa is not None and self.prediction is not None:
+            mean_sd = float(np.mean(self.prediction.epistemic_sd))
+            if mean_sd < s.sigma_target_gpa:
+                return f"mean epistemic σ {mean_sd:.4f} GPa below target {s.sigma_target_gpa:g}"
+        if s.mape_target_pct is not None:
+            mape, _ = self.metrics()
+            if mape is not None and mape <= s.mape_target_pct:
+                return f"MAPE {mape:.2f} % reached target {s.mape_target_pct:g} %"
+        return None
+
+    def context(
+        self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
+    ) -> PlanContext:
+        centre, hold, locals_run = self._program_state()
+        blocks_done = len(self.blocks)
+        avoid = tuple((v.x_um, v.y_um) for v in self.vetoes if v.until_blocks_done > blocks_done)
+        best = max((c.median_gpa for c in self.centres), default=None)
+        return PlanContext(
+            profile=self.profile,
+            calibration=self.calibration,
+            lattice=self.lattice,
+            prediction=self.prediction,
+            settings=self.settings,
+            seed=self.config.seed,
+            block_id=block_id,
+            blocks_done=blocks_done,
+            clock_s=clock_s,
+            position_um=position_um,
+            program_open=program_open,
+            program_center_um=centre,
+            program_hold_s=hold,
+            locals_in_program=locals_run,
+            tested_xy_um=np.array([(c.x_um, c.y_um) for c in self.centres]).reshape(-1, 2),
+            indents_xy_um=np.array(self.indents_xy).reshape(-1, 2),
+            best_observed_gpa=best,
+            last_drift_rate_nm_s=self.drift_rates[-1] if self.drift_rates else None,
+            avoid_xy_um=avoid + tuple(self.settings.avoid_centers_um),
+        )
+
+    def propose(
+        self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
+    ) -> Decision | None:
+        if self.stop_reason(clock_s) is not None:
+            return None
+        decision = self.policy.propose(self.context(clock_s, position_um, program_open, block_id))
+        if decision is None:
+            return None
+        s = self.settings
+        if s.budget_s is not None and clock_s + decision.predicted_cost_s > s.budget_s * 1.02:
+            # do not start a block the budget cannot pay for
+            return None
+        return decision
+
+    def veto(self, decision: Decision, hold_blocks: int = VETO_HOLD_BLOCKS) -> None:
+        b = decision.block
+        self.vetoes.append(_Veto(b.center_x_um, b.center_y_um, len(self.blocks) + hold_blocks))
+
+    def adjust(self, **changes: Any) -> PlannerSettings:
+        self.settings = adjust_settings(self.settings, changes, self.profile.allowed_holds_s)
+        return self.settings
+
+    # -- learning --------------------------------------------------------------------------------
+    def _record(self, block: Block, results: Sequence[IndentResult]) -> None:
+        if not results:
+            return
+        h = np.array([r.hardness_gpa for r in results])
+        xs = np.array([r.actual_x_um for r in results])
+        ys = np.array([r.actual_y_um for r in results])
+        self.centres.append(
+            CentreRecord(
+                block_id=block.block_id,
+                x_um=float(xs.mean()),
+                y_um=float(ys.mean()),
+                median_gpa=float(np.median(h)),
+                spread_var_gpa2=float(np.var(h, ddof=1)) if len(h) >= 2 else math.nan,
+                n_indents=len(h),
+            )
+        )
+        self.blocks.append(block)
+        self.indents_xy.extend(zip(xs.tolist(), ys.tolist(), strict=True))
+        self.drift_rates.extend(r.drift_rate_nm_s for r in results)
+        truth = self.scenario.truth.hardness_gpa(xs, ys)
+        top = float(np.max(truth))
+        self._max_found = top if self._max_found is None else max(self._max_found, top)
+
+    def observations(self) -> Observations:
+        xy = np.array([(c.x_um, c.y_um) for c in self.centres])
+        u, v = self.calibration.to_uv(xy[:, 0], xy[:, 1])
+        return Observations(
+            uv=np.column_stack([u, v]),
+            median_gpa=np.array([c.median_gpa for c in self.centres]),
+            spread_var_gpa2=np.array([c.spread_var_gpa2 for c in self.centres]),
+            n_indents=np.array([c.n_indents for c in self.centres]),
+        )
+
+    def observe_block(self, block: Block, results: Sequence[IndentResult]) -> FitReport | None:
+        """Collapse the block to its centre, refit (warm start), and predict on the lattice."""
+        self._record(block, results)
+        if len(self.centres) < 2:
+            return None
+        report = self.surrogate.fit(self.observations())
+        self._last_fit = report
+        self.prediction = self.surrogate.predict(self.lattice.uv)
+        return report
+
+    def fit_report(self) -> FitReport | None:
+        return self._last_fit
+
+    # -- views -----------------------------------------------------------------------------------
+    def predict_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> Prediction:
+        u, v = self.calibration.to_uv(x_um, y_um)
+        return self.surrogate.predict(np.column_stack([u, v]))
+
+    def metrics(self) -> tuple[float | None, float | None]:
+        """(MAPE % of the GP mean on the 100×100 truth lattice, max true hardness among indented points)."""
+        if self.prediction is None:
+            return None, self._max_found
+        if self._truth_cache is None:
+            self._truth_cache = truth_on_lattice(self.scenario.truth, 100)
+        xs, ys, truth = self._truth_cache
+        gx, gy = np.meshgrid(xs, ys)
+        pred = self.predict_stage(gx.ravel(), gy.ravel())
+        return mape_pct(pred.mean, truth.ravel()), self._max_found
+
+    def map_fields(self, snapshot_id: int, display_n: int = 50, next_candidate_um: tuple[float, float] | None = None) -> MapFields:
+        x0, x1, y0, y1 = self.calibration.bounds_um
+        xs = np.linspace(x0, x1, display_n)
+        ys = np.linspace(y0, y1, display_n)
+        gx, gy = np.meshgrid(xs, ys)
+        shape = gx.shape
+        if self.prediction is None:
+            nan = np.full(shape, np.nan)
+            return MapFields(snapshot_id, xs, ys, nan, nan, nan, nan, next_candidate_um)
+        pred = self.predict_stage(gx.ravel(), gy.ravel())
+        inside = self.calibration.contains_stage(gx.ravel(), gy.ravel())
+
+        def grid(a: np.ndarray) -> np.ndarray:
+            return np.where(inside, a, np.nan).reshape(shape).astype(np.float32)
+
+        return MapFields(
+            snapshot_id,
+            xs,
+            ys,
+            grid(pred.mean),
+            grid(pred.epistemic_sd),
+            grid(pred.noise_sd),
+            grid(pred.total_sd),
+            next_candidate_um,
+        )
+
+    # -- persistence -----------------------------------------------------------------------------
+    def export_state(self) -> dict[str, Any]:
+        return {
+            "gp": self.surrogate.hyper,
+            "vetoes": [[v.x_um, v.y_um, v.until_blocks_done] for v in self.vetoes],
+            "settings": settings_to_dict(self.settings),
+            "blocks_done": len(self.blocks),
+        }
+
+    def restore(self, state: dict[str, Any], blocks: Sequence[tuple[Block, Sequence[IndentResult]]]) -> None:
+        """Rebuild after a crash from the journal, without refitting: the next decision is what it would have been."""
+        for block, results in blocks:
+            self._record(block, results)
+        self.settings = settings_from_dict(state["settings"])
+        self.vetoes = [_Veto(float(x), float(y), int(u)) for x, y, u in state.get("vetoes", [])]
+        hyper = state.get("gp")
+        if hyper is not None and len(self.centres) >= 2:
+            self.surrogate.set_hyper(hyper, self.observations())
+            self.prediction = self.surrogate.predict(self.lattice.uv)
+
+
+@dataclass
+class HeadlessResult:
+    stop_reason: str
+    ledger: CostLedger
+    trajectory: list[tuple[float, float]]  # (instrument t_s, MAPE %) after every refit
+    instrument_s: float
+    indents: int
+    blocks: int
+    decisions: list[Decision]
+
+
+def run_headless(
+    campaign: Campaign,
+    driver: Any,
+    track_mape: bool = True,
+    on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None] | None = None,
+) -> HeadlessResult:
+    """Run a campaign to its end with no operator (``aeni simulate``, the bench)."""
+    result = HeadlessResult("", CostLedger(), [], 0.0, 0, 0, [])
+    block_id = 0
+    while True:
+        decision = campaign.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
+        if decision is None:
+            break
+        results: list[IndentResult] = []
+        for event in driver.execute_block(decision.block):
+            if isinstance(event, IndentResult):
+                results.append(event)
+            else:
+                result.ledger.add(event)
+        report = campaign.observe_block(decision.block, results)
+        result.decisions.append(decision)
+        result.blocks += 1
+        result.indents += len(results)
+        result.instrument_s = driver.clock_s()
+        if track_mape and campaign.prediction is not None:
+            mape, _ = campaign.metrics()
+            if mape is not None:
+                result.trajectory.append((driver.clock_s(), mape))
+        if on_block is not None:
+            on_block(decision, results, report, result)
+        block_id += 1
+    for event in driver.end_program():
+        result.ledger.add(event)
+    result.instrument_s = driver.clock_s()
+    result.stop_reason = campaign.stop_reason(driver.clock_s()) or "policy finished"
+    return result

@@ -1,0 +1,130 @@
+"""A virtual iMicro: the emulator for measurements and the cost model for its clock.
+
+Each step advances a virtual instrument clock by exactly what the profile prices it at, so the
+planner's predicted cost and the executed cost agree. With a speed factor the driver also sleeps
+``seconds / speed`` of wall time per step so a person can watch a run.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+from core.cost import comeback_step, indent_steps
+from core.plan import Block, IndentResult, StepRecord
+from core.profile import InstrumentProfile
+from drivers.base import DriverAborted, DriverEvent
+
+if TYPE_CHECKING:
+    from core.emulator import Emulator
+
+
+class SimulatedDriver:
+    def __init__(
+        self,
+        emulator: Emulator,
+        profile: InstrumentProfile,
+        speed: float | None = None,
+        start_um: tuple[float, float] = (0.0, 0.0),
+        clock_s: float = 0.0,
+    ) -> None:
+        if speed is not None and speed <= 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.emulator = emulator
+        self.profile = profile
+        self.speed = speed
+        self._pos = start_um
+        self._clock_s = clock_s
+        # the emulated physics (drift) runs on a clock without crash-recovery time, so a resumed run
+        # measures what an uninterrupted one would have
+        self._physics_s = clock_s
+        self._open = False
+        self._abort = threading.Event()
+
+    # -- state -----------------------------------------------------------------------------
+    def position_um(self) -> tuple[float, float]:
+        return self._pos
+
+    def clock_s(self) -> float:
+        return self._clock_s
+
+    def physics_clock_s(self) -> float:
+        return self._physics_s
+
+    def program_open(self) -> bool:
+        return self._open
+
+    def set_state(
+        self,
+        clock_s: float,
+        position_um: tuple[float, float],
+        program_open: bool,
+        physics_clock_s: float | None = None,
+    ) -> None:
+        """Restore the virtual instrument after a crash (from the journal)."""
+        self._clock_s = clock_s
+        self._physics_s = clock_s if physics_clock_s is None else physics_clock_s
+        self._pos = position_um
+        self._open = program_open
+
+    def abort(self) -> None:
+        self._abort.set()
+
+    # -- execution -------------------------------------------------------------------------
+    def _advance(self, step: StepRecord) -> StepRecord:
+        if self.speed is not None and step.seconds > 0:
+            # interruptible sleep: an abort wakes us at once
+            self._abort.wait(step.seconds / self.speed)
+        self._clock_s += step.seconds
+        if step.category != "recovery":
+            self._physics_s += step.seconds
+        return step
+
+    def recover(self, block_id: int) -> Iterator[DriverEvent]:
+        """After a crash the tip state is unknown: lift, re-engage and settle drift before continuing."""
+        p = self.profile
+        for seconds in (p.lift_s, p.engage_s, p.drift_settle_s):
+            yield self._advance(StepRecord("recovery", seconds, block_id, -1))
+        self._open = True
+
+    def execute_block(self, block: Block, start_index: int = 0) -> Iterator[DriverEvent]:
+        if self._abort.is_set():
+            raise DriverAborted("driver was aborted")
+        if block.kind == "local" and not self._open and start_index == 0:
+            raise ValueError(f"block {block.block_id} is local but the tip is not engaged")
+        if start_index > 0 and not self._open:
+            # resuming inside a block after a crash: re-engage where we are
+            yield from self.recover(block.block_id)
+        for i in range(start_index, block.n_indents):
+            steps = indent_steps(self.profile, block, i, self._pos, self._open)
+            for step in steps:
+                yield self._advance(step)
+            spec = block.indents[i]
+            self._pos = (spec.x_um, spec.y_um)
+            self._open = True
+            m = self.emulator.measure(
+                spec.x_um, spec.y_um, spec.hold_s, self._physics_s, block.block_id, i
+            )
+            yield IndentResult(
+                block_id=block.block_id,
+                indent_index=i,
+                commanded_x_um=spec.x_um,
+                commanded_y_um=spec.y_um,
+                actual_x_um=m.actual_x_um,
+                actual_y_um=m.actual_y_um,
+                hold_s=spec.hold_s,
+                hardness_gpa=m.hardness_gpa,
+                modulus_gpa=m.modulus_gpa,
+                drift_rate_nm_s=m.drift_rate_nm_s,
+                t_s=self._clock_s,
+            )
+            if self._abort.is_set():
+                # the current indent is finished: lift and stop
+                yield from self.end_program()
+                raise DriverAborted(f"aborted after indent {i} of block {block.block_id}")
+
+    def end_program(self) -> Iterator[DriverEvent]:
+        if self._open:
+            yield self._advance(comeback_step(self.profile))
+            self._open = False

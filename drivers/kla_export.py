@@ -1,0 +1,822 @@
+"""Read KLA/Agilent nanoindenter exports (InView .xlsx, NanoSuite .xls) into tidy indent records.
+
+Both programs write one workbook per sample: a ``Results`` sheet with one row per test (plus a units row
+under the header and summary rows at the bottom) and one ``Test N`` sheet per test with the raw curve.
+Column names drift between templates and versions, so every column is found through an alias table
+(case-insensitive, whitespace- and underscore-normalised) and every value is converted with the units
+row to µm / GPa / nm/s / mN / nm. NanoSuite marks invalid samples with 1.797e308; those become missing.
+
+Where the hardness comes from (``KlaIndent.source``):
+
+* ``"results"``: the Results sheet has a hardness column (Example.xls: "H Average Over Defined Range").
+* ``"curve"``: it does not (the InView template of FusedSilica.xlsx has only Pmax, target load and
+  position), so hardness is derived from the test's own sheet. If that sheet carries a CSM "Hardness"
+  channel, its average over the file's "Minimum/Maximum Calculation Depth" is used; on Example.xls this
+  reproduces NanoSuite's own Results values to 0.1 %. Otherwise (FusedSilica.xlsx: only Time, Load,
+  Depth) the Oliver-Pharr method runs on the final unload; see ``_oliver_pharr`` for why the surface is
+  re-found and how the frame compliance is obtained. On FusedSilica.xlsx this gives H ≈ 9.1 GPa and
+  E ≈ 69 GPa (handbook: ~9 and 72); the instrument's own cycle analysis in that file reads 6.5 / 49.
+
+Drift: ``drift_rate_nm_s`` comes from the Results sheet only. The curves are exported already drift-
+corrected (InView's drift-hold segment is flat to 1e-14 nm/s), and what slope remains in a NanoSuite
+drift hold is creep recovery, so neither is re-measured nor re-applied.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import openpyxl
+import pandas as pd
+from openpyxl.worksheet._read_only import ReadOnlyWorksheet
+from scipy.optimize import curve_fit
+
+from core.errors import InputError
+
+INVALID_THRESHOLD = 1.0e307  # NanoSuite writes DBL_MAX (1.797e308) for "no value"
+BERKOVICH_C0 = 24.5  # ideal Berkovich projected area A = 24.5 hc² (nm²)
+EPSILON_BERKOVICH = 0.75  # Oliver-Pharr geometry factor for a paraboloid of revolution
+DIAMOND_E_GPA = 1141.0
+DIAMOND_NU = 0.07
+DEFAULT_POISSON = 0.25  # only when the file does not state the sample's Poisson ratio
+
+SOFTWARE_INVIEW = "InView"
+SOFTWARE_NANOSUITE = "NanoSuite"
+SOFTWARE_UNKNOWN = "unknown"
+
+_XLSX_MAGIC = b"PK\x03\x04"
+_XLS_MAGIC = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
+
+
+@dataclass(frozen=True)
+class KlaIndent:
+    """One test of a KLA export; ``None`` where the file does not say (or says "invalid")."""
+
+    test_id: str
+    x_um: float | None
+    y_um: float | None
+    hardness_gpa: float | None
+    modulus_gpa: float | None
+    drift_rate_nm_s: float | None
+    max_load_mn: float | None
+    max_depth_nm: float | None
+    source: str  # "results" or "curve"
+
+
+@dataclass(frozen=True)
+class KlaExport:
+    path: str
+    software: str  # "InView" | "NanoSuite" | "unknown"
+    indents: tuple[KlaIndent, ...]
+    warnings: tuple[str, ...] = ()
+
+    def to_frame(self) -> pd.DataFrame:
+        columns = [f.name for f in fields(KlaIndent)]
+        frame = pd.DataFrame([asdict(i) for i in self.indents], columns=columns)
+        numeric = [c for c in columns if c not in ("test_id", "source")]
+        frame[numeric] = frame[numeric].astype(float)
+        return frame
+
+
+# --------------------------------------------------------------------------------------------- aliases
+
+
+def _norm(text: object) -> str:
+    """Header key: lower case, underscores and runs of whitespace collapse to one space, no apostrophes."""
+    s = str(text).replace("_", " ").replace("\u00a0", " ").replace("'", "").replace("\u2019", "")
+    return " ".join(s.split()).lower()
+
+
+_RESULT_ALIASES: dict[str, tuple[str, ...]] = {
+    "test_id": ("test", "test #", "test number", "test no", "test no.", "test id", "test name"),
+    "x_um": ("x position", "x", "x test position", "x pos", "x axis position"),
+    "y_um": ("y position", "y", "y test position", "y pos", "y axis position"),
+    "hardness_gpa": (
+        "hardness",
+        "h-it",
+        "hit",
+        "h it",
+        "h average over defined range",
+        "hardness average over defined range",
+    ),
+    "modulus_gpa": (
+        "modulus",
+        "e-it",
+        "eit",
+        "e it",
+        "e average over defined range",
+        "modulus average over defined range",
+    ),
+    "drift_rate_nm_s": ("drift rate", "drift correction"),
+    # "Maximum Displacement" and "Target Load" are the programmed limits, not measurements: not aliased.
+    "max_load_mn": ("pmax", "p max", "max load", "maximum load", "load at max load", "peak load"),
+    "max_depth_nm": (
+        "hmax",
+        "h max",
+        "max depth",
+        "maximum depth",
+        "depth at max load",
+        "displacement at max load",
+    ),
+}
+_CURVE_ALIASES: dict[str, tuple[str, ...]] = {
+    "depth": ("depth", "displacement into surface", "displacement"),
+    "load": ("load", "load on sample", "force"),
+    "time": ("time", "time on sample"),
+    "hardness": _RESULT_ALIASES["hardness_gpa"],
+    "modulus": _RESULT_ALIASES["modulus_gpa"],
+    "marker": ("markers", "marker", "segment"),
+}
+_INPUT_ALIASES: dict[str, tuple[str, ...]] = {
+    "x_um": _RESULT_ALIASES["x_um"],
+    "y_um": _RESULT_ALIASES["y_um"],
+    "poisson": ("poissons ratio of sample", "poissons ratio", "poisson ratio", "sample poissons ratio"),
+    "min_calc_depth": ("minimum calculation depth", "min calculation depth"),
+    "max_calc_depth": ("maximum calculation depth", "max calculation depth"),
+}
+_SUMMARY_LABELS = frozenset(
+    {
+        "average",
+        "mean",
+        "median",
+        "standard deviation",
+        "std dev",
+        "std. dev.",
+        "std",
+        "stdev",
+        "coefficient of variation",
+        "cov",
+        "% cov",
+        "%cov",
+        "cv",
+        "minimum",
+        "maximum",
+        "min",
+        "max",
+        "range",
+        "count",
+    }
+)
+_AREA_COEFF = re.compile(r"^area coefficient\s*(\d+)$")
+_TEST_SHEET = re.compile(r"^\s*test\s*(\d+)\s*$", re.IGNORECASE)
+_HEADER_UNIT = re.compile(r"^(.*?)\s*[\(\[]([^\)\]]*)[\)\]]\s*$")
+
+# -------------------------------------------------------------------------------------------- units
+
+_LENGTH_NM = {"nm": 1.0, "µm": 1e3, "mm": 1e6, "cm": 1e7, "m": 1e9, "a": 0.1, "å": 0.1}
+_PRESSURE_GPA = {"gpa": 1.0, "mpa": 1e-3, "kpa": 1e-6, "pa": 1e-9, "n/mm²": 1e-3, "n/mm2": 1e-3}
+_SPEED_NM_S = {"nm/s": 1.0, "µm/s": 1e3, "nm/min": 1.0 / 60.0, "a/s": 0.1}
+_FORCE_MN = {"mn": 1.0, "µn": 1e-3, "nn": 1e-6, "n": 1e3, "gf": 9.80665}
+_STIFFNESS_MN_NM = {"n/m": 1e-6, "kn/m": 1e-3, "mn/nm": 1.0, "mn/µm": 1e-3, "µn/nm": 1e-3}
+
+# target unit name and factor table per quantity (factor converts to the *first* unit of the name)
+_QUANTITY: dict[str, tuple[str, dict[str, float], float]] = {
+    "x_um": ("µm", _LENGTH_NM, 1e-3),
+    "y_um": ("µm", _LENGTH_NM, 1e-3),
+    "hardness_gpa": ("GPa", _PRESSURE_GPA, 1.0),
+    "modulus_gpa": ("GPa", _PRESSURE_GPA, 1.0),
+    "drift_rate_nm_s": ("nm/s", _SPEED_NM_S, 1.0),
+    "max_load_mn": ("mN", _FORCE_MN, 1.0),
+    "max_depth_nm": ("nm", _LENGTH_NM, 1.0),
+    "depth": ("nm", _LENGTH_NM, 1.0),
+    "load": ("mN", _FORCE_MN, 1.0),
+    "time": ("s", {"s": 1.0, "ms": 1e-3, "min": 60.0}, 1.0),
+    "hardness": ("GPa", _PRESSURE_GPA, 1.0),
+    "modulus": ("GPa", _PRESSURE_GPA, 1.0),
+    "min_calc_depth": ("nm", _LENGTH_NM, 1.0),
+    "max_calc_depth": ("nm", _LENGTH_NM, 1.0),
+    "stiffness": ("mN/nm", _STIFFNESS_MN_NM, 1.0),
+}
+
+
+def _clean_unit(unit: object) -> str:
+    """'Âµm' (UTF-8 read as Latin-1), 'μm' (Greek mu) and 'um' all mean µm."""
+    if unit is None or (isinstance(unit, float) and math.isnan(unit)):
+        return ""
+    s = str(unit).strip().replace("Âµ", "µ").replace("\u03bc", "µ").replace("Â", "")
+    if len(s) >= 2 and s[0] == "u" and s[1].isalpha():
+        s = "µ" + s[1:]
+    return s.lower()
+
+
+def _unit_factor(quantity: str, unit: object, column: str, notes: list[str]) -> float:
+    """Multiplier from the column's unit to the quantity's canonical unit; unknown units are kept as-is."""
+    target, table, scale = _QUANTITY[quantity]
+    u = _clean_unit(unit)
+    if u in ("", "none", "integer", target.lower()):
+        return 1.0
+    if u in table:
+        return table[u] * scale
+    notes.append(f"column {column!r}: unknown unit {unit!r}, read as {target}")
+    return 1.0
+
+
+# ------------------------------------------------------------------------------------------- tables
+
+
+@dataclass(frozen=True)
+class _Table:
+    """One sheet split into header, units and data rows (the data still raw objects)."""
+
+    headers: tuple[str, ...]  # as written (for messages)
+    keys: tuple[str, ...]  # normalised
+    units: tuple[object, ...]
+    data: pd.DataFrame  # positional columns 0..n-1, only the rows below header/units
+
+    def column(self, aliases: Iterable[str]) -> int | None:
+        wanted = set(aliases)
+        for i, key in enumerate(self.keys):
+            if key in wanted:
+                return i
+        return None
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+
+
+def _split_table(raw: pd.DataFrame, header_aliases: Iterable[str]) -> _Table | None:
+    """Find the header row (first of the top 10 naming a known column) and an optional units row."""
+    wanted = set(header_aliases)
+    header_row = None
+    for r in range(min(10, len(raw))):
+        if any(_norm(_HEADER_UNIT.sub(r"\1", str(v))) in wanted for v in raw.iloc[r] if isinstance(v, str)):
+            header_row = r
+            break
+    if header_row is None:
+        return None
+    headers: list[str] = []
+    units: list[object] = []
+    for v in raw.iloc[header_row]:
+        text = "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
+        m = _HEADER_UNIT.match(text)
+        headers.append(m.group(1) if m else text)
+        units.append(m.group(2) if m else None)
+    start = header_row + 1
+    if start < len(raw):
+        cells = list(raw.iloc[start])
+        has_text = any(isinstance(c, str) and c.strip() for c in cells)
+        if has_text and not any(_is_number(c) and not math.isnan(float(c)) for c in cells):
+            units = [cells[i] if units[i] is None else units[i] for i in range(len(cells))]
+            start += 1
+    data = raw.iloc[start:].reset_index(drop=True)
+    data.columns = range(data.shape[1])
+    return _Table(tuple(headers), tuple(_norm(h) for h in headers), tuple(units), data)
+
+
+def _numeric(series: pd.Series) -> np.ndarray:
+    values = np.array(pd.to_numeric(series, errors="coerce"), dtype=float)
+    values[np.abs(values) >= INVALID_THRESHOLD] = np.nan
+    return values
+
+
+def _test_key(label: object) -> str | None:
+    """'1', 1, 1.0, 'Test 001' -> '1'; other labels as written; blanks -> None."""
+    if label is None or (isinstance(label, float) and math.isnan(label)):
+        return None
+    if _is_number(label):
+        f = float(cast(float, label))
+        return str(int(f)) if f.is_integer() else str(f)
+    s = str(label).strip()
+    if not s:
+        return None
+    m = _TEST_SHEET.match(s)
+    if m:
+        return str(int(m.group(1)))
+    try:
+        f = float(s)
+    except ValueError:
+        return s
+    return str(int(f)) if f.is_integer() else s
+
+
+def _finite(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+# ------------------------------------------------------------------------------------------- curves
+
+
+@dataclass(frozen=True)
+class _Curve:
+    """One Test sheet: arrays in nm / mN / s / GPa (NaN where invalid); markers map label -> row."""
+
+    depth_nm: np.ndarray
+    load_mn: np.ndarray
+    time_s: np.ndarray | None
+    hardness_gpa: np.ndarray | None
+    modulus_gpa: np.ndarray | None
+    markers: Mapping[str, int] = field(default_factory=dict)
+
+
+def _parse_curve(raw: pd.DataFrame, sheet: str, notes: list[str]) -> _Curve | None:
+    table = _split_table(raw, _CURVE_ALIASES["load"] + _CURVE_ALIASES["depth"])
+    if table is None:
+        return None
+    cols = {name: table.column(aliases) for name, aliases in _CURVE_ALIASES.items()}
+    if cols["load"] is None or cols["depth"] is None:
+        return None
+
+    def channel(name: str) -> np.ndarray | None:
+        col = cols[name]
+        if col is None:
+            return None
+        where = f"{sheet}: {table.headers[col]}"
+        return _numeric(table.data[col]) * _unit_factor(name, table.units[col], where, notes)
+
+    markers: dict[str, int] = {}
+    if cols["marker"] is not None:
+        for row, label in enumerate(table.data[cols["marker"]]):
+            if isinstance(label, str) and label.strip():
+                markers.setdefault(_norm(label), row)
+    depth, load = channel("depth"), channel("load")
+    assert depth is not None and load is not None
+    return _Curve(depth, load, channel("time"), channel("hardness"), channel("modulus"), markers)
+
+
+def _marker(curve: _Curve, *words: str) -> int | None:
+    """Row of the first marker whose label contains all the words."""
+    for label, row in curve.markers.items():
+        if all(w in label for w in words):
+            return row
+    return None
+
+
+def _find_surface(load: np.ndarray, depth: np.ndarray, clock: np.ndarray, peak: int) -> float:
+    """Depth where the load starts its sustained rise, extrapolated back to zero load.
+
+    InView's "Surface Index" in FusedSilica.xlsx sits ~80-190 nm before contact: the depth runs up at the
+    approach velocity while the load is still noise (±0.5 µN). Taking that depth as zero is what makes
+    the instrument's own cycle analysis read 6.5 GPa on fused silica; re-zeroing gives 8.7-9 GPa.
+    On a file whose depth is already surface-referenced this returns ~0.
+    """
+    window = 5
+    head = load[: min(6, peak + 1)]
+    noise = float(np.std(head)) if head.size > 1 else 0.0
+    threshold = min(max(1e-3, 5.0 * noise), 0.02 * float(load[peak]))
+    above = (load[: peak + 1] > threshold).astype(int)
+    if above.size < window:
+        return float(depth[0])
+    runs = np.flatnonzero(np.convolve(above, np.ones(window, dtype=int), "valid") == window)
+    if runs.size == 0:
+        return float(depth[0])
+    k = int(runs[0])
+    slope, intercept = np.polyfit(clock[k : k + window], load[k : k + window], 1)
+    if slope <= 0:
+        return float(depth[k])
+    t0 = -intercept / slope
+    return float(np.interp(t0, clock[: k + 1], depth[: k + 1]))
+
+
+@dataclass(frozen=True)
+class _CurveResult:
+    hardness_gpa: float | None
+    modulus_gpa: float | None
+    max_load_mn: float | None
+    max_depth_nm: float | None
+
+
+def _power_law(u: np.ndarray, a: float, uf: float, m: float) -> np.ndarray:
+    return a * np.power(np.clip(u - uf, 1e-12, None), m)
+
+
+def _oliver_pharr(
+    curve: _Curve,
+    *,
+    test: str,
+    frame_compliance_nm_mn: float,
+    poisson: float,
+    area_coeffs: tuple[float, ...] | None,
+    notes: list[str],
+) -> _CurveResult | None:
+    """Oliver-Pharr (1992) on the last unload: P = a (h - hf)^m fitted to its top, S = dP/dh at hmax.
+
+    Why the extra steps: the surface is re-found from the load signal (see ``_find_surface``); the
+    instrument's frame compliance Cf (nm/mN) is removed from depth and stiffness (h -= P Cf,
+    1/S -= Cf) because on a stiff sample it is ~15 % of the measured compliance. The fit spans the file's
+    "Begin/End Stiffness Data" markers when present, otherwise 100 %-50 % of the peak load. Contact
+    depth hc = h - 0.75 P/S, area from the file's area function or 24.5 hc², H = P/A,
+    Er = sqrt(pi)/2 S/sqrt(A) (beta = 1, as InView/ISO 14577), E from Er with a diamond tip.
+    """
+    load, depth = curve.load_mn, curve.depth_nm
+    ok = np.isfinite(load) & np.isfinite(depth)
+    if ok.sum() < 20:
+        notes.append(f"test {test}: too few valid load-depth points for Oliver-Pharr")
+        return None
+    clock = curve.time_s if curve.time_s is not None else np.arange(load.size, dtype=float)
+    ok &= np.isfinite(clock)
+    idx = np.flatnonzero(ok)
+    load, depth, clock = load[idx], depth[idx], clock[idx]
+    remap = {row: min(int(np.searchsorted(idx, row)), idx.size - 1) for row in curve.markers.values()}
+    markers = {label: remap[row] for label, row in curve.markers.items()}
+    sub = _Curve(depth, load, clock, None, None, markers)
+
+    peak = int(np.argmax(load))
+    depth = depth - _find_surface(load, depth, clock, peak)
+
+    # unloading starts at the end of the hold: InView marks it, NanoSuite marks the first unload row
+    start = _marker(sub, "end of hold")
+    if start is None:
+        start = _marker(sub, "unload")
+    if start is None or load[start] < 0.98 * load[peak]:
+        start = peak
+        while start + 1 < load.size and load[start + 1] >= 0.998 * load[peak]:
+            start += 1
+    fit_lo = _marker(sub, "begin stiffness")
+    fit_hi = _marker(sub, "end of stiffness")
+    if fit_lo is None or fit_hi is None or not (start <= fit_lo < fit_hi):
+        fit_lo = start
+        below = np.flatnonzero(load[start:] < 0.5 * load[start])
+        fit_hi = start + int(below[0]) if below.size else load.size - 1
+    p_max, h_max = float(load[start]), float(depth[start])
+    u = depth[fit_lo : fit_hi + 1] / h_max
+    q = load[fit_lo : fit_hi + 1] / p_max
+    if u.size < 5 or h_max <= 0 or p_max <= 0:
+        notes.append(f"test {test}: no usable unloading segment")
+        return None
+    r = (q[-1] / q[0]) ** (1 / 1.5)
+    uf0 = (u[-1] - r * u[0]) / (1 - r) if r < 1 else 0.5 * u.min()
+    uf0 = float(np.clip(uf0, -0.9, u.min() - 1e-3))
+    a0 = float(q[0] / (u[0] - uf0) ** 1.5)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            (a, uf, m), _ = curve_fit(
+                _power_law, u, q, p0=(a0, uf0, 1.5), bounds=([0.0, -1.0, 1.0], [np.inf, u.min() - 1e-6, 3.0])
+            )
+    except (RuntimeError, ValueError):
+        notes.append(f"test {test}: power-law fit to the unloading curve failed")
+        return None
+    stiffness = p_max / h_max * m * a * (1.0 - uf) ** (m - 1.0)  # mN/nm
+    compliance = 1.0 / stiffness - frame_compliance_nm_mn
+    if compliance <= 0:
+        notes.append(f"test {test}: frame compliance exceeds the measured compliance; not removed")
+        compliance = 1.0 / stiffness
+        frame_compliance_nm_mn = 0.0
+    stiffness = 1.0 / compliance
+    h_max -= p_max * frame_compliance_nm_mn
+    hc = h_max - EPSILON_BERKOVICH * p_max / stiffness
+    if hc <= 0:
+        notes.append(f"test {test}: contact depth {hc:.1f} nm is not positive")
+        return None
+    if area_coeffs:
+        area = sum(c * hc ** (2.0 ** (1 - k)) for k, c in enumerate(area_coeffs))
+    else:
+        area = BERKOVICH_C0 * hc**2
+    hardness = p_max / area * 1e6  # mN/nm² -> GPa
+    er = math.sqrt(math.pi) / 2.0 * stiffness / math.sqrt(area) * 1e6
+    inv = 1.0 / er - (1 - DIAMOND_NU**2) / DIAMOND_E_GPA
+    modulus = (1 - poisson**2) / inv if inv > 0 else None
+    return _CurveResult(hardness, modulus, p_max, h_max)
+
+
+def _peak(curve: _Curve) -> tuple[float, float] | None:
+    """Peak load and the deepest point before the unload (the end of the hold at peak load)."""
+    load, depth = curve.load_mn, curve.depth_nm
+    ok = np.isfinite(load) & np.isfinite(depth)
+    if not ok.any():
+        return None
+    peak = int(np.nanargmax(np.where(ok, load, np.nan)))
+    end = peak
+    while end + 1 < load.size and ok[end + 1] and load[end + 1] >= 0.99 * load[peak]:
+        end += 1
+    return float(load[peak]), float(np.nanmax(np.where(ok, depth, np.nan)[: end + 1]))
+
+
+def _csm_average(curve: _Curve, lo_nm: float | None, hi_nm: float | None) -> _CurveResult | None:
+    """Mean of the CSM Hardness/Modulus channels over [lo, hi] nm of the loading segment.
+
+    Default band without file limits: 10-20 % of the maximum depth (the 10 % rule for films; bulk
+    samples are flat there too).
+    """
+    assert curve.hardness_gpa is not None
+    load, depth = curve.load_mn, curve.depth_nm
+    peak_values = _peak(curve)
+    if peak_values is None:
+        return None
+    p_peak, h_peak = peak_values
+    peak = int(np.nanargmax(load))
+    lo = lo_nm if lo_nm is not None else 0.1 * h_peak
+    hi = hi_nm if hi_nm is not None else 0.2 * h_peak
+    band = np.zeros(load.size, dtype=bool)
+    band[: peak + 1] = (depth[: peak + 1] >= lo) & (depth[: peak + 1] <= hi)
+
+    def mean(channel: np.ndarray | None) -> float | None:
+        if channel is None:
+            return None
+        values = channel[band & np.isfinite(channel)]
+        return float(values.mean()) if values.size else None
+
+    return _CurveResult(mean(curve.hardness_gpa), mean(curve.modulus_gpa), p_peak, h_peak)
+
+
+def _frame_compliance_from_cycles(sheets: Mapping[str, pd.DataFrame], notes: list[str]) -> float | None:
+    """Frame compliance (nm/mN) from a multi-cycle test: 1/S = Cf + k/sqrt(P) per test, median intercept.
+
+    Uses an InView "Cycles-*" sheet (Cycle Pmax, Cycle Su per "test:cycle" row) and only the cycles
+    above 10 % of the test's peak load (the shallow ones suffer from tip rounding). Each test gets its own
+    slope, so a map whose hardness varies between tests does not bias the intercept; the median shrugs off
+    a bad indent.
+    """
+    label = re.compile(r"^\s*(\d+)\s*:\s*(\d+)\s*$")
+    for name, raw in sheets.items():
+        if not _norm(name).startswith("cycles"):
+            continue
+        table = _split_table(raw, ("cycle pmax", "cycle su"))
+        if table is None:
+            continue
+        cp, cs = table.column(("cycle pmax",)), table.column(("cycle su",))
+        if cp is None or cs is None:
+            continue
+        f_p = _unit_factor("load", table.units[cp], f"{name}: Cycle Pmax", notes)
+        f_s = _unit_factor("stiffness", table.units[cs], f"{name}: Cycle Su", notes)
+        rows: dict[str, list[tuple[float, float]]] = {}
+        p_all, s_all = _numeric(table.data[cp]) * f_p, _numeric(table.data[cs]) * f_s
+        for i, cell in enumerate(table.data[0]):
+            m = label.match(str(cell))
+            if m and p_all[i] > 0 and s_all[i] > 0:
+                rows.setdefault(m.group(1), []).append((p_all[i], s_all[i]))
+        intercepts = []
+        for cycles in rows.values():
+            p, s = np.array(cycles).T
+            keep = p >= 0.1 * p.max()
+            if keep.sum() >= 3 and np.unique(p[keep]).size >= 3:
+                intercepts.append(float(np.polyfit(1 / np.sqrt(p[keep]), 1 / s[keep], 1)[1]))
+        if not intercepts:
+            continue
+        cf = float(np.median(intercepts))
+        if cf <= 0:
+            notes.append(f"frame compliance from {name!r} came out {cf:.3g} nm/mN; not used")
+            return None
+        notes.append(f"frame compliance {cf:.3f} nm/mN estimated from {name!r} ({len(intercepts)} tests)")
+        return cf
+    return None
+
+
+# ------------------------------------------------------------------------------------------- reader
+
+
+def _check_file(path: Path) -> str:
+    """Refuse early and clearly: missing, empty or not a workbook. Returns the pandas engine."""
+    if not path.is_file():
+        raise InputError(str(path), "file not found")
+    with path.open("rb") as fh:
+        head = fh.read(8)
+    if not head:
+        raise InputError(str(path), "empty file")
+    if head.startswith(_XLSX_MAGIC):
+        return "openpyxl"
+    if head == _XLS_MAGIC:
+        return "xlrd"
+    raise InputError(str(path), "not an Excel workbook (.xlsx or .xls)")
+
+
+def _read_xlsx(path: Path) -> dict[str, pd.DataFrame]:
+    """openpyxl directly, not pandas: an .xlsx stores DBL_MAX as text that parses to inf, and pandas'
+    openpyxl reader then dies on int(inf). Here inf just becomes a missing value later."""
+    book = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    try:
+        out = {}
+        for sheet in book.worksheets:
+            if isinstance(sheet, ReadOnlyWorksheet):
+                sheet.reset_dimensions()  # exporters often write a wrong <dimension>
+            out[sheet.title] = pd.DataFrame(list(sheet.iter_rows(values_only=True)))
+        return out
+    finally:
+        book.close()
+
+
+def _read_sheets(path: Path, engine: str) -> dict[str, pd.DataFrame]:
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pandas deprecates xlrd; openpyxl warns on styles
+            if engine == "openpyxl":
+                sheets = _read_xlsx(path)
+            else:
+                sheets = pd.read_excel(path, sheet_name=None, header=None, engine=engine)
+    except Exception as exc:  # the engines raise a zoo of types on corrupt files
+        raise InputError(str(path), f"unreadable Excel workbook ({type(exc).__name__}: {exc})") from exc
+    if not sheets or all(df.empty for df in sheets.values()):
+        raise InputError(str(path), "workbook has no data")
+    return {str(name): df for name, df in sheets.items()}
+
+
+def _detect_software(sheets: Mapping[str, pd.DataFrame]) -> str:
+    names = {_norm(n) for n in sheets}
+    if names & {"required inputs", "inputs editable post test"} or any(
+        re.match(r"^test 0\d+$", n) for n in names
+    ):
+        return SOFTWARE_NANOSUITE
+    if names & {"pre-test inputs", "post-test inputs", "sample summary", "sample information"} or any(
+        n.startswith("cycles-") for n in names
+    ):
+        return SOFTWARE_INVIEW
+    return SOFTWARE_UNKNOWN
+
+
+def _results_sheet(path: Path, sheets: Mapping[str, pd.DataFrame]) -> str:
+    for name in sheets:
+        if _norm(name) == "results":
+            return name
+    for name in sheets:
+        if "result" in _norm(name):
+            return name
+    raise InputError(str(path), f"no 'Results' sheet (sheets: {', '.join(sheets)})")
+
+
+def _inputs_by_test(
+    sheets: Mapping[str, pd.DataFrame], skip: set[str], notes: list[str]
+) -> dict[str, dict[str, float]]:
+    """Per-test values from the input sheets (positions, Poisson ratio, calculation depths, area function)."""
+    out: dict[str, dict[str, float]] = {}
+    for name, raw in sheets.items():
+        if name in skip or _TEST_SHEET.match(name) or _norm(name).startswith("cycles"):
+            continue
+        table = _split_table(raw, _RESULT_ALIASES["test_id"])
+        if table is None:
+            continue
+        test_col = table.column(_RESULT_ALIASES["test_id"])
+        assert test_col is not None
+        wanted: dict[str, tuple[int, float]] = {}
+        for key, aliases in _INPUT_ALIASES.items():
+            col = table.column(aliases)
+            if col is not None:
+                factor = 1.0 if key == "poisson" else _unit_factor(key, table.units[col], name, notes)
+                wanted[key] = (col, factor)
+        for i, k in enumerate(table.keys):
+            m = _AREA_COEFF.match(k)
+            if m:
+                wanted[f"area{int(m.group(1))}"] = (i, 1.0)
+        if not wanted:
+            continue
+        columns = {key: _numeric(table.data[col]) * f for key, (col, f) in wanted.items()}
+        for row, label in enumerate(table.data[test_col]):
+            test = _test_key(label)
+            if test is None or _norm(test) in _SUMMARY_LABELS:
+                continue
+            record = out.setdefault(test, {})
+            for key, values in columns.items():
+                if math.isfinite(values[row]):
+                    record.setdefault(key, float(values[row]))
+    return out
+
+
+def _area_coeffs(values: Mapping[str, float]) -> tuple[float, ...] | None:
+    """NanoSuite 'Area Coefficient k' -> (C0, C1, ...) for A = C0 hc² + C1 hc + C2 hc^½ + ..."""
+    ks = sorted(int(k[4:]) for k in values if k.startswith("area") and k[4:].isdigit())
+    if not ks or ks[0] != 1:
+        return None
+    coeffs = tuple(values[f"area{k}"] for k in range(1, ks[-1] + 1) if f"area{k}" in values)
+    return coeffs if len(coeffs) == ks[-1] and coeffs[0] > 0 else None
+
+
+def _robust_outliers(indents: list[KlaIndent], notes: list[str]) -> None:
+    values = np.array([i.hardness_gpa for i in indents if i.hardness_gpa is not None], dtype=float)
+    if values.size < 5:
+        return
+    median = float(np.median(values))
+    mad = 1.4826 * float(np.median(np.abs(values - median)))
+    for i in indents:
+        h = i.hardness_gpa
+        if h is not None and abs(h - median) > max(5 * mad, 0.25 * abs(median)):
+            notes.append(
+                f"test {i.test_id}: hardness {h:.2f} GPa is far from the file median {median:.2f} GPa "
+                "(suspect indent: surface, contamination or a bad curve)"
+            )
+
+
+def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = None) -> KlaExport:
+    """Read one KLA/Agilent export; ``frame_compliance_nm_mn`` overrides the estimate from the file."""
+    path = Path(path)
+    engine = _check_file(path)
+    sheets = _read_sheets(path, engine)
+    software = _detect_software(sheets)
+    notes: list[str] = []
+
+    res_name = _results_sheet(path, sheets)
+    table = _split_table(sheets[res_name], [a for aliases in _RESULT_ALIASES.values() for a in aliases])
+    if table is None or table.data.empty:
+        raise InputError(str(path), f"sheet {res_name!r} has no header row with known columns")
+    cols = {key: table.column(aliases) for key, aliases in _RESULT_ALIASES.items()}
+    values: dict[str, np.ndarray] = {}
+    for key, col in cols.items():
+        if col is not None and key != "test_id":
+            factor = _unit_factor(key, table.units[col], f"{res_name}: {table.headers[col]}", notes)
+            values[key] = _numeric(table.data[col]) * factor
+    area_cols = {int(m.group(1)): i for i, k in enumerate(table.keys) if (m := _AREA_COEFF.match(k))}
+
+    # rows: stop at the first summary label ("Average", "Mean", ...), skip blank rows
+    test_ids: list[tuple[int, str]] = []
+    for row in range(len(table.data)):
+        label = table.data.iat[row, cols["test_id"]] if cols["test_id"] is not None else None
+        test_key = _test_key(label)
+        if test_key is not None and _norm(test_key) in _SUMMARY_LABELS:
+            break
+        if all(not math.isfinite(v[row]) for v in values.values()) and test_key is None:
+            continue
+        test_ids.append((row, test_key if test_key is not None else str(len(test_ids) + 1)))
+    if not test_ids:
+        raise InputError(str(path), f"sheet {res_name!r} has no test rows")
+
+    inputs = _inputs_by_test(sheets, {res_name}, notes)
+    for row, test in test_ids:
+        for k, col in area_cols.items():
+            v = _numeric(table.data[col].iloc[[row]])[0]
+            if math.isfinite(v):
+                inputs.setdefault(test, {})[f"area{k}"] = float(v)
+
+    has_xy = "x_um" in values and "y_um" in values
+    if not has_xy and not any(
+        "x_um" in inputs.get(t, {}) and "y_um" in inputs.get(t, {}) for _, t in test_ids
+    ):
+        raise InputError(str(path), f"no position columns (X/Y) in {res_name!r} or any inputs sheet")
+
+    curve_sheets = {
+        sheet_key: name
+        for name in sheets
+        if (sheet_key := _test_key(name)) is not None and _TEST_SHEET.match(name)
+    }
+    need_h = "hardness_gpa" not in values
+    need_curve = need_h or "max_load_mn" not in values or "max_depth_nm" not in values
+    if need_h and not curve_sheets:
+        raise InputError(
+            str(path), f"no hardness column in {res_name!r} and no 'Test N' sheets with load-depth data"
+        )
+
+    cf = frame_compliance_nm_mn
+    cf_notes: list[str] = []
+    if need_h and cf is None:
+        cf = _frame_compliance_from_cycles(sheets, cf_notes)
+
+    indents: list[KlaIndent] = []
+    missing_curves: list[str] = []
+    used_op = False
+    for row, test in test_ids:
+
+        def get(key: str, r: int = row) -> float | None:
+            return _finite(values[key][r]) if key in values else None
+
+        extra = inputs.get(test, {})
+        x = get("x_um") if get("x_um") is not None else extra.get("x_um")
+        y = get("y_um") if get("y_um") is not None else extra.get("y_um")
+        h, e, drift, p_max, h_max = (
+            get("hardness_gpa"),
+            get("modulus_gpa"),
+            get("drift_rate_nm_s"),
+            get("max_load_mn"),
+            get("max_depth_nm"),
+        )
+        derived: _CurveResult | None = None
+        if need_curve and test in curve_sheets:
+            curve = _parse_curve(sheets[curve_sheets[test]], curve_sheets[test], notes)
+            if curve is None:
+                notes.append(f"test {test}: sheet {curve_sheets[test]!r} has no Load/Depth columns")
+            elif need_h and curve.hardness_gpa is not None and np.isfinite(curve.hardness_gpa).any():
+                derived = _csm_average(curve, extra.get("min_calc_depth"), extra.get("max_calc_depth"))
+            elif need_h:
+                poisson = extra.get("poisson")
+                if poisson is None:
+                    notes.append(f"test {test}: no Poisson ratio in the file, {DEFAULT_POISSON} assumed")
+                    poisson = DEFAULT_POISSON
+                used_op = True
+                derived = _oliver_pharr(
+                    curve,
+                    test=test,
+                    frame_compliance_nm_mn=cf or 0.0,
+                    poisson=poisson,
+                    area_coeffs=_area_coeffs(extra),
+                    notes=notes,
+                )
+            else:  # hardness from Results; the curve only fills the peak load/depth
+                peak_values = _peak(curve)
+                if peak_values is not None:
+                    derived = _CurveResult(None, None, peak_values[0], peak_values[1])
+        elif need_h:
+            missing_curves.append(test)
+        if derived is not None:
+            if need_h:
+                h, e = _finite(derived.hardness_gpa), _finite(derived.modulus_gpa)
+            p_max = p_max if p_max is not None else _finite(derived.max_load_mn)
+            h_max = h_max if h_max is not None else _finite(derived.max_depth_nm)
+        indents.append(KlaIndent(test, x, y, h, e, drift, p_max, h_max, "curve" if need_h else "results"))
+
+    if missing_curves:
+        notes.append(f"no Test sheet for test(s) {', '.join(missing_curves)}: hardness missing")
+    if used_op:
+        notes.extend(cf_notes)
+        if not cf:
+            notes.append("modulus not corrected for frame compliance (none given or estimable): reads low")
+    _robust_outliers(indents, notes)
+    return KlaExport(str(path), software, tuple(indents), tuple(dict.fromkeys(notes)))
+
+
+def records(export: KlaExport) -> list[dict[str, Any]]:
+    """JSON-ready dicts (None for missing), one per indent."""
+    return [asdict(i) for i in export.indents]

@@ -17,6 +17,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "aeni_console.commands.cost",
     "aeni_console.commands.simulate",
     "aeni_console.commands.kla",
+    "aeni_console.commands.run",
+    "aeni_console.commands.console",
 )
 
 

@@ -132,7 +132,10 @@ class Campaign:
         from drivers.simulated import SimulatedDriver
 
         emulator = Emulator(
-            self.scenario.truth, self.scenario.drift, seed=self.config.seed, lateral_sd_um=self.scenario.lateral_sd_um
+            self.scenario.truth,
+            self.scenario.drift,
+            seed=self.config.seed,
+            lateral_sd_um=self.scenario.lateral_sd_um,
         )
         return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())
 
@@ -278,7 +281,9 @@ class Campaign:
         pred = self.predict_stage(gx.ravel(), gy.ravel())
         return mape_pct(pred.mean, truth.ravel()), self._max_found
 
-    def map_fields(self, snapshot_id: int, display_n: int = 50, next_candidate_um: tuple[float, float] | None = None) -> MapFields:
+    def map_fields(
+        self, snapshot_id: int, display_n: int = 50, next_candidate_um: tuple[float, float] | None = None
+    ) -> MapFields:
         x0, x1, y0, y1 = self.calibration.bounds_um
         xs = np.linspace(x0, x1, display_n)
         ys = np.linspace(y0, y1, display_n)
@@ -340,7 +345,8 @@ def run_headless(
     campaign: Campaign,
     driver: Any,
     track_mape: bool = True,
-    on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None] | None = None,
+    on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None]
+    | None = None,
 ) -> HeadlessResult:
     """Run a campaign to its end with no operator (``aeni simulate``, the bench)."""
     result = HeadlessResult("", CostLedger(), [], 0.0, 0, 0, [])

@@ -41,7 +41,9 @@ class CostLedger:
         return {k: round(v, 6) for k, v in self.seconds.items()}
 
 
-def _indent_steps(profile: InstrumentProfile, block_id: int, index: int, spec: IndentSpec) -> Iterator[StepRecord]:
+def _indent_steps(
+    profile: InstrumentProfile, block_id: int, index: int, spec: IndentSpec
+) -> Iterator[StepRecord]:
     yield StepRecord("indent", profile.indent_base_s, block_id, index)
     if spec.hold_s > 0:
         yield StepRecord("hold", spec.hold_s, block_id, index)

@@ -5,7 +5,9 @@ from __future__ import annotations
 AREA_ERROR_THRESHOLD_PCT = 2.0
 
 
-def area_error_pct(drift_rate_nm_s: float, nominal_depth_nm: float = 100.0, t_measure_s: float = 40.0) -> float:
+def area_error_pct(
+    drift_rate_nm_s: float, nominal_depth_nm: float = 100.0, t_measure_s: float = 40.0
+) -> float:
     """|h_meas² − h_true²| / h_true² · 100 with h_true = h_meas − DR·t and h_meas the nominal depth."""
     h_meas = nominal_depth_nm
     h_true = h_meas - abs(drift_rate_nm_s) * t_measure_s

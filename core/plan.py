@@ -139,7 +139,9 @@ class PlannerSettings:
     avoid_centers_um: tuple[tuple[float, float], ...] = field(default_factory=tuple)
 
 
-def local_grid(center_x_um: float, center_y_um: float, g: int, pitch_um: float, hold_s: float) -> tuple[IndentSpec, ...]:
+def local_grid(
+    center_x_um: float, center_y_um: float, g: int, pitch_um: float, hold_s: float
+) -> tuple[IndentSpec, ...]:
     """A g×g grid centred on (x, y), in boustrophedon order so consecutive indents are one pitch apart."""
     if g < 1:
         raise ValueError(f"grid size must be ≥ 1, got {g}")

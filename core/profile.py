@@ -137,7 +137,9 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
     known = {"name", "description", "extends", "steps", "move", "reconfiguration", "display"}
     for key in data:
         if key not in known:
-            raise InputError(source, f"unknown section or field {key!r} (allowed: {', '.join(sorted(known))})")
+            raise InputError(
+                source, f"unknown section or field {key!r} (allowed: {', '.join(sorted(known))})"
+            )
     updates: dict[str, Any] = {}
     if "name" in data:
         if not isinstance(data["name"], str) or not data["name"].strip():
@@ -150,7 +152,9 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
         raise InputError(source, "[steps] must be a table")
     for key, value in steps.items():
         if key not in _STEP_FIELDS:
-            raise InputError(source, f"unknown field steps.{key} (allowed: {', '.join(sorted(_STEP_FIELDS))})")
+            raise InputError(
+                source, f"unknown field steps.{key} (allowed: {', '.join(sorted(_STEP_FIELDS))})"
+            )
         if key == "allowed_holds_s":
             if not isinstance(value, list) or not value:
                 raise InputError(source, "field steps.allowed_holds_s must be a non-empty list of seconds")
@@ -177,7 +181,9 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
             raise InputError(
                 source, f"unknown field reconfiguration.{key} (allowed: {', '.join(sorted(_RECONF_MAP))})"
             )
-        updates[_RECONF_MAP[key]] = _number(source, f"reconfiguration.{key}", value, positive=key == "threshold_um")
+        updates[_RECONF_MAP[key]] = _number(
+            source, f"reconfiguration.{key}", value, positive=key == "threshold_um"
+        )
     display = data.get("display", {})
     if not isinstance(display, dict):
         raise InputError(source, "[display] must be a table")
@@ -187,7 +193,9 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
         updates["reverse_x"] = value
     profile = replace(base, **updates)
     if profile.default_hold_s not in profile.allowed_holds_s:
-        raise InputError(source, f"steps.default_hold_s {profile.default_hold_s:g} is not in steps.allowed_holds_s")
+        raise InputError(
+            source, f"steps.default_hold_s {profile.default_hold_s:g} is not in steps.allowed_holds_s"
+        )
     return profile
 
 
@@ -211,9 +219,7 @@ def load_profile(name_or_path: str | Path | None = None) -> InstrumentProfile:
     else:
         path = Path(key)
         if not path.is_file():
-            raise InputError(
-                key, f"no such profile file (built-in profiles: {', '.join(BUILTIN_PROFILES)})"
-            )
+            raise InputError(key, f"no such profile file (built-in profiles: {', '.join(BUILTIN_PROFILES)})")
         try:
             text = path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
@@ -224,7 +230,9 @@ def load_profile(name_or_path: str | Path | None = None) -> InstrumentProfile:
     parent = data.get("extends")
     if parent is not None:
         if parent not in BUILTIN_PROFILES:
-            raise InputError(source, f"extends {parent!r} is not a built-in profile ({', '.join(BUILTIN_PROFILES)})")
+            raise InputError(
+                source, f"extends {parent!r} is not a built-in profile ({', '.join(BUILTIN_PROFILES)})"
+            )
         if parent != key:
             base = load_profile(parent)
     return _apply(base, data, source)
@@ -268,17 +276,21 @@ def fit_move_model(csv_path: str | Path, base: MoveModel | None = None) -> MoveF
             reader = csv.DictReader(fh)
             header = [h.strip() for h in (reader.fieldnames or [])]
             if "distance_um" not in header or "seconds" not in header:
-                raise InputError(source, f"needs columns distance_um, seconds; found {', '.join(header) or 'none'}")
+                raise InputError(
+                    source, f"needs columns distance_um, seconds; found {', '.join(header) or 'none'}"
+                )
             rows: list[tuple[float, float]] = []
             for lineno, raw in enumerate(reader, start=2):
                 row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
                 try:
-                    d, s = float(row["distance_um"]), float(row["seconds"])
+                    dist, secs = float(row["distance_um"]), float(row["seconds"])
                 except ValueError:
-                    raise InputError(source, f"line {lineno}: distance_um and seconds must be numbers") from None
-                if not (math.isfinite(d) and math.isfinite(s)) or d < 0 or s < 0:
+                    raise InputError(
+                        source, f"line {lineno}: distance_um and seconds must be numbers"
+                    ) from None
+                if not (math.isfinite(dist) and math.isfinite(secs)) or dist < 0 or secs < 0:
                     raise InputError(source, f"line {lineno}: distance_um and seconds must be finite and ≥ 0")
-                rows.append((d, s))
+                rows.append((dist, secs))
     except OSError as exc:
         raise InputError(source, f"cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:

@@ -7,14 +7,14 @@ to the engine directly, so it can attach to a live run, a finished run or a repl
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
 from core.plan import Block, Decision, IndentSpec, PlannerSettings
 
 
-class EngineState(str, Enum):
+class EngineState(StrEnum):
     IDLE = "idle"
     RUNNING = "running"
     PAUSING = "pausing"
@@ -30,7 +30,7 @@ class EngineState(str, Enum):
         return self.value.replace("-", " ").upper()
 
 
-class CommandKind(str, Enum):
+class CommandKind(StrEnum):
     PAUSE = "pause"
     RESUME = "resume"
     APPROVE = "approve"

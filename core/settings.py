@@ -18,7 +18,7 @@ _RULES: dict[str, tuple[str, str]] = {
     "hold_policy": ("choice", "fixed or adaptive"),
     "fixed_hold_s": ("hold", "one of the profile's holds"),
     "local_center_limit": ("int0_20", "a whole number from 0 to 20"),
-    "edge_penalty": ("unit", "a number from 0 to 1"),
+    "edge_penalty": ("unit", "a number from 0 to 0.95"),
     "budget_s": ("pos_or_none", "a number > 0 (s) or empty"),
     "indent_budget": ("posint_or_none", "a whole number > 0 or empty"),
     "sigma_target_gpa": ("pos_or_none", "a number > 0 (GPa) or empty"),
@@ -58,15 +58,15 @@ def coerce_setting(name: str, value: Any, allowed_holds_s: tuple[float, ...] = (
         raise _bad(name, value)
     if kind == "nonneg" and x < 0:
         raise _bad(name, value)
-    if kind == "unit" and not 0.0 <= x <= 1.0:
+    if kind == "unit" and not 0.0 <= x <= 0.95:
         raise _bad(name, value)
     if kind in ("int0_20", "posint_or_none"):
         if x != int(x) or (kind == "int0_20" and not 0 <= x <= 20) or (kind == "posint_or_none" and x < 1):
             raise _bad(name, value)
         return int(x)
-    if kind == "hold":
-        if not any(math.isclose(x, h) for h in allowed_holds_s):
-            raise InputError(name, f"{value!r} is not allowed: expected one of {', '.join(f'{h:g}' for h in allowed_holds_s)} s")
+    if kind == "hold" and not any(math.isclose(x, h) for h in allowed_holds_s):
+        holds = ", ".join(f"{h:g}" for h in allowed_holds_s)
+        raise InputError(name, f"{value!r} is not allowed: expected one of {holds} s")
     return x
 
 

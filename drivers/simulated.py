@@ -103,9 +103,7 @@ class SimulatedDriver:
             spec = block.indents[i]
             self._pos = (spec.x_um, spec.y_um)
             self._open = True
-            m = self.emulator.measure(
-                spec.x_um, spec.y_um, spec.hold_s, self._physics_s, block.block_id, i
-            )
+            m = self.emulator.measure(spec.x_um, spec.y_um, spec.hold_s, self._physics_s, block.block_id, i)
             yield IndentResult(
                 block_id=block.block_id,
                 indent_index=i,

@@ -28,7 +28,17 @@ def test_cost_grid_json_contract(capsys: pytest.CaptureFixture[str]) -> None:
     assert code == 0
     data = json.loads(out)
     assert data["total_s"] == pytest.approx(286_392, rel=0.005)
-    assert set(data["ledger"]) >= {"setup", "lift", "move", "engage", "drift", "indent", "hold", "reconfigure", "comeback"}
+    assert set(data["ledger"]) >= {
+        "setup",
+        "lift",
+        "move",
+        "engage",
+        "drift",
+        "indent",
+        "hold",
+        "reconfigure",
+        "comeback",
+    }
     assert sum(data["ledger"].values()) == pytest.approx(data["total_s"])
 
 
@@ -55,7 +65,9 @@ def test_cost_path_prices_the_reconfiguration(tmp_path: Path, capsys: pytest.Cap
         ("x_um,y_um\n1,inf\n", "finite"),
     ],
 )
-def test_cost_path_bad_files(tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str, needle: str) -> None:
+def test_cost_path_bad_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str, needle: str
+) -> None:
     f = tmp_path / "p.csv"
     f.write_text(content, encoding="utf-8")
     code, out, err = _run(capsys, "cost", "path", str(f), "--json")
@@ -99,7 +111,10 @@ def test_bad_profile_file_via_cli(tmp_path: Path, capsys: pytest.CaptureFixture[
 
 def test_fit_move_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     f = tmp_path / "m.csv"
-    rows = [(d, 1.36 + 2.1e-3 * d if d < 500 else 2.6 + 1.53e-4 * d) for d in (2, 10, 50, 100, 300, 600, 5000, 20000)]
+    rows = [
+        (d, 1.36 + 2.1e-3 * d if d < 500 else 2.6 + 1.53e-4 * d)
+        for d in (2, 10, 50, 100, 300, 600, 5000, 20000)
+    ]
     f.write_text("distance_um,seconds\n" + "\n".join(f"{a},{b}" for a, b in rows), encoding="utf-8")
     code, out, _ = _run(capsys, "cost", "fit-move", str(f), "--json")
     assert code == 0 and json.loads(out)["rmse_s"] < 0.05

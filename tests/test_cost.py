@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -40,7 +42,9 @@ def _three(third_dx: float) -> float:
 def test_reconfiguration_jump_at_1000_um() -> None:
     extra = _three(1000.0) - _three(990.0)
     assert extra == pytest.approx(390.0, abs=1.0)
-    ledger = price_sequence(P, [Block(0, "global", 0, 0, 0, 0, 80, (IndentSpec(0, 0, 80), IndentSpec(1000, 0, 80)))])
+    ledger = price_sequence(
+        P, [Block(0, "global", 0, 0, 0, 0, 80, (IndentSpec(0, 0, 80), IndentSpec(1000, 0, 80)))]
+    )
     assert ledger.reconfigurations == 1
 
 
@@ -88,9 +92,7 @@ def test_every_long_hop_pays_a_reconfiguration(points: list[tuple[float, float]]
     specs = tuple(IndentSpec(x, y, 5.0) for x, y in points)
     steps = block_steps(P, Block(0, "global", 0, 0, 0, 0, 5, specs), (points[0][0], points[0][1]), False)
     long_hops = sum(
-        1
-        for (x0, y0), (x1, y1) in zip(points, points[1:], strict=False)
-        if abs(x1 - x0) >= 1000 or abs(y1 - y0) >= 1000
+        1 for (x0, y0), (x1, y1) in itertools.pairwise(points) if abs(x1 - x0) >= 1000 or abs(y1 - y0) >= 1000
     )
     assert sum(1 for s in steps if s.category == "reconfigure") == long_hops
 
@@ -98,6 +100,6 @@ def test_every_long_hop_pays_a_reconfiguration(points: list[tuple[float, float]]
 def test_local_grid_is_boustrophedon_at_pitch() -> None:
     grid = local_grid(100, 200, 3, 5, 80)
     assert len(grid) == 9
-    for a, b in zip(grid, grid[1:], strict=False):
+    for a, b in itertools.pairwise(grid):
         assert abs(a.x_um - b.x_um) + abs(a.y_um - b.y_um) == pytest.approx(5.0)
     assert sum(s.x_um for s in grid) / 9 == pytest.approx(100)

@@ -63,7 +63,9 @@ def test_fit_move_model_recovers_known_parameters(tmp_path: Path) -> None:
     d = np.concatenate([rng.uniform(2, 499, 40), rng.uniform(500, 50_000, 40)])
     s = truth.axis_s_array(d) + rng.normal(0, 0.01, d.size)
     f = tmp_path / "moves.csv"
-    f.write_text("distance_um,seconds\n" + "\n".join(f"{a},{b}" for a, b in zip(d, s, strict=True)), encoding="utf-8")
+    f.write_text(
+        "distance_um,seconds\n" + "\n".join(f"{a},{b}" for a, b in zip(d, s, strict=True)), encoding="utf-8"
+    )
     fit = fit_move_model(f)
     assert fit.rmse_s < 0.02
     for dist in (5.0, 250.0, 800.0, 20_000.0):

@@ -58,7 +58,12 @@ def _grid(args: argparse.Namespace) -> int:
     return _emit(
         args,
         ledger,
-        {"profile": profile.name, "blocks": len(blocks), "indents": ledger.indents, "reconfigurations": ledger.reconfigurations},
+        {
+            "profile": profile.name,
+            "blocks": len(blocks),
+            "indents": ledger.indents,
+            "reconfigurations": ledger.reconfigurations,
+        },
     )
 
 
@@ -74,7 +79,9 @@ def _read_path(path: str, default_hold_s: float, allowed: tuple[float, ...]) -> 
     header = [h.strip() for h in (reader.fieldnames or [])]
     missing = [c for c in ("x_um", "y_um") if c not in header]
     if missing:
-        raise InputError(path, f"missing column(s) {', '.join(missing)} (found: {', '.join(header) or 'none'})")
+        raise InputError(
+            path, f"missing column(s) {', '.join(missing)} (found: {', '.join(header) or 'none'})"
+        )
     unknown = [c for c in header if c not in ("x_um", "y_um", "hold_s")]
     if unknown:
         raise InputError(path, f"unknown column(s) {', '.join(unknown)} (allowed: x_um, y_um, hold_s)")
@@ -89,7 +96,9 @@ def _read_path(path: str, default_hold_s: float, allowed: tuple[float, ...]) -> 
         if not all(math.isfinite(v) for v in (x, y, hold)):
             raise InputError(path, f"line {lineno}: values must be finite")
         if not any(math.isclose(hold, h) for h in allowed):
-            raise InputError(path, f"line {lineno}: hold_s {hold:g} is not one of {', '.join(f'{h:g}' for h in allowed)}")
+            raise InputError(
+                path, f"line {lineno}: hold_s {hold:g} is not one of {', '.join(f'{h:g}' for h in allowed)}"
+            )
         out.append(IndentSpec(x, y, hold))
     if not out:
         raise InputError(path, "no indents (the file has a header but no rows)")
@@ -103,7 +112,9 @@ def _path(args: argparse.Namespace) -> int:
     block = Block(0, "global", first.x_um, first.y_um, 0, 0.0, first.hold_s, tuple(indents))
     ledger = price_sequence(profile, [block])
     return _emit(
-        args, ledger, {"profile": profile.name, "indents": ledger.indents, "reconfigurations": ledger.reconfigurations}
+        args,
+        ledger,
+        {"profile": profile.name, "indents": ledger.indents, "reconfigurations": ledger.reconfigurations},
     )
 
 
@@ -129,10 +140,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     csub.required = True
 
     g = csub.add_parser("grid", help="price the n×n-blocks-of-g×g grid baseline")
-    g.add_argument("--blocks", type=_positive_int("--blocks", 1, 50), default=9, help="blocks per side (default 9)")
-    g.add_argument("--size", type=_positive_int("--size", 1, 10), default=5, help="indents per block side (default 5)")
-    g.add_argument("--pitch-um", type=_positive_float("--pitch-um"), default=5.0, help="indent pitch in a block")
-    g.add_argument("--area-um", type=_positive_float("--area-um"), default=1000.0, help="side of the square area")
+    g.add_argument(
+        "--blocks", type=_positive_int("--blocks", 1, 50), default=9, help="blocks per side (default 9)"
+    )
+    g.add_argument(
+        "--size", type=_positive_int("--size", 1, 10), default=5, help="indents per block side (default 5)"
+    )
+    g.add_argument(
+        "--pitch-um", type=_positive_float("--pitch-um"), default=5.0, help="indent pitch in a block"
+    )
+    g.add_argument(
+        "--area-um", type=_positive_float("--area-um"), default=1000.0, help="side of the square area"
+    )
     g.add_argument("--hold-s", type=float, default=None, help="hold per indent (default: the profile's)")
     g.add_argument("--profile", default=None, help="built-in profile name or TOML file (default kla-imicro)")
     g.add_argument("--json", action="store_true")

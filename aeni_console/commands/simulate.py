@@ -152,10 +152,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--policy", choices=policy_names(), default="cost-aware")
     p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--scenario", default="ternary", help="emulator scenario (see `aeni scenarios`)")
-    p.add_argument("--truth", default=None, metavar="FILE.csv", help="ground truth CSV: x_um, y_um, hardness_gpa[, noise_sd_gpa]")
+    p.add_argument(
+        "--truth",
+        default=None,
+        metavar="FILE.csv",
+        help="ground truth CSV: x_um, y_um, hardness_gpa[, noise_sd_gpa]",
+    )
     p.add_argument("--noise", choices=NOISE_CHOICES, default=None, help="noise scenario override")
     p.add_argument("--drift", choices=("none", "good", "bad"), default=None, help="drift scenario override")
-    p.add_argument("--budget-s", type=_budget, default=None, help="instrument-time budget (default: the grid baseline's time)")
+    p.add_argument(
+        "--budget-s",
+        type=_budget,
+        default=None,
+        help="instrument-time budget (default: the grid baseline's time)",
+    )
     p.add_argument("--lattice-n", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--profile", default=None, help="instrument profile name or TOML file")
     p.add_argument("--json", action="store_true")

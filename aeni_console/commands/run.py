@@ -1,0 +1,612 @@
+"""``aeni run | resume | replay | export | status``: the run engine as its own process, and its journal.
+
+The engine process owns one journal (``./runs/<UTC time>-<name>.sqlite`` by default). Consoles attach
+to the journal, never to the process, so an engine started with ``--detach`` outlives the terminal or
+the SSH session that started it, and ``aeni resume`` picks up a run whose process died.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from core.errors import InputError
+
+ENGINE_MODULE = "aeni_console.cli"
+_REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+# --------------------------------------------------------------------------------------------------
+# launching an engine process (used by `aeni run --detach` and by the demo console)
+
+
+def _child_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_REPO_ROOT), env.get("PYTHONPATH", "")) if p)
+    # one BLAS/torch thread: the GP is small, and a fixed thread count keeps a resumed run bit-identical
+    env.setdefault("OMP_NUM_THREADS", "1")
+    return env
+
+
+def engine_argv(
+    config: Any,
+    journal_path: str | Path,
+    supervision: str = "auto",
+    speed: float | None = None,
+    driver: str = "sim",
+) -> list[str]:
+    """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
+    from core.campaign import campaign_config_to_dict
+    from core.journal import to_json
+
+    argv = [
+        sys.executable, "-m", ENGINE_MODULE, "run",
+        "--config-json", to_json(campaign_config_to_dict(config)),
+        "--journal", str(journal_path),
+        "--supervision", supervision,
+        "--driver", driver,
+    ]  # fmt: skip
+    if speed is not None:
+        argv += ["--speed", repr(float(speed))]
+    return argv
+
+
+def start_engine_process(
+    config: Any,
+    journal_path: str | Path,
+    supervision: str = "auto",
+    speed: float | None = None,
+    detach: bool = False,
+    *,
+    log_path: str | Path | None = None,
+    wait_s: float = 60.0,
+) -> subprocess.Popen[bytes] | int:
+    """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
+
+    Output goes to ``<journal>.log``. Returns once the journal exists (so a console can attach at once):
+    the Popen handle, or with ``detach`` the PID of a process in its own session that survives the
+    caller's terminal closing. InputError when the engine exits before creating its journal.
+    """
+    journal = Path(journal_path)
+    if journal.exists():
+        raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
+    journal.parent.mkdir(parents=True, exist_ok=True)
+    log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
+    with open(log, "ab") as fh:
+        proc = subprocess.Popen(
+            engine_argv(config, journal, supervision, speed),
+            stdin=subprocess.DEVNULL,
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            start_new_session=detach,
+            env=_child_env(),
+            cwd=os.getcwd(),
+        )
+    deadline = time.monotonic() + wait_s
+    while not journal.exists() and time.monotonic() < deadline:
+        if proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    if not journal.exists() and proc.poll() is not None:
+        tail = [ln for ln in log.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
+        why = tail[-1] if tail else f"exit code {proc.returncode}"
+        raise InputError(str(journal), f"the engine did not start: {why}")
+    if detach:
+        threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
+        return proc.pid
+    return proc
+
+
+# --------------------------------------------------------------------------------------------------
+# the engine process itself
+
+
+def _prepare_process() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover
+        pass
+
+
+def _make_driver(kind: str, campaign: Any, speed: float | None) -> Any:
+    if kind == "sim":
+        return campaign.make_sim_driver(speed)
+    raise InputError("--driver", f"{kind!r} is not allowed: expected sim")
+
+
+def _print(line: str) -> None:
+    print(line, flush=True)
+
+
+def run_engine(
+    journal_path: str | Path,
+    *,
+    create: tuple[Any, Any] | None = None,
+    speed: float | None = None,
+    supervision: str | None = None,
+    quiet: bool = False,
+) -> int:
+    """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process."""
+    from core.campaign import Campaign, campaign_config_from_dict
+    from core.engine import Engine
+    from core.journal import Journal, JournalReader
+    from core.runview import EngineState
+
+    _prepare_process()
+    path = Path(journal_path)
+    if create is not None:
+        config, options = create
+        campaign = Campaign(config)
+        journal = Journal.create(
+            path,
+            config,
+            campaign.profile,
+            campaign.calibration.to_dict(),
+            supervision=options.supervision,
+            driver=options.driver,
+            speed=options.speed,
+            grid_baseline_s=campaign.grid_baseline_s,
+            stage_bounds_um=campaign.stage_bounds_um,
+            name=config.name,
+        )
+        driver_kind, sup, spd = options.driver, options.supervision, options.speed
+    else:
+        with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
+            meta = reader.meta
+            row = reader.q.engine_row()
+        if row.get("completed"):
+            _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
+            return 0
+        campaign = Campaign(campaign_config_from_dict(meta["config"]))
+        journal = Journal.open_writer(path)
+        driver_kind = str(meta.get("driver", "sim"))
+        sup = supervision or str(row.get("supervision") or "auto")
+        spd = speed if speed is not None else meta.get("speed")
+    if create is not None and speed is not None:
+        spd = speed
+    try:
+        driver = _make_driver(driver_kind, campaign, spd)
+        engine = Engine(journal, campaign, driver, supervision or sup, progress=None if quiet else _print)
+    except BaseException:
+        journal.close(compact=False)
+        raise
+    if not quiet:
+        _print(f"journal {path} (engine PID {os.getpid()}, supervision {engine.supervision})")
+    asked = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        if asked:  # a second Ctrl-C: stop now (the journal stays resumable)
+            raise KeyboardInterrupt
+        asked.append(signum)
+        engine.request_abort()
+        if not quiet:
+            _print("stopping after the current indent (press Ctrl-C again to stop at once)")
+
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(ValueError):  # not the main thread
+            previous[sig] = signal.signal(sig, on_signal)
+    try:
+        state = engine.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        journal.close()
+    if not quiet or state != EngineState.STOPPED:
+        _print(f"{state.label}: {engine.stop_reason or 'done'}")
+    return 0 if state == EngineState.STOPPED else 1
+
+
+# --------------------------------------------------------------------------------------------------
+# CLI handlers
+
+
+def resolve_run(arg: str, runs_dir: str | Path = "runs") -> Path:
+    """A journal path, or a unique part of a run's file name under ./runs."""
+    p = Path(arg)
+    if p.is_file():
+        return p
+    d = Path(runs_dir)
+    matches = sorted(d.glob(f"*{arg}*.sqlite")) if d.is_dir() and "/" not in arg else []
+    if len(matches) == 1:
+        return matches[0]
+    if len(matches) > 1:
+        names = ", ".join(m.name for m in matches[:5])
+        raise InputError(arg, f"matches {len(matches)} runs ({names}); give the journal path")
+    raise InputError(arg, f"no such journal (give a path or part of a run name under {d}/)")
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "name": args.name,
+        "campaign.policy": args.policy,
+        "campaign.seed": args.seed,
+        "campaign.scenario": args.scenario,
+        "campaign.lattice_n": args.lattice_n,
+        "planner.budget_s": args.budget_s,
+        "run.driver": args.driver,
+        "run.supervision": args.supervision,
+        "run.journal": args.journal,
+        "run.speed": args.speed,
+    }
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from core.journal import default_journal_path
+    from core.runconfig import RunOptions, load_run_config
+
+    if args.config_json is not None:  # an engine started by start_engine_process
+        from core.campaign import campaign_config_from_dict
+        from core.runconfig import parse_run_config
+
+        try:
+            config = campaign_config_from_dict(json.loads(args.config_json))
+        except (ValueError, TypeError) as exc:
+            raise InputError("--config-json", f"not a campaign config ({exc})") from None
+        flags = parse_run_config(
+            {}, "command line", {k: v for k, v in _overrides(args).items() if k.startswith("run.")}
+        )
+        options: RunOptions = flags.options
+    else:
+        rc = load_run_config(args.config, _overrides(args))
+        config, options = rc.campaign, rc.options
+    journal = (
+        Path(options.journal) if options.journal else default_journal_path(config.name, options.runs_dir)
+    )
+    if journal.exists():
+        raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
+    if args.detach:
+        pid = start_engine_process(config, journal, options.supervision, options.speed, detach=True)
+        print(f"journal {journal}")
+        print(f"engine PID {pid} (detached; log {journal.name}.log)")
+        print(f"watch: aeni status {journal}    stop: send abort from a console, or kill {pid}")
+        return 0
+    return run_engine(journal, create=(config, options), quiet=args.quiet)
+
+
+def _positive(name: str) -> Any:
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not math.isfinite(v) or v <= 0:
+            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text}")
+        return v
+
+    return parse
+
+
+def _cmd_resume(args: argparse.Namespace) -> int:
+    from core.journal import JournalReader, engine_running
+
+    path = resolve_run(args.run)
+    if engine_running(path):
+        raise InputError(str(path), "an engine is already running this journal")
+    if args.detach:
+        with JournalReader(path):
+            pass  # refuse a bad journal here, not in the log of a detached process
+        argv = [sys.executable, "-m", ENGINE_MODULE, "resume", str(path), "--quiet"]
+        if args.speed is not None:
+            argv += ["--speed", repr(args.speed)]
+        if args.supervision is not None:
+            argv += ["--supervision", args.supervision]
+        log = path.with_name(path.name + ".log")
+        with open(log, "ab") as fh:
+            proc = subprocess.Popen(
+                argv,
+                stdin=subprocess.DEVNULL,
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                env=_child_env(),
+            )
+        print(f"journal {path}")
+        print(f"engine PID {proc.pid} (detached; log {log.name})")
+        return 0
+    return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet)
+
+
+def _fmt_s(v: float | None) -> str:
+    return "—" if v is None else f"{v:,.0f} s"
+
+
+def status_line(path: str | Path) -> str:
+    from core.journal import JournalReader
+
+    with JournalReader(path) as r:
+        s = r.snapshot()
+    cur = (
+        f"block {s.current_block.block_id} ({s.current_block.kind} {s.current_block.grid_g}×{s.current_block.grid_g})"
+        if s.current_block
+        else "between blocks"
+    )
+    parts = [
+        f"{s.run_name}: {s.state.label}",
+        f"[{s.supervision}]",
+        cur,
+        f"{s.n_blocks} blocks, {s.n_indents} indents",
+        f"t={_fmt_s(s.instrument_s)}",
+    ]
+    if s.mape_pct is not None:
+        parts.append(f"MAPE {s.mape_pct:.2f} %")
+    if s.pending is not None:
+        parts.append(f"PENDING block {s.pending.block.block_id} ({s.pending.block.kind})")
+    parts.append(
+        f"owner {s.owner}" + (" (watching read-only)" if not s.finished and not s.can_command else "")
+    )
+    return "  ".join(parts)
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    print(status_line(resolve_run(args.run)))
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from core.journal import JournalReader
+
+    path = resolve_run(args.run)
+    with JournalReader(path) as r:
+        blocks = r.blocks()
+        name = r.name
+    if args.block is not None:
+        recs = [b for b in blocks if b.block.block_id == args.block]
+        if not recs:
+            raise InputError("--block", f"{args.block} is not in the run (blocks 0–{len(blocks) - 1})")
+        rec = recs[0]
+        print(_replay_line(rec))
+        if rec.decision is not None:
+            d = rec.decision
+            print(
+                f"  decision: {d.policy} [{d.phase}] score {d.score:.4g} acquisition {d.acquisition:.4g} "
+                f"predicted {d.predicted_cost_s:,.0f} s  {d.reason}"
+            )
+            for a in d.alternatives:
+                print(
+                    f"    alt {a.kind:<6} ({a.center_x_um:8.1f}, {a.center_y_um:8.1f}) score {a.score:.4g} cost {a.cost_s:,.0f} s"
+                )
+        print(f"  {'i':>3} {'x_um':>10} {'y_um':>10} {'hold_s':>6} {'H_GPa':>8} {'t_s':>10}")
+        for res in rec.results:
+            print(
+                f"  {res.indent_index:>3} {res.actual_x_um:>10.2f} {res.actual_y_um:>10.2f} {res.hold_s:>6g} "
+                f"{res.hardness_gpa:>8.3f} {res.t_s:>10,.0f}"
+            )
+        return 0
+    print(f"replay of {name}: {len(blocks)} blocks")
+    print(
+        f"{'block':>5} {'kind':<6} {'centre x,y (µm)':>20} {'g':>2} {'hold':>5} {'n':>3} {'median H':>9} "
+        f"{'block s':>9} {'t end':>10} {'MAPE':>7}  status"
+    )
+    for rec in blocks:
+        print(_replay_line(rec))
+        if args.step and sys.stdin.isatty():
+            try:
+                input("  [Enter] next block, Ctrl-D to stop ")
+            except EOFError:
+                print()
+                break
+    return 0
+
+
+def _replay_line(rec: Any) -> str:
+    b = rec.block
+    med = rec.median_gpa
+    mape = rec.fit_summary.get("mape_pct")
+    return (
+        f"{b.block_id:>5} {b.kind:<6} {f'({b.center_x_um:.0f}, {b.center_y_um:.0f})':>20} {b.grid_g:>2} "
+        f"{b.hold_s:>5g} {len(rec.results):>3} {('—' if med is None else f'{med:.3f}'):>9} "
+        f"{rec.seconds:>9,.0f} {('—' if rec.finished_t_s is None else f'{rec.finished_t_s:,.0f}'):>10} "
+        f"{('—' if mape is None else f'{mape:.2f}%'):>7}  {rec.status}"
+    )
+
+
+def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[Path]:
+    """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events."""
+    import pandas as pd
+
+    from core.journal import JournalReader
+
+    if fmt not in ("csv", "parquet"):
+        raise InputError("--format", f"{fmt!r} is not allowed: expected csv or parquet")
+    if fmt == "parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise InputError(
+                "--format", "parquet needs the pyarrow package (pip install pyarrow); use --format csv"
+            ) from None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tables: dict[str, pd.DataFrame] = {}
+    with JournalReader(path) as r:
+        cols, rows = r.table("indents")
+        ind = pd.DataFrame(rows, columns=cols)
+        ind = ind.rename(columns={"actual_x_um": "x_um", "actual_y_um": "y_um"})
+        first = [
+            "block_id",
+            "x_um",
+            "y_um",
+            "hold_s",
+            "hardness_gpa",
+            "t_s",
+            "indent_index",
+            "commanded_x_um",
+            "commanded_y_um",
+            "modulus_gpa",
+            "drift_rate_nm_s",
+            "wall_utc",
+            "session_id",
+        ]
+        tables["indents"] = ind.sort_values(["block_id", "indent_index"])[first]
+        cols, rows = r.table("blocks")
+        tables["blocks"] = pd.DataFrame(rows, columns=cols).drop(columns=["block_json"])
+        cols, rows = r.table("decisions")
+        dec = pd.DataFrame(rows, columns=cols)
+        alts = []
+        for did, dj in zip(dec["decision_id"], dec["decision_json"], strict=True):
+            for rank, a in enumerate(json.loads(dj).get("alternatives", []), start=1):
+                alts.append({"decision_id": did, "rank": rank, **a})
+        dec["n_alternatives"] = [len(json.loads(j).get("alternatives", [])) for j in dec["decision_json"]]
+        tables["decisions"] = dec.drop(columns=["decision_json"])
+        tables["alternatives"] = pd.DataFrame(
+            alts,
+            columns=[
+                "decision_id",
+                "rank",
+                "center_x_um",
+                "center_y_um",
+                "kind",
+                "score",
+                "acquisition",
+                "cost_s",
+            ],
+        )
+        cols, rows = r.table("commands")
+        tables["commands"] = pd.DataFrame(rows, columns=cols)
+        cols, rows = r.table("steps")
+        tables["ledger"] = pd.DataFrame(rows, columns=cols)
+        cols, rows = r.table("gp_snapshots")
+        snaps = pd.DataFrame(rows, columns=cols)
+        summ = [json.loads(s) for s in snaps["summary_json"]]
+        flat = pd.DataFrame(
+            [{k: (json.dumps(v) if isinstance(v, list | dict) else v) for k, v in s.items()} for s in summ]
+        )
+        tables["gp_snapshots"] = pd.concat(
+            [
+                snaps[["snapshot_id", "block_id", "wall_utc", "t_s", "hyper_json"]].reset_index(drop=True),
+                flat,
+            ],
+            axis=1,
+        )
+        for name in ("events", "sessions"):
+            cols, rows = r.table(name)
+            tables[name] = pd.DataFrame(rows, columns=cols)
+    written = []
+    for name, df in tables.items():
+        target = out / f"{name}.{fmt}"
+        tmp = out / f".{name}.{fmt}.tmp"
+        if fmt == "csv":
+            df.to_csv(tmp, index=False)
+        else:
+            df.to_parquet(tmp, index=False)
+        os.replace(tmp, target)
+        written.append(target)
+    return written
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    path = resolve_run(args.run)
+    written = export_run(path, args.out, args.format)
+    print(f"wrote {len(written)} tables to {args.out}: {', '.join(p.name for p in written)}")
+    return 0
+
+
+def _command_kinds() -> list[Any]:
+    from core.runview import CommandKind
+
+    return list(CommandKind)
+
+
+def _payload_value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def _cmd_send(args: argparse.Namespace) -> int:
+    import getpass
+
+    from core.journal import send_command
+    from core.runview import Command, CommandKind
+
+    path = resolve_run(args.run)
+    payload: dict[str, Any] = {}
+    for item in args.fields:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(item, "expected field=value (e.g. beta=2.5)")
+        payload[key] = _payload_value(value)
+    if args.kind == "adjust" and not payload:
+        raise InputError("adjust", "give at least one field=value (e.g. beta=2.5 target_sem_gpa=0.1)")
+    cid = send_command(path, Command(CommandKind(args.kind), author=getpass.getuser(), payload=payload))
+    print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    run = subparsers.add_parser(
+        "run",
+        help="run a campaign as a journaled engine process",
+        description="Run a campaign (TOML config, flags override it) as an engine process with a crash-safe journal.",
+    )
+    run.add_argument("config", nargs="?", metavar="CONFIG.toml", help="run configuration (optional)")
+    run.add_argument("--driver", help="instrument driver (sim)")
+    run.add_argument("--policy", help="planning policy")
+    run.add_argument("--seed", help="random seed")
+    run.add_argument("--scenario", help="emulator scenario")
+    run.add_argument("--lattice-n", dest="lattice_n", help="candidate lattice size per side")
+    run.add_argument("--budget-s", dest="budget_s", help="instrument-time budget in seconds")
+    run.add_argument("--supervision", help="auto | supervised | step")
+    run.add_argument("--journal", help="journal path (default ./runs/<UTC time>-<name>.sqlite)")
+    run.add_argument("--speed", help="simulated instrument speed-up (default: as fast as possible)")
+    run.add_argument("--name", help="run name")
+    run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
+    run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
+    run.add_argument("--config-json", dest="config_json", help=argparse.SUPPRESS)
+    run.set_defaults(func=_cmd_run)
+
+    res = subparsers.add_parser("resume", help="continue a run whose engine stopped or died")
+    res.add_argument("run", metavar="RUN", help="journal path or part of a run name")
+    res.add_argument("--speed", type=_positive("--speed"), help="simulated instrument speed-up")
+    res.add_argument("--supervision", choices=("auto", "supervised", "step"))
+    res.add_argument("--detach", action="store_true", help="resume in the background")
+    res.add_argument("--quiet", action="store_true")
+    res.set_defaults(func=_cmd_resume)
+
+    rep = subparsers.add_parser("replay", help="walk a recorded run block by block")
+    rep.add_argument("run", metavar="RUN")
+    rep.add_argument("--step", action="store_true", help="wait for Enter after each block")
+    rep.add_argument("--block", type=int, help="show one block in detail (decision, alternatives, indents)")
+    rep.set_defaults(func=_cmd_replay)
+
+    exp = subparsers.add_parser("export", help="write a run's journal as tidy tables")
+    exp.add_argument("run", metavar="RUN")
+    exp.add_argument("--format", choices=("csv", "parquet"), default="csv")
+    exp.add_argument("--out", required=True, type=Path, help="output directory")
+    exp.set_defaults(func=_cmd_export)
+
+    send = subparsers.add_parser(
+        "send",
+        help="send an operator command to a running engine (owner only)",
+        description="Queue an operator command in the run's journal; the engine applies it at its next checkpoint.",
+    )
+    send.add_argument("run", metavar="RUN")
+    send.add_argument(
+        "kind",
+        choices=[k.value for k in _command_kinds()],
+        metavar="COMMAND",
+        help="pause | resume | approve | veto | step | adjust | stop-after-block | abort",
+    )
+    send.add_argument(
+        "fields", nargs="*", metavar="FIELD=VALUE", help="adjust: settings to change; veto: hold_blocks=N"
+    )
+    send.set_defaults(func=_cmd_send)
+
+    st = subparsers.add_parser("status", help="one line: a run's state and progress")
+    st.add_argument("run", metavar="RUN")
+    st.set_defaults(func=_cmd_status)

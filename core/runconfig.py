@@ -1,0 +1,221 @@
+"""A run's TOML file, validated field by field, into a CampaignConfig plus the engine's run options.
+
+Layout (every section and field is optional)::
+
+    name = "ternary-demo"
+    [campaign]   # policy, scenario, noise, drift, truth_csv, seed, profile, lattice_n
+    [planner]    # the PlannerSettings knobs: target_sem_gpa, beta, hold_policy, budgets ...
+    [run]        # driver, supervision, journal, speed, runs_dir
+
+Command-line flags override the file through the same validation, so a bad flag and a bad field
+get the same one-line message naming the field, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from core.errors import InputError
+from core.plan import PlannerSettings
+
+SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
+DRIVERS: tuple[str, ...] = ("sim",)
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=False, allow_inf_nan=False)
+
+
+class CampaignSection(_Strict):
+    policy: str = "cost-aware"
+    scenario: str = "ternary"
+    noise: Literal["hetero", "homo", "10pct"] | None = None
+    drift: Literal["none", "good", "bad"] | None = None
+    truth_csv: str | None = None
+    seed: int = Field(default=0, ge=0, le=2**32 - 1)
+    profile: str | None = None
+    lattice_n: int | None = Field(default=None, ge=5, le=400)
+
+    @field_validator("policy")
+    @classmethod
+    def _policy(cls, v: str) -> str:
+        from core.policies.registry import policy_names
+
+        names = policy_names()
+        if v not in names:
+            raise ValueError(f"must be one of {', '.join(names)}")
+        return v
+
+    @field_validator("scenario")
+    @classmethod
+    def _scenario(cls, v: str) -> str:
+        from core.emulator import SCENARIOS
+
+        if v not in SCENARIOS:
+            raise ValueError(f"must be one of {', '.join(SCENARIOS)}")
+        return v
+
+
+class PlannerSection(_Strict):
+    target_sem_gpa: float = Field(default=0.05, gt=0)
+    beta: float = Field(default=4.0, ge=0)
+    hold_policy: Literal["fixed", "adaptive"] = "fixed"
+    fixed_hold_s: float = Field(default=80.0, ge=0)
+    local_center_limit: int = Field(default=5, ge=0, le=20)
+    edge_penalty: float = Field(default=0.5, ge=0, le=1)
+    budget_s: float | None = Field(default=None, gt=0)
+    indent_budget: int | None = Field(default=None, ge=1)
+    sigma_target_gpa: float | None = Field(default=None, gt=0)
+    mape_target_pct: float | None = Field(default=None, gt=0)
+    avoid_centers_um: list[tuple[float, float]] = Field(default_factory=list)
+
+
+class RunSection(_Strict):
+    driver: Literal["sim"] = "sim"
+    supervision: Literal["auto", "supervised", "step"] = "auto"
+    journal: str | None = None
+    speed: float | None = Field(default=None, gt=0)
+    runs_dir: str = "runs"
+
+
+class RunFile(_Strict):
+    name: str = Field(default="run", min_length=1, max_length=80)
+    campaign: CampaignSection = Field(default_factory=CampaignSection)
+    planner: PlannerSection = Field(default_factory=PlannerSection)
+    run: RunSection = Field(default_factory=RunSection)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How the engine runs (not what it plans)."""
+
+    driver: str = "sim"
+    supervision: str = "auto"
+    journal: str | None = None
+    speed: float | None = None  # None: as fast as possible; f: f× faster than the real instrument
+    runs_dir: str = "runs"
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    campaign: Any  # core.campaign.CampaignConfig
+    options: RunOptions
+
+
+def _allowed(model: type[BaseModel], section: tuple[str | int, ...]) -> str:
+    m: Any = model
+    for part in section:
+        field = m.model_fields.get(part) if isinstance(part, str) else None
+        if field is None or not (
+            isinstance(field.annotation, type) and issubclass(field.annotation, BaseModel)
+        ):
+            return ""
+        m = field.annotation
+    return ", ".join(m.model_fields)
+
+
+def _message(exc: ValidationError) -> str:
+    parts = []
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        name = ".".join(str(p) for p in loc) or "(top level)"
+        msg = str(err["msg"]).replace("Value error, ", "").replace("Input should be", "must be")
+        if err["type"] == "extra_forbidden":
+            allowed = _allowed(RunFile, loc[:-1])
+            parts.append(f"unknown field {name} (allowed: {allowed})")
+        elif err["type"] == "missing":
+            parts.append(f"field {name} is missing")
+        else:
+            parts.append(f"field {name} = {err.get('input')!r} is not allowed: {msg}")
+    return "; ".join(parts)
+
+
+def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
+    node = data
+    *parents, leaf = dotted.split(".")
+    for p in parents:
+        child = node.setdefault(p, {})
+        if not isinstance(child, dict):
+            raise InputError("config", f"{p} must be a table, got {child!r}")
+        node = child
+    node[leaf] = value
+
+
+def parse_run_config(
+    data: dict[str, Any],
+    source: str = "config",
+    overrides: dict[str, Any] | None = None,
+    base_dir: Path | None = None,
+) -> RunConfig:
+    """Validate a parsed TOML table (plus dotted-key overrides such as ``campaign.seed``)."""
+    from core.campaign import CampaignConfig
+
+    merged = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for dotted, value in (overrides or {}).items():
+        if value is not None:
+            _set_dotted(merged, dotted, value)
+    try:
+        rf = RunFile.model_validate(merged)
+    except ValidationError as exc:
+        raise InputError(source, _message(exc)) from None
+    p = rf.planner
+    settings = PlannerSettings(
+        target_sem_gpa=p.target_sem_gpa,
+        beta=p.beta,
+        hold_policy=p.hold_policy,
+        fixed_hold_s=p.fixed_hold_s,
+        local_center_limit=p.local_center_limit,
+        edge_penalty=p.edge_penalty,
+        budget_s=p.budget_s,
+        indent_budget=p.indent_budget,
+        sigma_target_gpa=p.sigma_target_gpa,
+        mape_target_pct=p.mape_target_pct,
+        avoid_centers_um=tuple((float(x), float(y)) for x, y in p.avoid_centers_um),
+    )
+    c = rf.campaign
+    if c.scenario == "csv" and not c.truth_csv:
+        raise InputError(source, "field campaign.truth_csv is missing: scenario 'csv' needs a truth CSV file")
+    truth_csv = c.truth_csv
+    if truth_csv is not None and base_dir is not None and not Path(truth_csv).is_absolute():
+        truth_csv = str((base_dir / truth_csv).resolve())  # relative to the config file
+    campaign = CampaignConfig(
+        policy=c.policy,
+        scenario=c.scenario,
+        noise=c.noise,
+        drift=c.drift,
+        truth_csv=truth_csv,
+        seed=c.seed,
+        profile=c.profile,
+        lattice_n=c.lattice_n,
+        settings=settings,
+        name=rf.name,
+    )
+    r = rf.run
+    options = RunOptions(
+        driver=r.driver, supervision=r.supervision, journal=r.journal, speed=r.speed, runs_dir=r.runs_dir
+    )
+    return RunConfig(campaign=campaign, options=options)
+
+
+def load_run_config(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> RunConfig:
+    """Read and validate a run TOML file (None: all defaults), then apply command-line overrides."""
+    if path is None:
+        return parse_run_config({}, "command line", overrides)
+    p = Path(path)
+    src = str(p)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(src, "no such config file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(src, f"cannot read config ({exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(src, f"not valid TOML ({exc})") from None
+    return parse_run_config(data, src, overrides, base_dir=p.parent)

@@ -1,0 +1,165 @@
+"""Run TOML files: defaults, a full file, and one clear message per bad field (field, value, what is allowed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from core.errors import InputError
+from core.runconfig import load_run_config, parse_run_config
+
+FULL = """
+name = "night-run"
+
+[campaign]
+policy = "uncertainty"
+scenario = "ternary-good-drift"
+noise = "homo"
+drift = "bad"
+seed = 7
+profile = "kla-imicro"
+lattice_n = 30
+
+[planner]
+target_sem_gpa = 0.08
+beta = 2.0
+hold_policy = "adaptive"
+fixed_hold_s = 5
+local_center_limit = 3
+edge_penalty = 0.25
+budget_s = 40000
+indent_budget = 500
+avoid_centers_um = [[100.0, 200.0]]
+
+[run]
+driver = "sim"
+supervision = "supervised"
+journal = "runs/night.sqlite"
+speed = 50
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "run.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_defaults_without_a_file() -> None:
+    rc = load_run_config(None)
+    assert rc.campaign.policy == "cost-aware" and rc.campaign.scenario == "ternary" and rc.campaign.seed == 0
+    assert rc.campaign.settings.budget_s is None and rc.campaign.name == "run"
+    assert rc.options.supervision == "auto" and rc.options.driver == "sim" and rc.options.speed is None
+
+
+def test_full_file(tmp_path: Path) -> None:
+    rc = load_run_config(write(tmp_path, FULL))
+    c, s, o = rc.campaign, rc.campaign.settings, rc.options
+    assert (c.name, c.policy, c.scenario, c.noise, c.drift, c.seed, c.lattice_n) == (
+        "night-run",
+        "uncertainty",
+        "ternary-good-drift",
+        "homo",
+        "bad",
+        7,
+        30,
+    )
+    assert (
+        s.target_sem_gpa,
+        s.beta,
+        s.hold_policy,
+        s.fixed_hold_s,
+        s.local_center_limit,
+        s.edge_penalty,
+    ) == (0.08, 2.0, "adaptive", 5.0, 3, 0.25)
+    assert s.budget_s == 40000 and s.indent_budget == 500 and s.avoid_centers_um == ((100.0, 200.0),)
+    assert (o.supervision, o.journal, o.speed) == ("supervised", "runs/night.sqlite", 50.0)
+
+
+def test_command_line_overrides_win_and_are_validated(tmp_path: Path) -> None:
+    rc = load_run_config(
+        write(tmp_path, FULL),
+        {
+            "campaign.seed": "11",
+            "planner.budget_s": "2e4",
+            "run.supervision": "step",
+            "campaign.policy": None,
+        },
+    )
+    assert (
+        rc.campaign.seed == 11
+        and rc.campaign.settings.budget_s == 20000.0
+        and rc.options.supervision == "step"
+    )
+    assert rc.campaign.policy == "uncertainty"  # None leaves the file's value
+    with pytest.raises(InputError, match=r"campaign\.seed = 'abc'"):
+        load_run_config(None, {"campaign.seed": "abc"})
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "value", "allowed"),
+    [
+        ('[campaign]\npolicy = "magic"', "campaign.policy", "'magic'", "cost-aware"),
+        ('[campaign]\nscenario = "moon"', "campaign.scenario", "'moon'", "ternary"),
+        ("[campaign]\nseed = -1", "campaign.seed", "-1", "greater than or equal to 0"),
+        ("[campaign]\nlattice_n = 2", "campaign.lattice_n", "2", "greater than or equal to 5"),
+        ('[campaign]\nnoise = "loud"', "campaign.noise", "'loud'", "'hetero', 'homo' or '10pct'"),
+        ("[planner]\nbeta = -0.5", "planner.beta", "-0.5", "greater than or equal to 0"),
+        ("[planner]\nedge_penalty = 2", "planner.edge_penalty", "2", "less than or equal to 1"),
+        ("[planner]\nbudget_s = 0", "planner.budget_s", "0", "greater than 0"),
+        (
+            '[planner]\nhold_policy = "sometimes"',
+            "planner.hold_policy",
+            "'sometimes'",
+            "'fixed' or 'adaptive'",
+        ),
+        (
+            "[planner]\nlocal_center_limit = 50",
+            "planner.local_center_limit",
+            "50",
+            "less than or equal to 20",
+        ),
+        ("[planner]\ntarget_sem_gpa = nan", "planner.target_sem_gpa", "nan", "finite"),
+        ('[run]\nsupervision = "lazy"', "run.supervision", "'lazy'", "'auto', 'supervised' or 'step'"),
+        ("[run]\nspeed = 0", "run.speed", "0", "greater than 0"),
+        ('[run]\ndriver = "kla"', "run.driver", "'kla'", "'sim'"),
+    ],
+)
+def test_each_bad_field_is_named_with_value_and_allowed(
+    tmp_path: Path, text: str, field: str, value: str, allowed: str
+) -> None:
+    path = write(tmp_path, text)
+    with pytest.raises(InputError) as info:
+        load_run_config(path)
+    msg = str(info.value)
+    assert msg.startswith(str(path)) and "\n" not in msg
+    assert f"field {field} = {value}" in msg and allowed in msg
+
+
+def test_unknown_fields_and_sections_list_what_is_allowed(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r"unknown field planner\.betta \(allowed: target_sem_gpa, beta"):
+        load_run_config(write(tmp_path, "[planner]\nbetta = 1"))
+    with pytest.raises(InputError, match=r"unknown field engine \(allowed: name, campaign, planner, run\)"):
+        load_run_config(write(tmp_path, "[engine]\nx = 1"))
+
+
+def test_all_bad_fields_are_reported_together(tmp_path: Path) -> None:
+    with pytest.raises(InputError) as info:
+        load_run_config(write(tmp_path, "[planner]\nbeta = -1\nedge_penalty = 5\n[run]\nspeed = -2"))
+    msg = str(info.value)
+    assert "planner.beta" in msg and "planner.edge_penalty" in msg and "run.speed" in msg
+
+
+def test_bad_toml_and_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_run_config(write(tmp_path, "[campaign\nseed = 1"))
+    with pytest.raises(InputError, match="no such config file"):
+        load_run_config(tmp_path / "nope.toml")
+
+
+def test_csv_scenario_needs_a_truth_file_relative_to_the_config(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r"campaign\.truth_csv is missing"):
+        parse_run_config({"campaign": {"scenario": "csv"}})
+    rc = load_run_config(write(tmp_path, '[campaign]\nscenario = "csv"\ntruth_csv = "truth.csv"'))
+    assert rc.campaign.truth_csv == str((tmp_path / "truth.csv").resolve())

@@ -1,0 +1,139 @@
+"""``aeni console RUN [--replay]`` and ``aeni demo``: the operator console on a run's journal.
+
+The console attaches to the journal, never to the engine process: leaving it (``q``) never stops the
+run, and any number of consoles may watch (only the owner's may command). ``aeni demo`` starts an
+emulator run as a detached engine process, slowed to a watchable pace, and attaches to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from core.errors import InputError
+
+SUPERVISION_CHOICES = ("auto", "supervised", "step")
+DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min) passes in about 6 s
+
+
+def _speed(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--speed must be a number, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"--speed must be > 0, got {text}")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seed must be a whole number, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"--seed must be ≥ 0, got {v}")
+    return v
+
+
+def leave_message(journal: Path, pid: int | None = None) -> str:
+    """What to print after the console closes while the engine runs on."""
+    from core.journal import JournalReader
+
+    try:
+        with JournalReader(journal) as reader:
+            state, finished = reader.state()
+    except InputError:
+        return f"journal {journal}"
+    if finished:
+        return f"The run has ended ({state.label}). Step through it: aeni console --replay {journal}"
+    lines = [
+        f"The run keeps going ({state.label}) in its own process" + (f" (PID {pid})." if pid else "."),
+        f"  reattach:  aeni console {journal}",
+        "  stop it:   reattach and press b (stop after this block) or x (abort)"
+        + (f", or: kill {pid}" if pid else ""),
+        f"  one line:  aeni status {journal}",
+    ]
+    return "\n".join(lines)
+
+
+def run_console(journal: Path, replay: bool = False, pid: int | None = None, **app_kwargs: Any) -> int:
+    from aeni_console.app import ConsoleApp
+    from aeni_console.journal_source import JournalReplay, JournalSource
+
+    source = JournalReplay(journal) if replay else JournalSource(journal)
+    try:
+        ConsoleApp(source, replay=replay, **app_kwargs).run()
+    finally:
+        source.close()
+    if not replay:
+        print(leave_message(journal, pid))
+    return 0
+
+
+def _cmd_console(args: argparse.Namespace) -> int:
+    from aeni_console.commands.run import resolve_run
+
+    return run_console(resolve_run(args.run), replay=args.replay)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from aeni_console.commands.run import start_engine_process
+    from core.campaign import CampaignConfig
+    from core.journal import default_journal_path
+
+    if args.policy is not None:
+        from core.policies.registry import policy_names
+
+        if args.policy not in policy_names():
+            raise InputError("--policy", f"{args.policy!r} is not one of {', '.join(policy_names())}")
+    config = CampaignConfig(
+        policy=args.policy or "cost-aware", scenario=args.scenario, seed=args.seed, name="demo"
+    )
+    journal = Path(args.journal) if args.journal else default_journal_path("demo", args.runs_dir)
+    print(
+        f"starting an emulator run ({config.policy}, {config.scenario}, seed {config.seed}, "
+        f"{args.supervision}, ×{args.speed:g}) → {journal}",
+        flush=True,
+    )
+    pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)
+    assert isinstance(pid, int)
+    return run_console(journal, pid=pid)
+
+
+def register(subparsers: Any) -> None:
+    con = subparsers.add_parser(
+        "console",
+        help="attach the operator console to a run (or step through a finished one)",
+        description="Watch and steer a run from its journal. Leaving (q) never stops the run.",
+    )
+    con.add_argument("run", metavar="RUN", help="journal path or part of a run name under ./runs")
+    con.add_argument("--replay", action="store_true", help="step through the run block by block (← →)")
+    con.set_defaults(func=_cmd_console)
+
+    demo = subparsers.add_parser(
+        "demo",
+        help="start an emulator run in the background and attach the console",
+        description="An emulated campaign, slowed so a person can watch it, with the console attached. "
+        "In the default supervised mode every global jump waits for you: a approves, v vetoes.",
+    )
+    demo.add_argument(
+        "--speed",
+        type=_speed,
+        default=DEMO_SPEED,
+        help=f"instrument seconds per wall second (default {DEMO_SPEED:g})",
+    )
+    demo.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    demo.add_argument("--policy", help="planning policy (default cost-aware)")
+    demo.add_argument("--scenario", default="ternary", help="emulator scenario (default ternary)")
+    demo.add_argument(
+        "--supervision",
+        choices=SUPERVISION_CHOICES,
+        default="supervised",
+        help="auto | supervised (default: global jumps wait) | step (every block waits)",
+    )
+    demo.add_argument("--journal", help="journal path (default ./runs/<UTC time>-demo.sqlite)")
+    demo.add_argument("--runs-dir", dest="runs_dir", default="runs", help=argparse.SUPPRESS)
+    demo.set_defaults(func=_cmd_demo)

@@ -1,0 +1,121 @@
+"""Decision panel: the proposal waiting for the operator (or the last one), and why the planner chose it."""
+
+from __future__ import annotations
+
+from rich.console import Group
+from rich.table import Table
+from rich.text import Text
+from textual.widgets import Static
+
+from aeni_console.widgets.fmt import bar, num, short_duration, xy
+from core.plan import Decision
+from core.runview import EngineState, RunSnapshot
+
+
+def shown_scores(decision: Decision) -> dict[str, float]:
+    """The numbers the operator saw, recorded with an approve or veto."""
+    out = {
+        "score": float(decision.score),
+        "acquisition": float(decision.acquisition),
+        "predicted_cost_s": float(decision.predicted_cost_s),
+    }
+    if decision.stay_score is not None:
+        out["stay_score"] = float(decision.stay_score)
+    if decision.jump_score is not None:
+        out["jump_score"] = float(decision.jump_score)
+    return out
+
+
+def decision_renderable(snap: RunSnapshot, width: int, replay: bool = False) -> Group | Text:
+    waiting = snap.state is EngineState.AWAITING_APPROVAL and snap.pending is not None
+    d = snap.pending if snap.pending is not None else snap.last_decision
+    parts: list[object] = []
+    if snap.gp.collapse_alarm:
+        alarm = Text()
+        alarm.append("⚠ length-scale collapse", style="bold red")
+        alarm.append(f": {snap.gp.collapse_reason or 'a length-scale fell below its floor'}\n")
+        alarm.append("approve keeps the last good hyper-parameters; e adjusts; x aborts", style="italic")
+        parts.append(alarm)
+    if d is None:
+        parts.append(Text("no decision yet: the planner is waiting for data", style="dim"))
+        return Group(*parts)  # type: ignore[arg-type]
+    b = d.block
+    head = Text(no_wrap=True, overflow="ellipsis")
+    if replay and snap.pending is not None:
+        head.append(" NEXT ", style="bold black on cyan")
+    elif waiting:
+        head.append(" PROPOSAL ", style="bold white on magenta")
+    else:
+        head.append(" pending " if snap.pending is not None else " last ", style="reverse")
+    head.append(" ")
+    head.append(
+        "GLOBAL JUMP" if d.is_global_jump else "stay (local)",
+        style="bold yellow" if d.is_global_jump else "bold green",
+    )
+    head.append(f" {xy(b.center_x_um, b.center_y_um)} µm")
+    parts.append(head)
+    line = Text(no_wrap=True, overflow="ellipsis")
+    line.append(f"#{b.block_id} {b.grid_g}×{b.grid_g} @{b.pitch_um:g}µm · {b.hold_s:g} s hold · ")
+    line.append(f"≈{short_duration(d.predicted_cost_s)}", style="bold")
+    parts.append(line)
+    sc = Text(no_wrap=True, overflow="ellipsis")
+    sc.append(f"score {num(d.score)}", style="bold")
+    sc.append(f" · acq {num(d.acquisition)} · {d.policy}")
+    if d.phase:
+        sc.append(f" · {d.phase}", style="dim")
+    parts.append(sc)
+    if d.stay_score is not None or d.jump_score is not None:
+        top = max(v for v in (d.stay_score, d.jump_score, 1e-12) if v is not None)
+        w = max(min((width - 28) // 2, 14), 3)
+        t = Text(no_wrap=True, overflow="ellipsis")
+        for name, val, style in (("stay", d.stay_score, "green"), ("jump", d.jump_score, "yellow")):
+            t.append(f"{name} ", style="bold")
+            if val is None:
+                t.append("–" + " " * (w + 8))
+            else:
+                t.append(bar(val / top, w), style=style)
+                t.append(f" {num(val):<7}")
+            t.append(" ")
+        parts.append(t)
+    if d.reason:
+        parts.append(Text(d.reason, style="italic", no_wrap=True, overflow="ellipsis"))
+    if d.alternatives:
+        table = Table(box=None, padding=(0, 1), show_edge=False, expand=False, header_style="bold dim")
+        table.add_column("next best")
+        table.add_column("kind")
+        table.add_column("score", justify="right")
+        table.add_column("cost", justify="right")
+        for alt in d.alternatives[:3]:
+            table.add_row(
+                xy(alt.center_x_um, alt.center_y_um), alt.kind, num(alt.score), short_duration(alt.cost_s)
+            )
+        parts.append(table)
+    return Group(*parts)  # type: ignore[arg-type]
+
+
+class DecisionPanel(Static):
+    """The pending proposal, stay-vs-jump scores, predicted cost and the next-best alternatives."""
+
+    BORDER_TITLE = "Decision"
+
+    snap: RunSnapshot | None = None
+    replay = False  # in replay the pending decision is the one the planner made after this block
+
+    def on_resize(self) -> None:
+        if self.snap is not None:
+            self.show(self.snap)
+
+    def show(self, snap: RunSnapshot) -> None:
+        self.snap = snap
+        self.update(decision_renderable(snap, max(self.size.width - 2, 20), self.replay))
+        waiting = snap.state is EngineState.AWAITING_APPROVAL and not self.replay
+        self.set_class(waiting, "-waiting")
+        self.set_class(snap.gp.collapse_alarm, "-alarm")
+        if waiting and snap.can_command:
+            self.border_subtitle = "a approve · v veto · e adjust"
+        elif waiting:
+            self.border_subtitle = "awaiting the owner"
+        elif self.replay:
+            self.border_subtitle = "replay: ← → move a block"
+        else:
+            self.border_subtitle = ""

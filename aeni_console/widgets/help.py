@@ -1,0 +1,71 @@
+"""The help screen: every key, what each panel shows, and how leaving works."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from rich.table import Table
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import VerticalScroll
+from textual.screen import ModalScreen
+from textual.widgets import Static
+
+KEYS: tuple[tuple[str, str], ...] = (
+    ("space", "pause / resume the run (a running block finishes its current indent first)"),
+    ("a", "approve the pending proposal"),
+    ("v", "veto it: the planner offers the next best and avoids that centre for a while"),
+    ("e", "adjust target SEM, β, holds, local centres, edge penalty, budgets"),
+    ("s", "step: switch to step mode, run one block, then wait again"),
+    ("b", "stop after the current block"),
+    ("x", "abort now (asks first)"),
+    ("m", "cycle the map: mean → epistemic sd → noise sd → total sd"),
+    ("← →  , .", "replay: one block back / forward (home / end: first / last)"),
+    ("ctrl+p", "command palette (every action, searchable)"),
+    ("?", "this help"),
+    ("q", "leave the console: the run keeps going"),
+)
+
+PANELS: tuple[tuple[str, str], ...] = (
+    (
+        "Map",
+        "GP fields on the sample as the microscope shows it; ◉ newest, ● recent, • older centres, + next",
+    ),
+    ("Decision", "what the planner proposes, its scores, predicted cost and next-best alternatives"),
+    ("Queue", "indents still to run, with grid size, hold and ETA on the instrument clock"),
+    ("Cost", "instrument seconds by category against the 9×9-of-5×5 grid baseline"),
+    ("Drift", "last drift rate, hold mode, area error against the 2 % threshold, drift events"),
+    ("Log", "decisions, commands (with their author) and warnings"),
+)
+
+
+def help_text() -> Table:
+    table = Table.grid(padding=(0, 2))
+    table.add_column(style="bold cyan", no_wrap=True)
+    table.add_column()
+    table.add_row(Text("Keys", style="bold underline"), "")
+    for key, what in KEYS:
+        table.add_row(key, what)
+    table.add_row("", "")
+    table.add_row(Text("Panels", style="bold underline"), "")
+    for name, what in PANELS:
+        table.add_row(name, what)
+    table.add_row("", "")
+    table.add_row("", Text("Keys appear in the footer only when they apply to the run's state.", style="dim"))
+    return table
+
+
+class HelpScreen(ModalScreen[None]):
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "close", "Close")]
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll(id="help-dialog"):
+            yield Static(help_text())
+
+    def on_mount(self) -> None:
+        self.query_one("#help-dialog").border_title = "Help"
+        self.query_one("#help-dialog").border_subtitle = "esc to close"
+
+    def action_close(self) -> None:
+        self.dismiss(None)

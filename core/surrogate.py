@@ -648,7 +648,7 @@ class HeteroskedasticGP:
         """Mean, epistemic, noise and total sd at ``uv`` (m, 2): the predictive diagonal only, in chunks."""
         if self._mean is None:
             raise RuntimeError("HeteroskedasticGP.predict before fit() or set_hyper()")
-        pts = np.asarray(uv, dtype=float)
+        pts = np.array(uv, dtype=float)  # a private, writable copy for torch
         if pts.ndim != 2 or pts.shape[1] != 2:
             raise InputError("uv", f"expected shape (m, 2), got {pts.shape}")
         m = pts.shape[0]

@@ -32,6 +32,7 @@ from core.cost import indent_steps
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
 from core.errors import InputError
 from core.plan import (
+    LEDGER_CATEGORIES,
     Alternative,
     Block,
     Decision,
@@ -1256,7 +1257,11 @@ class JournalReader:
         hold_mode = "fixed"
         err = None if rate is None else area_error_pct(rate)
         if last is not None:
-            hold_mode = last.hold_mode if f"{last.block.hold_s:g} s" in last.hold_mode else f"{last.hold_mode} {last.block.hold_s:g} s"
+            hold_mode = (
+                last.hold_mode
+                if f"{last.block.hold_s:g} s" in last.hold_mode
+                else f"{last.hold_mode} {last.block.hold_s:g} s"
+            )
             if last.area_error_pct is not None:
                 err = last.area_error_pct
         return DriftStatus(
@@ -1288,21 +1293,7 @@ class JournalReader:
         with self._read() as c:
             eng = self.q.engine_row()
             ds = self.q.latest_driver_state()
-            ledger = dict.fromkeys(
-                (
-                    "setup",
-                    "lift",
-                    "move",
-                    "engage",
-                    "drift",
-                    "indent",
-                    "hold",
-                    "reconfigure",
-                    "comeback",
-                    "recovery",
-                ),
-                0.0,
-            )
+            ledger = dict.fromkeys(LEDGER_CATEGORIES, 0.0)
             n_reconf = 0
             for cat, total, n in c.execute(
                 "SELECT category, SUM(seconds), COUNT(*) FROM steps GROUP BY category"

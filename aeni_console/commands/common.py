@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -47,3 +49,36 @@ def write_atomic(path: str | Path, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def positive_float(flag: str) -> Callable[[str], float]:
+    """An argparse type: a finite number > 0, with an error naming the flag."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be a number, got {text!r}") from None
+        if not math.isfinite(v) or v <= 0:
+            raise argparse.ArgumentTypeError(f"{flag} must be > 0, got {text}")
+        return v
+
+    return parse
+
+
+def whole_number(flag: str, lo: int, hi: int) -> Callable[[str], int]:
+    """An argparse type: an integer in [lo, hi], with an error naming the flag."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be a whole number, got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{flag} must be from {lo} to {hi}, got {v}")
+        return v
+
+    return parse
+
+
+seed_arg = whole_number("--seed", 0, 2**32 - 1)

@@ -8,34 +8,14 @@ emulator run as a detached engine process, slowed to a watchable pace, and attac
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 from typing import Any
 
+from aeni_console.commands.common import positive_float, seed_arg
 from core.errors import InputError
 
 SUPERVISION_CHOICES = ("auto", "supervised", "step")
 DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min) passes in about 6 s
-
-
-def _speed(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--speed must be a number, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"--speed must be > 0, got {text}")
-    return v
-
-
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--seed must be a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"--seed must be ≥ 0, got {v}")
-    return v
 
 
 def leave_message(journal: Path, pid: int | None = None) -> str:
@@ -121,11 +101,11 @@ def register(subparsers: Any) -> None:
     )
     demo.add_argument(
         "--speed",
-        type=_speed,
+        type=positive_float("--speed"),
         default=DEMO_SPEED,
         help=f"instrument seconds per wall second (default {DEMO_SPEED:g})",
     )
-    demo.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    demo.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     demo.add_argument("--policy", help="planning policy (default cost-aware)")
     demo.add_argument("--scenario", default="ternary", help="emulator scenario (default ternary)")
     demo.add_argument(

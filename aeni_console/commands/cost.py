@@ -7,37 +7,11 @@ import csv
 import math
 from pathlib import Path
 
-from aeni_console.commands.common import dumps, ledger_table
+from aeni_console.commands.common import dumps, ledger_table, positive_float, whole_number
 from core.cost import CostLedger, grid_baseline_blocks, price_sequence
 from core.errors import InputError
 from core.plan import Block, IndentSpec
 from core.profile import fit_move_model, load_profile
-
-
-def _positive_int(name: str, lo: int, hi: int):  # type: ignore[no-untyped-def]
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a whole number, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"{name} must be from {lo} to {hi}, got {v}")
-        return v
-
-    return parse
-
-
-def _positive_float(name: str):  # type: ignore[no-untyped-def]
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not math.isfinite(v) or v <= 0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text}")
-        return v
-
-    return parse
 
 
 def _emit(args: argparse.Namespace, ledger: CostLedger, extra: dict[str, object]) -> int:
@@ -141,16 +115,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
     g = csub.add_parser("grid", help="price the n×n-blocks-of-g×g grid baseline")
     g.add_argument(
-        "--blocks", type=_positive_int("--blocks", 1, 50), default=9, help="blocks per side (default 9)"
+        "--blocks", type=whole_number("--blocks", 1, 50), default=9, help="blocks per side (default 9)"
     )
     g.add_argument(
-        "--size", type=_positive_int("--size", 1, 10), default=5, help="indents per block side (default 5)"
+        "--size", type=whole_number("--size", 1, 10), default=5, help="indents per block side (default 5)"
     )
     g.add_argument(
-        "--pitch-um", type=_positive_float("--pitch-um"), default=5.0, help="indent pitch in a block"
+        "--pitch-um", type=positive_float("--pitch-um"), default=5.0, help="indent pitch in a block"
     )
     g.add_argument(
-        "--area-um", type=_positive_float("--area-um"), default=1000.0, help="side of the square area"
+        "--area-um", type=positive_float("--area-um"), default=1000.0, help="side of the square area"
     )
     g.add_argument("--hold-s", type=float, default=None, help="hold per indent (default: the profile's)")
     g.add_argument("--profile", default=None, help="built-in profile name or TOML file (default kla-imicro)")

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import os
 import signal
 import subprocess
@@ -20,6 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from aeni_console.commands.common import positive_float
 from core.errors import InputError
 
 ENGINE_MODULE = "aeni_console.cli"
@@ -275,19 +275,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"watch: aeni status {journal}    stop: send abort from a console, or kill {pid}")
         return 0
     return run_engine(journal, create=(config, options), quiet=args.quiet)
-
-
-def _positive(name: str) -> Any:
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not math.isfinite(v) or v <= 0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text}")
-        return v
-
-    return parse
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
@@ -572,7 +559,7 @@ def register(subparsers: Any) -> None:
 
     res = subparsers.add_parser("resume", help="continue a run whose engine stopped or died")
     res.add_argument("run", metavar="RUN", help="journal path or part of a run name")
-    res.add_argument("--speed", type=_positive("--speed"), help="simulated instrument speed-up")
+    res.add_argument("--speed", type=positive_float("--speed"), help="simulated instrument speed-up")
     res.add_argument("--supervision", choices=("auto", "supervised", "step"))
     res.add_argument("--detach", action="store_true", help="resume in the background")
     res.add_argument("--quiet", action="store_true")

@@ -3,34 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from typing import Any
 
-from aeni_console.commands.common import dumps, ledger_table
+from aeni_console.commands.common import dumps, ledger_table, positive_float, seed_arg
 
 NOISE_CHOICES = ("hetero", "homo", "10pct")
-
-
-def _budget(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--budget-s must be a number of seconds, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"--budget-s must be > 0, got {text}")
-    return v
-
-
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--seed must be a whole number, got {text!r}") from None
-    if not 0 <= v < 2**32:
-        raise argparse.ArgumentTypeError(f"--seed must be from 0 to 4294967295, got {v}")
-    return v
 
 
 def _progress(done_s: float, budget_s: float, blocks: int, mape: float | None, start: float) -> None:
@@ -150,7 +129,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
     p = sub.add_parser("simulate", help="run one headless emulator campaign")
     p.add_argument("--policy", choices=policy_names(), default="cost-aware")
-    p.add_argument("--seed", type=_seed, default=0)
+    p.add_argument("--seed", type=seed_arg, default=0)
     p.add_argument("--scenario", default="ternary", help="emulator scenario (see `aeni scenarios`)")
     p.add_argument(
         "--truth",
@@ -162,7 +141,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--drift", choices=("none", "good", "bad"), default=None, help="drift scenario override")
     p.add_argument(
         "--budget-s",
-        type=_budget,
+        type=positive_float("--budget-s"),
         default=None,
         help="instrument-time budget (default: the grid baseline's time)",
     )

@@ -19,6 +19,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "aeni_console.commands.kla",
     "aeni_console.commands.run",
     "aeni_console.commands.console",
+    "aeni_console.commands.bench",
 )
 
 

@@ -21,7 +21,7 @@ from core.errors import InputError
 from core.geometry import CandidateLattice
 from core.metrics import mape_pct
 from core.plan import Block, Decision, IndentResult, PlannerSettings
-from core.policies.base import DEFAULT_PITCH_UM, PlanContext
+from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext
 from core.policies.registry import make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
@@ -91,13 +91,20 @@ class Campaign:
             raise InputError("lattice_n", f"{n} is too small: expected at least 5 candidates per side")
         self.lattice = CandidateLattice.build(self.calibration, n, grid_halfwidth_um=2 * DEFAULT_PITCH_UM)
         self.policy = make_policy(config.policy)
+        features = getattr(self.policy, "features", None)
+        self._needs_covariance = getattr(features, "acquisition", None) == "ivr" or bool(
+            getattr(features, "bias_aware_hold", False)
+        )
         self.settings = config.settings
         if self.settings.budget_s is None and self.settings.indent_budget is None:
             # default horizon: the instrument time of the full grid baseline on this area
             self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
         pitch_uv = min(self.lattice.pitch_uv)
         self.surrogate = HeteroskedasticGP(
-            heteroskedastic=True, lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005), seed=config.seed
+            heteroskedastic=True,
+            lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005),
+            seed=config.seed,
+            guard=getattr(self.policy, "surrogate_guard", "keep-last-good"),
         )
         self.centres: list[CentreRecord] = []
         self.blocks: list[Block] = []
@@ -108,6 +115,7 @@ class Campaign:
         self._last_fit: FitReport | None = None
         self._truth_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._max_found: float | None = None
+        self.last_stop_reason: str | None = None
 
     # -- static facts ----------------------------------------------------------------------------
     @property
@@ -140,6 +148,24 @@ class Campaign:
         return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())
 
     # -- planning --------------------------------------------------------------------------------
+    def _gp_summary(self) -> GPSummary | None:
+        hyper = self.surrogate.hyper
+        scale = self.surrogate.outputscale_gpa2
+        if hyper is None or scale is None:
+            return None
+        ls = hyper["lengthscales_uv"]
+        return GPSummary(str(hyper["kernel"]), (float(ls[0]), float(ls[1])), float(scale))
+
+    def _tested_noise_var(self) -> np.ndarray | None:
+        """Noise variance of each centre's median as the model sees it: eff(n)·σ²(x)/n."""
+        if self.prediction is None or not self.centres:
+            return None
+        from core.policies.variance import median_noise_var
+
+        xy = np.array([(c.x_um, c.y_um) for c in self.centres])
+        sd = self.predict_stage(xy[:, 0], xy[:, 1]).noise_sd
+        return median_noise_var(sd, np.array([c.n_indents for c in self.centres]))
+
     def _program_state(self) -> tuple[tuple[float, float] | None, float | None, int]:
         centre: tuple[float, float] | None = None
         hold: float | None = None
@@ -194,19 +220,30 @@ class Campaign:
             best_observed_gpa=best,
             last_drift_rate_nm_s=self.drift_rates[-1] if self.drift_rates else None,
             avoid_xy_um=avoid + tuple(self.settings.avoid_centers_um),
+            globals_done=sum(1 for b in self.blocks if b.kind == "global"),
+            recent_drift_rates_nm_s=tuple(self.drift_rates[-25:]),
+            tested_n_indents=np.array([c.n_indents for c in self.centres], dtype=int),
+            tested_noise_var_gpa2=self._tested_noise_var() if self._needs_covariance else None,
+            gp=self._gp_summary() if self._needs_covariance else None,
         )
 
     def propose(
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
     ) -> Decision | None:
-        if self.stop_reason(clock_s) is not None:
+        self.last_stop_reason = self.stop_reason(clock_s)
+        if self.last_stop_reason is not None:
             return None
         decision = self.policy.propose(self.context(clock_s, position_um, program_open, block_id))
         if decision is None:
+            self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
             return None
         s = self.settings
         if s.budget_s is not None and clock_s + decision.predicted_cost_s > s.budget_s * 1.02:
             # do not start a block the budget cannot pay for
+            self.last_stop_reason = (
+                f"instrument-time budget: the next block ({decision.predicted_cost_s:,.0f} s) would pass "
+                f"{s.budget_s:,.0f} s at {clock_s:,.0f} s"
+            )
             return None
         return decision
 
@@ -252,10 +289,16 @@ class Campaign:
             n_indents=np.array([c.n_indents for c in self.centres]),
         )
 
-    def observe_block(self, block: Block, results: Sequence[IndentResult]) -> FitReport | None:
-        """Collapse the block to its centre, refit (warm start), and predict on the lattice."""
+    def observe_block(
+        self, block: Block, results: Sequence[IndentResult], refit: bool = True
+    ) -> FitReport | None:
+        """Collapse the block to its centre, refit (warm start), and predict on the lattice.
+
+        ``refit=False`` only records the block (a policy that never looks at the model, e.g. the grid
+        baseline in the bench, is refitted only where its map is measured).
+        """
         self._record(block, results)
-        if len(self.centres) < 2:
+        if len(self.centres) < 2 or not refit:
             return None
         report = self.surrogate.fit(self.observations())
         self._last_fit = report
@@ -278,8 +321,9 @@ class Campaign:
             self._truth_cache = truth_on_lattice(self.scenario.truth, 100)
         xs, ys, truth = self._truth_cache
         gx, gy = np.meshgrid(xs, ys)
-        pred = self.predict_stage(gx.ravel(), gy.ravel())
-        return mape_pct(pred.mean, truth.ravel()), self._max_found
+        u, v = self.calibration.to_uv(gx.ravel(), gy.ravel())
+        uv = np.column_stack([u, v])
+        return mape_pct(self.surrogate.predict_mean(uv), truth.ravel()), self._max_found
 
     def map_fields(
         self, snapshot_id: int, display_n: int = 50, next_candidate_um: tuple[float, float] | None = None
@@ -347,10 +391,16 @@ def run_headless(
     track_mape: bool = True,
     on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None]
     | None = None,
+    stop_when: Callable[[HeadlessResult], str | None] | None = None,
 ) -> HeadlessResult:
-    """Run a campaign to its end with no operator (``aeni simulate``, the bench)."""
+    """Run a campaign to its end with no operator (``aeni simulate``, the bench).
+
+    ``stop_when`` may end the run early (after any block) with a reason: the bench stops a run once its
+    question is answered.
+    """
     result = HeadlessResult("", CostLedger(), [], 0.0, 0, 0, [])
     block_id = 0
+    early: str | None = None
     while True:
         decision = campaign.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
         if decision is None:
@@ -373,8 +423,10 @@ def run_headless(
         if on_block is not None:
             on_block(decision, results, report, result)
         block_id += 1
+        if stop_when is not None and (early := stop_when(result)) is not None:
+            break
     for event in driver.end_program():
         result.ledger.add(event)
     result.instrument_s = driver.clock_s()
-    result.stop_reason = campaign.stop_reason(driver.clock_s()) or "policy finished"
+    result.stop_reason = early or campaign.stop_reason(driver.clock_s()) or "policy finished"
     return result

@@ -25,6 +25,15 @@ N_ALTERNATIVES = 5
 
 
 @dataclass(frozen=True)
+class GPSummary:
+    """The mean GP's kernel as fitted: enough to compute posterior covariances of the latent map."""
+
+    kernel: str  # "matern52" or "rbf"
+    lengthscales_uv: tuple[float, float]
+    outputscale_gpa2: float
+
+
+@dataclass(frozen=True)
 class PlanContext:
     """Everything a policy may look at, frozen at the moment of the decision."""
 
@@ -51,6 +60,13 @@ class PlanContext:
     dz_safe_um: float = 5.0
     r_excl_um: float = 20.0
     extras: dict[str, object] = field(default_factory=dict)
+    globals_done: int = 0  # global blocks (programs) run so far, seeds included
+    tested_n_indents: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (k,)
+    tested_noise_var_gpa2: np.ndarray | None = (
+        None  # (k,) noise variance of each centre's median, per the model
+    )
+    gp: GPSummary | None = None  # the fitted kernel, for planners that need covariances (y-free)
+    recent_drift_rates_nm_s: tuple[float, ...] = ()  # the last drift readings (up to 25), oldest first
 
     def rng(self, salt: int = 0) -> np.random.Generator:
         return np.random.default_rng([self.seed, self.block_id, salt])
@@ -80,7 +96,9 @@ def make_block(ctx: PlanContext, x_um: float, y_um: float, g: int, hold_s: float
     )
 
 
-def grid_size_for_noise(noise_sd_gpa: np.ndarray, target_sem_gpa: float, g_min: int = 2, g_max: int = 5) -> np.ndarray:
+def grid_size_for_noise(
+    noise_sd_gpa: np.ndarray, target_sem_gpa: float, g_min: int = 2, g_max: int = 5
+) -> np.ndarray:
     """SPEC §6.4: n_req = (σ_noise/ε)², g = clip(round(√n_req), 2, 5)."""
     n_req = (np.asarray(noise_sd_gpa, dtype=float) / target_sem_gpa) ** 2
     return np.clip(np.rint(np.sqrt(n_req)), g_min, g_max).astype(int)
@@ -89,7 +107,9 @@ def grid_size_for_noise(noise_sd_gpa: np.ndarray, target_sem_gpa: float, g_min: 
 def _within_grid_s(profile: InstrumentProfile, g: int, pitch_um: float, hold_s: float) -> float:
     """Seconds for the g² indents and the moves between them (independent of where the grid is)."""
     blk = Block(0, "local", 0.0, 0.0, g, pitch_um, hold_s, local_grid(0.0, 0.0, g, pitch_um, hold_s))
-    return float(sum(s.seconds for s in block_steps(profile, blk, (blk.indents[0].x_um, blk.indents[0].y_um), True)))
+    return float(
+        sum(s.seconds for s in block_steps(profile, blk, (blk.indents[0].x_um, blk.indents[0].y_um), True))
+    )
 
 
 def block_costs_s(
@@ -98,18 +118,21 @@ def block_costs_s(
     g: np.ndarray | int,
     hold_s: float,
     kind: BlockKind,
+    from_um: tuple[float, float] | None = None,
 ) -> np.ndarray:
-    """Path-dependent cost of a g×g block at every candidate centre, from the current stage position.
+    """Path-dependent cost of a g×g block at every candidate centre, from the current stage position
+    (or ``from_um``, to price a plan ahead).
 
     Vectorised version of core.cost.block_steps: the same profile numbers, checked equal in tests.
     """
     p = ctx.profile
+    pos = ctx.position_um if from_um is None else from_um
     g_arr = np.broadcast_to(np.asarray(g, dtype=int), (len(xy_um),))
     half = (g_arr - 1) / 2.0 * ctx.pitch_um
     first_x = xy_um[:, 0] - half
     first_y = xy_um[:, 1] - half
-    dx = first_x - ctx.position_um[0]
-    dy = first_y - ctx.position_um[1]
+    dx = first_x - pos[0]
+    dy = first_y - pos[1]
     move = p.move.axis_s_array(dx) + p.move.axis_s_array(dy)
     move = np.where((dx == 0) & (dy == 0), 0.0, move)
     within = np.zeros(len(xy_um))
@@ -146,22 +169,33 @@ def _lattice_pitch_um(ctx: PlanContext) -> float:
 
 
 def local_mask(ctx: PlanContext, g_max_halfwidth_um: float, max_hop_um: float) -> np.ndarray:
-    """Candidates reachable without lifting: inside the running program's safe band, within ``max_hop_um``."""
+    """Candidates reachable without lifting: the whole grid inside the running program's safe band, its
+    centre at most ``max_hop_um`` from the current position, and no move that would trip the safety rule."""
+    if not ctx.program_open or ctx.program_center_um is None:
+        return np.zeros(len(ctx.lattice.xy_um), dtype=bool)
+    return reachable_mask(ctx, ctx.program_center_um, ctx.position_um, g_max_halfwidth_um, max_hop_um)
+
+
+def reachable_mask(
+    ctx: PlanContext,
+    centre_um: tuple[float, float],
+    position_um: tuple[float, float],
+    halfwidth_um: float,
+    max_hop_um: float,
+    idx: np.ndarray | None = None,
+) -> np.ndarray:
+    """``local_mask`` for any program centre and stage position (to plan a program before opening it);
+    with ``idx``, only for those lattice candidates."""
     from core.geometry import SafeBand
 
-    xy = ctx.lattice.xy_um
-    if not ctx.program_open or ctx.program_center_um is None:
-        return np.zeros(len(xy), dtype=bool)
-    band = SafeBand(ctx.calibration.plane, ctx.program_center_um[0], ctx.program_center_um[1], ctx.dz_safe_um)
-    h = g_max_halfwidth_um
-    ok = np.ones(len(xy), dtype=bool)
-    # the whole grid must stay in the band: check its four corners (the plane is linear)
-    for sx in (-h, h):
-        for sy in (-h, h):
-            ok &= band.contains(xy[:, 0] + sx, xy[:, 1] + sy)
-    hop = np.maximum(np.abs(xy[:, 0] - ctx.position_um[0]), np.abs(xy[:, 1] - ctx.position_um[1]))
-    ok &= hop + h < min(max_hop_um, ctx.profile.reconfig_threshold_um)
-    return ok
+    xy = ctx.lattice.xy_um if idx is None else ctx.lattice.xy_um[idx]
+    band = SafeBand(ctx.calibration.plane, float(centre_um[0]), float(centre_um[1]), ctx.dz_safe_um)
+    ok = band.contains(xy[:, 0], xy[:, 1], grid_halfwidth_um=halfwidth_um)
+    dx = np.abs(xy[:, 0] - position_um[0])
+    dy = np.abs(xy[:, 1] - position_um[1])
+    ok &= np.hypot(dx, dy) <= max_hop_um
+    ok &= np.maximum(dx, dy) + 2 * halfwidth_um < ctx.profile.reconfig_threshold_um
+    return np.asarray(ok, dtype=bool)
 
 
 def alternatives(

@@ -18,7 +18,13 @@ class GridPolicy:
     def propose(self, ctx: PlanContext) -> Decision | None:
         x0, x1, y0, y1 = ctx.calibration.bounds_um
         blocks = grid_baseline_blocks(
-            x1 - x0, y1 - y0, self.n_blocks, self.g, ctx.pitch_um, ctx.settings.fixed_hold_s, origin_um=(x0, y0)
+            x1 - x0,
+            y1 - y0,
+            self.n_blocks,
+            self.g,
+            ctx.pitch_um,
+            ctx.settings.fixed_hold_s,
+            origin_um=(x0, y0),
         )
         if ctx.blocks_done >= len(blocks):
             return None

@@ -1,9 +1,17 @@
-"""Policies by name, as the CLI, the config and the bench select them."""
+"""Policies by name, as the CLI, the config and the bench select them.
+
+Each paper idea has its own name so that its contribution can be measured against its reference:
+``adaptive-grid`` and ``meta-grid`` against ``uncertainty`` (fixed 5×5 grids, a new program every block),
+``adaptive-hold`` against ``cost-aware`` (fixed 80 s), ``aeni`` against ``grid`` and ``uncertainty``;
+``aeni-plus`` is the same workflow with the improvements of this product, ``aeni-unguarded`` the ablation
+that the length-scale collapse provocation needs.
+"""
 
 from __future__ import annotations
 
-from core.errors import InputError
 from typing import TYPE_CHECKING
+
+from core.errors import InputError
 
 if TYPE_CHECKING:
     from core.policies.base import Policy
@@ -13,14 +21,51 @@ POLICY_DESCRIPTIONS: dict[str, str] = {
     "grid": "fixed 9×9 blocks of 5×5 (the paper's baseline)",
     "uncertainty": "jump to the highest-σ centre after every block, fixed 5×5, cost ignored",
     "cost-aware": "σ/cost with staying engaged priced against a global jump, fixed 5×5",
+    "adaptive-grid": "σ/cost, a new program every block, grid size 2×2…5×5 from the noise and the target SEM",
+    "meta-grid": "adaptive grid + sub-grids ≤ 500 µm apart in the safe band, stay-vs-jump after each",
+    "adaptive-hold": "cost-aware with a drift-aware 5 s / 80 s hold and the g²·(80 − 5) switch rule",
+    "aeni": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
+    "aeni-bias-hold": "aeni with the bias-aware hold of aeni-plus only (ablation: that improvement alone)",
+    "aeni-plus": "aeni with variance-reduction acquisition, jointly planned programs, bias-aware hold",
+    "aeni-unguarded": "ablation: aeni with tight local grids, no exploratory phase and no collapse guard",
 }
+
 
 def _features() -> dict[str, PlannerFeatures]:
     from core.policies.planner import PlannerFeatures
 
+    aeni = PlannerFeatures(
+        cost_aware=True,
+        stay=True,
+        adaptive_grid=True,
+        adaptive_hold=True,
+        edge_penalty=True,
+        local_hop_um=500.0,
+        exploratory_iterations=4,
+        exploratory_local_limit=1,
+    )
+    from dataclasses import replace
+
     return {
-        "uncertainty": PlannerFeatures(cost_aware=False),
-        "cost-aware": PlannerFeatures(cost_aware=True),
+        "uncertainty": PlannerFeatures(cost_aware=False, stay=False),
+        "cost-aware": PlannerFeatures(cost_aware=True, stay=True),
+        "adaptive-grid": PlannerFeatures(cost_aware=True, stay=False, adaptive_grid=True),
+        "meta-grid": PlannerFeatures(cost_aware=True, stay=True, adaptive_grid=True, local_hop_um=500.0),
+        "adaptive-hold": PlannerFeatures(cost_aware=True, stay=True, adaptive_hold=True),
+        "aeni": aeni,
+        "aeni-bias-hold": replace(aeni, bias_aware_hold=True),
+        "aeni-plus": replace(
+            aeni, acquisition="ivr", edge_penalty=False, joint_program=True, bias_aware_hold=True
+        ),
+        "aeni-unguarded": replace(
+            aeni,
+            exploratory_iterations=0,
+            adaptive_grid=False,
+            fixed_g=2,
+            local_hop_um=60.0,
+            local_limit=20,
+            surrogate_guard="off",
+        ),
     }
 
 

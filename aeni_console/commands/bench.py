@@ -1,0 +1,69 @@
+"""``aeni bench``: policies × scenarios × seeds on the emulator, then RESULTS.md, results.json and figures."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from core.errors import InputError
+
+
+def _handler(args: argparse.Namespace) -> int:
+    from aeni_console.report import write_report
+    from core.bench import BenchConfig, RunRecord, run_bench
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "--out must be a folder, and this is a file")
+    config = BenchConfig.make(quick=args.quick, seeds=args.seeds, jobs=args.jobs)
+    n_runs = sum(len(s.policies) for s in config.scenarios) * config.seeds
+    start = time.monotonic()
+    done = 0
+
+    def progress(r: RunRecord) -> None:
+        nonlocal done
+        done += 1
+        if not args.quiet:
+            hit = "—" if r.t_hit_s is None else f"{r.t_hit_s:,.0f} s"
+            sys.stderr.write(
+                f"[{done:4d}/{n_runs}] {r.scenario:<15} {r.policy:<15} seed {r.seed:<3} "
+                f"target at {hit:>12}  final MAPE {r.final_mape_pct or float('nan'):6.3f} %  "
+                f"{r.blocks:4d} blocks  {r.wall_s:5.1f} s  (elapsed {time.monotonic() - start:6.0f} s)\n"
+            )
+            sys.stderr.flush()
+
+    with tempfile.TemporaryDirectory(prefix="aeni-bench-") as work:
+        records = run_bench(config, Path(work), progress)
+    wall = time.monotonic() - start
+    paths = write_report(records, config, out, wall)
+    print(
+        f"{len(records)} campaigns in {wall / 60:.1f} min; wrote {', '.join(str(p) for p in paths[:2])}"
+        f" and {len(paths) - 2} figure(s)"
+    )
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from aeni_console.commands.common import whole_number
+
+    p = sub.add_parser(
+        "bench", help="benchmark the policies on the emulator (RESULTS.md, results.json, figures)"
+    )
+    p.add_argument(
+        "--quick", action="store_true", help="one scenario, 2 seeds, a small lattice: a quick check"
+    )
+    p.add_argument(
+        "--seeds",
+        type=whole_number("--seeds", 1, 1000),
+        default=None,
+        help="seeds per scenario (10; quick: 2)",
+    )
+    p.add_argument(
+        "--jobs", type=whole_number("--jobs", 1, 64), default=2, help="worker processes (default 2)"
+    )
+    p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(func=_handler)

@@ -1,0 +1,526 @@
+"""The bench report: RESULTS.md, results.json and PNG figures (matplotlib, the ``report`` extra).
+
+Everything here reads the bench's records; nothing reruns a campaign. matplotlib is imported only when a
+figure is drawn, so ``aeni`` works without it (the Markdown and JSON are written either way).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.bench import (
+    ABLATION_REFERENCE,
+    LOOSE_FACTOR,
+    BenchConfig,
+    PolicySummary,
+    RunRecord,
+    records_to_json,
+    summarise,
+)
+
+DIVERGED_RISE = 1.5  # a run whose MAPE rises above 1.5× its best so far has diverged
+
+POLICY_COLORS: dict[str, str] = {
+    "grid": "#000000",
+    "uncertainty": "#7f7f7f",
+    "cost-aware": "#1f77b4",
+    "adaptive-grid": "#17becf",
+    "meta-grid": "#2ca02c",
+    "adaptive-hold": "#bcbd22",
+    "aeni": "#ff7f0e",
+    "aeni-bias-hold": "#e377c2",
+    "aeni-plus": "#d62728",
+    "aeni-unguarded": "#9467bd",
+}
+LEDGER_COLORS: dict[str, str] = {
+    "setup": "#c7c7c7",
+    "lift": "#aec7e8",
+    "move": "#98df8a",
+    "engage": "#ffbb78",
+    "drift": "#ff9896",
+    "indent": "#1f77b4",
+    "hold": "#9467bd",
+    "reconfigure": "#d62728",
+    "comeback": "#8c564b",
+    "recovery": "#e377c2",
+}
+
+
+# -- numbers ---------------------------------------------------------------------------------------------
+
+
+def _fmt_time(q: tuple[float, float, float] | None) -> str:
+    if q is None:
+        return "—"
+    lo, med, hi = q
+    if math.isinf(med):
+        return "not reached"
+
+    def k(v: float) -> str:
+        return "∞" if math.isinf(v) else f"{v / 1000:,.0f}k" if v >= 10_000 else f"{v / 1000:,.1f}k"
+
+    return f"{k(med)} s [{k(lo)}–{k(hi)}]"
+
+
+def _fmt_ratio(q: tuple[float, float, float] | None) -> str:
+    if q is None:
+        return "—"
+    lo, med, hi = q
+
+    def f(v: float) -> str:
+        return "∞" if math.isinf(v) else f"{v:.2f}"
+
+    return f"{f(med)}× [{f(lo)}–{f(hi)}]"
+
+
+def _fmt_num(q: tuple[float, float, float] | None, digits: int = 2, unit: str = "") -> str:
+    if q is None:
+        return "—"
+    return f"{q[1]:.{digits}f}{unit}"
+
+
+def _med(q: tuple[float, float, float] | None) -> float | None:
+    return None if q is None else q[1]
+
+
+def scenario_table(rows: Sequence[PolicySummary]) -> str:
+    head = (
+        "| policy | reached | time to grid's final MAPE | speed-up vs grid | vs uncertainty | vs its reference "
+        f"| speed-up at {LOOSE_FACTOR:g}× that MAPE | final MAPE | max found (true) | reconfig. | indents |"
+    )
+    lines = [head, "|" + "---|" * 11]
+    for r in rows:
+        ref = ""
+        for name, q in r.speedup_ref.items():
+            ref = f"{_fmt_ratio(q)} ({name})"
+        mx = "—" if r.max_found_gpa is None else f"{r.max_found_gpa[1]:.2f} ({r.true_max_gpa:.2f}) GPa"
+        lines.append(
+            f"| `{r.policy}` | {round(r.hit_rate * r.n_seeds)}/{r.n_seeds} | {_fmt_time(r.t_hit_s)} "
+            f"| {_fmt_ratio(r.speedup_grid)} | {_fmt_ratio(r.speedup_uncertainty)} | {ref or '—'} "
+            f"| {_fmt_ratio(r.speedup_grid_loose)} | {_fmt_num(r.final_mape_pct, 3, ' %')} | {mx} "
+            f"| {_fmt_num(r.reconfigurations, 0)} | {_fmt_num(r.indents, 0)} |"
+        )
+    return "\n".join(lines)
+
+
+def _get(summaries: Sequence[PolicySummary], scenario: str, policy: str) -> PolicySummary | None:
+    return next((s for s in summaries if s.scenario == scenario and s.policy == policy), None)
+
+
+def targets(summaries: Sequence[PolicySummary], records: Sequence[RunRecord]) -> list[dict[str, Any]]:
+    """The issue's targets, each with the measured median and whether it is met."""
+    out: list[dict[str, Any]] = []
+
+    def add(name: str, goal: str, measured: float | None, ok: bool | None, note: str = "") -> None:
+        out.append({"target": name, "goal": goal, "measured": measured, "met": ok, "note": note})
+
+    for scen in ("ternary", "film"):
+        for pol in ("aeni", "aeni-plus"):
+            s = _get(summaries, scen, pol)
+            if s is None:
+                continue
+            g, u = _med(s.speedup_grid), _med(s.speedup_uncertainty)
+            loose = _med(s.speedup_grid_loose)
+            note = f"reached {s.hit_rate:.0%} of seeds; at {LOOSE_FACTOR:g}× the grid's MAPE: {_fmt_target(loose, '×')}"
+            add(f"`{pol}` vs `grid` ({scen})", "≥ 30×", g, None if g is None else g >= 30, note)
+            add(f"`{pol}` vs `uncertainty` ({scen})", "≥ 3.5×", u, None if u is None else u >= 3.5)
+    for pol, goal, lim in (("adaptive-grid", "≈ 4×", 3.0), ("meta-grid", "≈ 10×", 7.5)):
+        s = _get(summaries, "ternary", pol)
+        if s is not None:
+            v = _med(s.speedup_ref.get("uncertainty"))
+            add(f"`{pol}` vs fixed 5×5 (`uncertainty`, ternary)", goal, v, None if v is None else v >= lim)
+    for scen, ratio_goal in (("good-drift", True), ("bad-drift", False)):
+        ah, ca = _get(summaries, scen, "adaptive-hold"), _get(summaries, scen, "cost-aware")
+        if ah is None or ca is None:
+            continue
+        t_ah, t_ca = _med(ah.t_hit_s), _med(ca.t_hit_s)
+        ratio = None if t_ah is None or t_ca is None or math.isinf(t_ca) else t_ah / t_ca
+        m_ah, m_ca = _med(ah.final_mape_pct), _med(ca.final_mape_pct)
+        if ratio_goal:
+            ok = None if ratio is None else ratio <= 0.6 and (m_ah or 0) <= (m_ca or 0) * 1.05
+            add(
+                "`adaptive-hold` time / fixed 80 s (`cost-aware`), good drift",
+                "≤ 0.6×, MAPE no worse",
+                ratio,
+                ok,
+                f"final MAPE {m_ah:.3f} % vs {m_ca:.3f} %" if m_ah and m_ca else "",
+            )
+        else:
+            ok = None if m_ah is None or m_ca is None else m_ah <= m_ca * 1.05 and ah.hit_rate >= ca.hit_rate
+            add(
+                "`adaptive-hold` loses no MAPE in bad drift",
+                "final MAPE ≤ fixed 80 s",
+                m_ah,
+                ok,
+                f"vs {m_ca:.3f} %; reached {ah.hit_rate:.0%} vs {ca.hit_rate:.0%}" if m_ca else "",
+            )
+    guarded, unguarded = _get(summaries, "collapse", "aeni"), _get(summaries, "collapse", "aeni-unguarded")
+    if guarded is not None and unguarded is not None:
+        rise_g, rise_u = _med(guarded.worst_rise), _med(unguarded.worst_rise)
+        alarms_g, alarms_u = _med(guarded.collapse_alarms), _med(unguarded.collapse_alarms)
+        diverged = rise_u is not None and rise_u > DIVERGED_RISE
+        add(
+            "collapse guard keeps MAPE bounded where the unguarded planner diverges (collapse)",
+            f"unguarded MAPE rises > {DIVERGED_RISE:g}× its best, guarded does not",
+            rise_u,
+            None if rise_g is None or rise_u is None else diverged and rise_g <= DIVERGED_RISE,
+            f"worst rise of MAPE over its best so far, median: guarded {rise_g:.2f}×, unguarded {rise_u:.2f}×; "
+            f"collapse alarms per run: {alarms_g:.0f} vs {alarms_u:.0f}"
+            if rise_g is not None and rise_u is not None and alarms_g is not None and alarms_u is not None
+            else "",
+        )
+    return out
+
+
+def _time_share(summaries: Sequence[PolicySummary]) -> str:
+    """Where aeni-plus's time goes on the ternary field: how close to pure indenting it already is."""
+    s = _get(summaries, "ternary", "aeni-plus")
+    if s is None or not s.ledger_s or s.indents is None:
+        return ""
+    total = sum(s.ledger_s.values())
+    share = (s.ledger_s.get("indent", 0.0) + s.ledger_s.get("hold", 0.0)) / total if total else 0.0
+    return (
+        f"- **How much is left to save on the ternary field:** `aeni-plus` spends {share:.0%} of its instrument"
+        f" time indenting and holding (median {s.indents[1]:.0f} indents per run, against the grid's 2,025), so"
+        " overheads are no longer the bottleneck; a 30× run would have to match the grid's error with about"
+        " 80 indents at 80 s, and on this field even 100 well-spread 2×2 centres (400 indents) only just do."
+    )
+
+
+def _fmt_target(v: float | None, goal: str) -> str:
+    if v is None:
+        return "—"
+    if math.isinf(v):
+        return "∞"
+    return f"{v:.2f}" + ("×" if "×" in goal else " %")
+
+
+def results_markdown(
+    records: Sequence[RunRecord],
+    config: BenchConfig,
+    wall_s: float,
+    figures: dict[str, list[str]],
+    figures_note: str = "",
+) -> str:
+    summaries = summarise(records)
+    order = {p: i for i, p in enumerate(POLICY_COLORS)}
+    lines = [
+        "# AE-NI policy benchmark",
+        "",
+        f"Generated by `aeni bench{' --quick' if config.quick else ''} --seeds {config.seeds} --jobs {config.jobs}`"
+        f" in {wall_s / 60:.1f} min of wall time ({len(records)} campaigns). Medians over seeds, with the"
+        " inter-quartile range in brackets.",
+        "",
+        "## Protocol",
+        "",
+        "- Every scenario and seed runs the `grid` baseline (9×9 blocks of 5×5 at 80 s) in full first. Its final",
+        "  MAPE is the seed's **target** and its instrument time the **budget** of every other policy on that",
+        "  scenario and seed (same emulated sample, same noise draws and drift events).",
+        f"- The other policies run until they reach the target and then on for {100 * config.margin:.0f} % of"
+        f" that time, or until the budget or a cap of {config.max_blocks} blocks ends them. MAPE is the GP mean"
+        " against the truth on the 100×100 lattice, after every refit.",
+        "- **Speed-up** = reference time / policy time to reach the target, paired by seed; a run that never"
+        " reaches it counts as infinitely slow (a speed-up of 0, or ∞ when only the reference misses).",
+        f"- The looser target ({LOOSE_FACTOR:g}× the grid's final MAPE) shows the comparison where the noise floor"
+        " does not decide it.",
+        f"- Candidate lattice {config.lattice_n}×{config.lattice_n} (the product's default on the 1000 µm square"
+        " is 100×100); the decisions use the same cost model, GP and rules as `aeni simulate`.",
+        "",
+    ]
+    tgts = targets(summaries, records)
+    if tgts:
+        lines += [
+            "## Targets",
+            "",
+            "| target | goal | measured (median) | met | note |",
+            "|---|---|---|---|---|",
+        ]
+        for t in tgts:
+            met = "—" if t["met"] is None else ("yes" if t["met"] else "**no**")
+            lines.append(
+                f"| {t['target']} | {t['goal']} | {_fmt_target(t['measured'], t['goal'])} | {met} | {t['note']} |"
+            )
+        lines += ["", WHY, _time_share(summaries)]
+        collapse = next((t for t in tgts if t["target"].startswith("collapse guard")), None)
+        if collapse is not None and collapse["met"] is False:
+            lines.append(WHY_COLLAPSE)
+        lines.append("")
+    for group, title in (
+        ("paper", "The paper's comparisons"),
+        ("robustness", "Robustness: fields nothing was tuned on"),
+    ):
+        scens = [s for s in config.scenarios if s.group == group]
+        if not scens:
+            continue
+        lines += [f"## {title}", ""]
+        for sc in scens:
+            rows = sorted(
+                (s for s in summaries if s.scenario == sc.key), key=lambda s: order.get(s.policy, 99)
+            )
+            if not rows:
+                continue
+            grid = _get(summaries, sc.key, "grid")
+            tgt = _quartiles_of(
+                [r.target_mape_pct for r in records if r.scenario == sc.key and r.policy == "grid"]
+            )
+            lines += [
+                f"### {sc.title}",
+                "",
+                f"Scenario `{sc.scenario}`; grid baseline {(_med(grid.instrument_s) or 0) / 3600:.1f} h, final MAPE"
+                f" {tgt:.3f} % (median target)."
+                if grid is not None and tgt is not None
+                else f"Scenario `{sc.scenario}`.",
+                "",
+                scenario_table(rows),
+                "",
+            ]
+            for fig in figures.get(sc.key, []):
+                lines.append(f"![{sc.key}](figures/{fig})")
+            lines.append("")
+    if figures.get("_all"):
+        lines += ["## Cost breakdown", ""] + [f"![costs](figures/{f})" for f in figures["_all"]] + [""]
+    if figures_note:
+        lines += [figures_note, ""]
+    lines += [
+        "## Columns",
+        "",
+        "- *reached*: seeds whose run reached the grid's final MAPE within the budget.",
+        "- *vs its reference*: each idea against the policy it extends (adaptive grid and meta-grid against fixed",
+        "  5×5 grids = `uncertainty`; adaptive hold against fixed 80 s = `cost-aware`; `aeni-plus` against `aeni`).",
+        "- *max found*: highest true hardness among indented points (true maximum of the field in brackets).",
+        "- *reconfig.*: reconfigurations in the ledger: safety-rule hops ≥ 1000 µm while engaged and, on the film",
+        "  profile, every global jump (priced there as one 520 s reconfiguration).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _quartiles_of(values: Sequence[float | None]) -> float | None:
+    vals = [v for v in values if v is not None]
+    return float(np.median(vals)) if vals else None
+
+
+WHY = """### Why some targets are not met
+
+- **The grid's final MAPE sits on a noise and bias floor.** The grid ends with 2,025 indents; a map as good
+  needs a comparable amount of indent information wherever noise limits the error (film, 10 % noise: the
+  grid's MAPE comes from averaging ~2,000 noisy indents, so no policy can need ≪ 2,000 × 120 s of indenting).
+  The paper's 30× compares against a run's endpoint, not against the error a full grid reaches.
+- **A 5 s hold is biased in this emulator**: it leaves ~94 % of the drift in the depth, so even the quiet base
+  drift (0.005 nm/s) reads hardness ~0.4 % low, close to the grid's ~0.55 % final MAPE on the ternary field. The
+  paper's 2 %-area-error rule therefore trades a 2.7× cheaper indent for a map that cannot reach the grid's
+  error; `adaptive-hold` and `aeni` often never reach the target. `aeni-plus` compares the bias with the
+  precision it aims at (what the 9×9 grid would reach under the fitted model) and only holds 5 s where the
+  bias is small against it (e.g. the 10 %-noise collapse field).
+- **Speed-ups against `uncertainty`** are paired per seed; where `uncertainty` never reaches the target within
+  the grid's time, the ratio is ∞ for a policy that does.
+- **Adaptive grid and meta-grid** save what the paper says they save (smaller grids where the noise allows,
+  no lift/engage/drift between sub-grids), but on this field 2×2 medians are noisy and the target is the
+  grid's own final error, so the savings are ≈ 1.4× and ≈ 2× rather than 4× and 10×; at the looser target
+  they are larger (see the tables)."""
+WHY_COLLAPSE = """- **The collapse provocation does not make this surrogate diverge.** Tight, noisy local grids get their
+  noise from the within-grid spreads (the noise GP), and the length-scale prior keeps ℓ off its floor, so the
+  unguarded planner's MAPE does not run away; there is nothing for the guard to catch here. The guard stays
+  in the product for fits that do collapse (it is tested in the surrogate's own tests)."""
+
+
+# -- figures ---------------------------------------------------------------------------------------------
+
+
+def _step_curves(runs: Sequence[RunRecord], key: str, t_grid: np.ndarray) -> np.ndarray:
+    """(runs, times): each run's last value at or before t; NaN before its first point and after it stopped."""
+    out = np.full((len(runs), len(t_grid)), np.nan)
+    for i, r in enumerate(runs):
+        pts = getattr(r, key)
+        if not pts:
+            continue
+        ts = np.array([p[0] for p in pts])
+        vs = np.array([p[1] for p in pts])
+        j = np.searchsorted(ts, t_grid, side="right") - 1
+        ok = (j >= 0) & (t_grid <= r.instrument_s)
+        out[i, ok] = vs[j[ok]]
+    return out
+
+
+def _band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Median and quartiles where at least half of the runs are still running."""
+    enough = np.sum(np.isfinite(curves), axis=0) * 2 >= curves.shape[0]
+    q = np.full((3, curves.shape[1]), np.nan)
+    cols = np.flatnonzero(enough)
+    if len(cols):
+        q[:, cols] = np.nanquantile(curves[:, cols], [0.25, 0.5, 0.75], axis=0)
+    return q[0], q[1], q[2]
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def figure_curves(records: Sequence[RunRecord], scenario: str, title: str, path: Path) -> None:
+    plt = _plt()
+    runs = [r for r in records if r.scenario == scenario]
+    policies = [p for p in POLICY_COLORS if any(r.policy == p for r in runs)]
+    t_max = max(r.instrument_s for r in runs)
+    t_grid = np.geomspace(2_000.0, t_max, 300)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.4))
+    target = np.median([r.target_mape_pct for r in runs if r.policy == "grid" and r.target_mape_pct])
+    for p in policies:
+        pr = [r for r in runs if r.policy == p]
+        c = POLICY_COLORS[p]
+        lo, med, hi = _band(_step_curves(pr, "trajectory", t_grid))
+        ax1.plot(t_grid / 3600, med, color=c, label=p, lw=1.8)
+        ax1.fill_between(t_grid / 3600, lo, hi, color=c, alpha=0.15, lw=0)
+        lo, med, hi = _band(_step_curves(pr, "max_found", t_grid))
+        ax2.plot(t_grid / 3600, med, color=c, label=p, lw=1.8)
+        ax2.fill_between(t_grid / 3600, lo, hi, color=c, alpha=0.15, lw=0)
+    ax1.axhline(target, color="k", ls="--", lw=0.8, label="grid's final MAPE")
+    ax1.set(xscale="log", yscale="log", xlabel="instrument time (h)", ylabel="MAPE (%)", title="MAPE")
+    ax1.grid(True, which="both", alpha=0.3)
+    true_max = float(np.median([r.true_max_gpa for r in runs]))
+    ax2.axhline(true_max, color="k", ls="--", lw=0.8, label="true maximum")
+    ax2.set(xscale="log", xlabel="instrument time (h)", ylabel="GPa", title="maximum hardness found")
+    ax2.grid(True, which="both", alpha=0.3)
+    from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
+
+    ticks = [t for t in (0.5, 1, 2, 5, 10, 20, 50, 100, 200) if t <= t_max / 3600 * 1.05]
+    for ax in (ax1, ax2):
+        ax.xaxis.set_major_locator(FixedLocator(ticks))
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax1.legend(fontsize=8, loc="upper right")
+    fig.suptitle(f"{title} — median and inter-quartile band over seeds", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure_maps(records: Sequence[RunRecord], scenario: str, title: str, path: Path) -> bool:
+    plt = _plt()
+    runs = [r for r in records if r.scenario == scenario and r.maps is not None]
+    if not runs:
+        return False
+    runs.sort(key=lambda r: list(POLICY_COLORS).index(r.policy) if r.policy in POLICY_COLORS else 99)
+    fields = (
+        ("mean", "mean (GPa)"),
+        ("epistemic_sd", "epistemic sd"),
+        ("noise_sd", "noise sd"),
+        ("total_sd", "total sd"),
+    )
+    first = runs[0].maps
+    assert first is not None
+    ratio = float(abs(first["y_um"][-1] - first["y_um"][0]) / abs(first["x_um"][-1] - first["x_um"][0]))
+    fig, axes = plt.subplots(len(runs), 4, figsize=(15, (0.8 + 3.0 * ratio) * len(runs)), squeeze=False)
+    for row, r in zip(axes, runs, strict=True):
+        m = r.maps
+        assert m is not None
+        extent = (m["x_um"][0], m["x_um"][-1], m["y_um"][0], m["y_um"][-1])
+        for ax, (k, label) in zip(row, fields, strict=True):
+            im = ax.imshow(m[k], origin="lower", extent=extent, aspect="equal", cmap="viridis")
+            fig.colorbar(im, ax=ax, shrink=0.75)
+            c = m["centres_um"]
+            if len(c):
+                loc = m["local"][: len(c)]
+                ax.scatter(c[~loc, 0], c[~loc, 1], s=9, c="k", marker="o", label="global")
+                ax.scatter(c[loc, 0], c[loc, 1], s=7, c="#4fc3f7", marker="s", label="local")
+            if m["reverse_x"]:
+                ax.invert_xaxis()
+            ax.set_title(f"{r.policy}: {label}", fontsize=9)
+            ax.tick_params(labelsize=7)
+        row[0].set_ylabel("y (µm)")
+    for ax in axes[-1]:
+        ax.set_xlabel("x (µm)", fontsize=8)
+    axes[0][0].legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"{title} — final maps, seed 0 (x as the sample is seen)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+def figure_costs(records: Sequence[RunRecord], config: BenchConfig, path: Path) -> None:
+    plt = _plt()
+    scens = [s for s in config.scenarios if any(r.scenario == s.key for r in records)]
+    ncol = min(3, len(scens))
+    nrow = math.ceil(len(scens) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 3.2 * nrow), squeeze=False)
+    summaries = summarise(records)
+    for ax, sc in zip(axes.ravel(), scens, strict=False):
+        rows = [s for p in POLICY_COLORS for s in summaries if s.scenario == sc.key and s.policy == p]
+        left = np.zeros(len(rows))
+        for cat, color in LEDGER_COLORS.items():
+            vals = np.array([r.ledger_s.get(cat, 0.0) for r in rows]) / 3600
+            if not vals.any():
+                continue
+            ax.barh(range(len(rows)), vals, left=left, color=color, label=cat)
+            left += vals
+        ax.set_yticks(range(len(rows)), [r.policy for r in rows], fontsize=8)
+        ax.invert_yaxis()
+        ax.set_title(sc.key, fontsize=9)
+        ax.set_xlabel("instrument time used (h, median)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[len(scens) :]:
+        ax.axis("off")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8)
+    fig.suptitle("Where the time went, per policy (each run until it stopped)", fontsize=10)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# -- writing ---------------------------------------------------------------------------------------------
+
+
+def write_report(
+    records: Sequence[RunRecord], config: BenchConfig, out_dir: Path, wall_s: float
+) -> list[Path]:
+    """RESULTS.md, results.json and (with matplotlib) figures/*.png in ``out_dir``; the paths written."""
+    from aeni_console.commands.common import write_atomic
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    figures: dict[str, list[str]] = {}
+    note = ""
+    try:
+        _plt()
+    except ImportError:
+        note = "_Figures skipped: matplotlib is not installed (`pip install -e '.[report]'`)._"
+    else:
+        fig_dir = out_dir / "figures"
+        fig_dir.mkdir(exist_ok=True)
+        for sc in config.scenarios:
+            if not any(r.scenario == sc.key for r in records):
+                continue
+            name = f"curves_{sc.key}.png"
+            figure_curves(records, sc.key, sc.title, fig_dir / name)
+            figures.setdefault(sc.key, []).append(name)
+            written.append(fig_dir / name)
+            name = f"maps_{sc.key}.png"
+            if figure_maps(records, sc.key, sc.title, fig_dir / name):
+                figures[sc.key].append(name)
+                written.append(fig_dir / name)
+        figure_costs(records, config, fig_dir / "costs.png")
+        figures["_all"] = ["costs.png"]
+        written.append(fig_dir / "costs.png")
+    md = results_markdown(records, config, wall_s, figures, note)
+    write_atomic(out_dir / "RESULTS.md", md)
+    write_atomic(
+        out_dir / "results.json", json.dumps(records_to_json(records, config, wall_s), separators=(",", ":"))
+    )
+    for p in (out_dir / "RESULTS.md", out_dir / "results.json"):
+        p.chmod(0o644)
+    return [out_dir / "RESULTS.md", out_dir / "results.json", *written]
+
+
+__all__ = ["ABLATION_REFERENCE", "results_markdown", "targets", "write_report"]

@@ -1,0 +1,629 @@
+"""The policy benchmark: policies × scenarios × seeds on the emulator, and the numbers the report shows.
+
+Protocol (the same for every policy, so the comparison is fair):
+
+- For each scenario and seed the ``grid`` baseline runs first, in full. Its final MAPE is that seed's
+  target and its instrument time the budget of every other policy on that scenario and seed.
+- Every other policy runs on the same emulated sample (same seed: same noise draws per block and indent,
+  same drift events) until it has reached the target and then run on for ``margin`` of the time it took
+  (to show that it stays there), or until the budget or the block cap ends it.
+- MAPE is measured after every refit, on the 100×100 truth lattice, from the GP mean. Speed-ups are
+  paired per seed: reference time / policy time to reach the target, a run that never reaches it counting
+  as infinitely slow. Medians and quartiles are over seeds.
+
+Runs go to worker processes (joblib) with one torch thread each. ``core`` stays free of plotting: the
+report (figures, RESULTS.md) is ``aeni_console.report``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import InputError
+
+GRID_REFIT_EVERY = 9  # the grid baseline never looks at the model: fit it once per row of blocks
+MAP_DISPLAY_N = 50
+
+
+@dataclass(frozen=True)
+class BenchScenario:
+    key: str  # label in tables and figures
+    scenario: str  # core.emulator scenario name
+    title: str
+    policies: tuple[str, ...]
+    group: str = "paper"  # "paper" (the paper's comparisons) or "robustness" (fields nothing was tuned on)
+    truth_csv: str | None = None  # for scenario "csv": written by the bench into the output folder
+    maps_for: tuple[str, ...] = ()  # policies whose final maps (seed 0) are drawn
+
+
+PAPER = ("grid", "uncertainty", "cost-aware")
+FULL_SCENARIOS: tuple[BenchScenario, ...] = (
+    BenchScenario(
+        "ternary",
+        "ternary",
+        "Ternary library, heteroskedastic noise (paper Figs 3, 6)",
+        (*PAPER, "adaptive-grid", "meta-grid", "adaptive-hold", "aeni", "aeni-bias-hold", "aeni-plus"),
+        maps_for=("uncertainty", "aeni", "aeni-plus"),
+    ),
+    BenchScenario(
+        "good-drift",
+        "ternary-good-drift",
+        "Ternary library, good drift (paper Fig 5)",
+        ("grid", "cost-aware", "adaptive-hold", "aeni", "aeni-bias-hold", "aeni-plus"),
+    ),
+    BenchScenario(
+        "bad-drift",
+        "ternary-bad-drift",
+        "Ternary library, bad drift (paper Fig 5)",
+        ("grid", "cost-aware", "adaptive-hold", "aeni", "aeni-plus"),
+    ),
+    BenchScenario(
+        "film",
+        "film",
+        "Quaternary film, film profile with the 520 s jump (paper Figs 7, 8)",
+        (*PAPER, "aeni", "aeni-bias-hold", "aeni-plus"),
+        maps_for=("aeni", "aeni-plus"),
+    ),
+    BenchScenario(
+        "collapse",
+        "collapse",
+        "Length-scale collapse provocation: 10 % noise, many tight local grids",
+        ("grid", "uncertainty", "aeni", "aeni-unguarded", "aeni-plus"),
+        maps_for=("aeni", "aeni-unguarded"),
+    ),
+    BenchScenario(
+        "phase-boundary",
+        "phase-boundary",
+        "Sharp phase boundary (not tuned on)",
+        ("grid", "uncertainty", "aeni", "aeni-plus"),
+        group="robustness",
+    ),
+    BenchScenario(
+        "edge-spot",
+        "edge-spot",
+        "Small hard spot near an edge (not tuned on)",
+        ("grid", "uncertainty", "aeni", "aeni-plus"),
+        group="robustness",
+    ),
+    BenchScenario(
+        "rotated",
+        "rotated-quaternary",
+        "Rotated four-component spread (not tuned on)",
+        ("grid", "uncertainty", "aeni", "aeni-plus"),
+        group="robustness",
+    ),
+    BenchScenario(
+        "rough-csv",
+        "csv",
+        "Rough real-looking map loaded with --truth (not tuned on)",
+        ("grid", "uncertainty", "aeni", "aeni-plus"),
+        group="robustness",
+        truth_csv="rough_truth.csv",
+    ),
+)
+QUICK_SCENARIOS: tuple[BenchScenario, ...] = (
+    BenchScenario(
+        "ternary",
+        "ternary",
+        "Ternary library, heteroskedastic noise (quick)",
+        ("grid", "uncertainty", "cost-aware", "aeni", "aeni-plus"),
+        maps_for=("aeni-plus",),
+    ),
+)
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    quick: bool = False
+    seeds: int = 10
+    jobs: int = 2
+    lattice_n: int = 50  # candidate lattice per side (the product default is 100 on the 1000 µm square)
+    margin: float = 0.25  # after reaching the target, run on for this fraction of the time it took
+    max_blocks: int = 350
+    scenarios: tuple[BenchScenario, ...] = FULL_SCENARIOS
+
+    @classmethod
+    def make(cls, quick: bool, seeds: int | None = None, jobs: int = 2) -> BenchConfig:
+        if quick:
+            return cls(
+                quick=True,
+                seeds=2 if seeds is None else seeds,
+                jobs=jobs,
+                lattice_n=30,
+                margin=0.0,
+                max_blocks=250,
+                scenarios=QUICK_SCENARIOS,
+            )
+        return cls(quick=False, seeds=10 if seeds is None else seeds, jobs=jobs)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    scenario: BenchScenario
+    policy: str
+    seed: int
+    lattice_n: int
+    truth_csv: str | None = None
+    budget_s: float | None = None  # None: the grid baseline's time
+    target_mape_pct: float | None = None  # None: the grid run that defines it
+    margin: float = 0.25
+    max_blocks: int = 350
+    keep_maps: bool = False
+
+
+@dataclass
+class RunRecord:
+    scenario: str
+    policy: str
+    seed: int
+    target_mape_pct: float | None
+    t_hit_s: float | None  # instrument time at which MAPE first reached the target
+    final_mape_pct: float | None
+    max_found_gpa: float | None
+    true_max_gpa: float
+    instrument_s: float
+    budget_s: float
+    indents: int
+    blocks: int
+    reconfigurations: int
+    ledger: dict[str, float]
+    stop_reason: str
+    wall_s: float
+    trajectory: list[tuple[float, float]]  # (t_s, MAPE %)
+    max_found: list[tuple[float, float]]  # (t_s, max true H among indented points)
+    collapse_alarms: int = 0
+    grid_sizes: dict[int, int] = field(default_factory=dict)
+    fast_hold_blocks: int = 0
+    local_blocks: int = 0
+    peak_mape_after_hit_pct: float | None = None
+    maps: dict[str, Any] | None = None  # seed-0 final maps for the report (not stored in results.json)
+
+
+# -- one run -------------------------------------------------------------------------------------------
+
+
+def _set_threads() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def run_one(spec: RunSpec) -> RunRecord:
+    """One campaign under the bench protocol (a worker process runs many of these)."""
+    _set_threads()
+    from core.campaign import Campaign, CampaignConfig
+    from core.emulator import truth_on_lattice
+    from core.plan import IndentResult, PlannerSettings
+
+    start = time.monotonic()
+    scen = spec.scenario
+    cfg = CampaignConfig(
+        policy=spec.policy,
+        scenario=scen.scenario,
+        truth_csv=spec.truth_csv,
+        seed=spec.seed,
+        lattice_n=spec.lattice_n,
+        settings=PlannerSettings(budget_s=spec.budget_s),
+        name=f"bench-{scen.key}-{spec.policy}-{spec.seed}",
+    )
+    campaign = Campaign(cfg)
+    budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
+    driver = campaign.make_sim_driver()
+    from core.cost import CostLedger
+
+    ledger = CostLedger()
+    is_grid = spec.policy == "grid"
+    trajectory: list[tuple[float, float]] = []
+    max_found: list[tuple[float, float]] = []
+    t_hit: float | None = None
+    peak_after: float | None = None
+    alarms = 0
+    sizes: dict[int, int] = {}
+    fast = local = blocks = indents = 0
+    stop = ""
+    top: float | None = None
+    block_id = 0
+    while True:
+        decision = campaign.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
+        if decision is None:
+            stop = campaign.stop_reason(driver.clock_s()) or "policy finished"
+            break
+        results = []
+        for event in driver.execute_block(decision.block):
+            if isinstance(event, IndentResult):
+                results.append(event)
+            else:
+                ledger.add(event)
+        b = decision.block
+        blocks += 1
+        indents += len(results)
+        sizes[b.grid_g] = sizes.get(b.grid_g, 0) + 1
+        fast += int(b.hold_s < 80.0)
+        local += int(b.kind == "local")
+        refit = not is_grid or blocks % GRID_REFIT_EVERY == 0
+        report = campaign.observe_block(b, results, refit=refit)
+        alarms += int(report is not None and report.collapse)
+        now = driver.clock_s()
+        if results:
+            h_true = campaign.scenario.truth.hardness_gpa(
+                np.array([r.actual_x_um for r in results]), np.array([r.actual_y_um for r in results])
+            )
+            top = float(np.max(h_true)) if top is None else max(top, float(np.max(h_true)))
+            max_found.append((now, top))
+        if refit and campaign.prediction is not None:
+            mape, _ = campaign.metrics()
+            if mape is not None:
+                trajectory.append((now, mape))
+                if spec.target_mape_pct is not None:
+                    if t_hit is None and mape <= spec.target_mape_pct:
+                        t_hit = now
+                    elif t_hit is not None:
+                        peak_after = mape if peak_after is None else max(peak_after, mape)
+        block_id += 1
+        if t_hit is not None and now >= t_hit * (1.0 + spec.margin):
+            stop = f"reached the target MAPE at {t_hit:,.0f} s and ran on {100 * spec.margin:.0f} %"
+            break
+        if blocks >= spec.max_blocks:
+            stop = f"block cap ({spec.max_blocks} blocks)"
+            break
+    for event in driver.end_program():
+        ledger.add(event)
+    if (
+        is_grid
+        and (not trajectory or trajectory[-1][0] < driver.clock_s() - 1.0)
+        and len(campaign.centres) >= 2
+    ):
+        campaign.surrogate.fit(campaign.observations())
+        mape, _ = campaign.metrics()
+        if mape is not None:
+            trajectory.append((driver.clock_s(), mape))
+    final, _ = campaign.metrics()
+    if is_grid and final is not None:
+        t_hit = next(t for t, m in trajectory if m <= final)
+    _, _, h = truth_on_lattice(campaign.scenario.truth, 100)
+    maps = _maps(campaign) if spec.keep_maps and campaign.prediction is not None else None
+    return RunRecord(
+        scenario=scen.key,
+        policy=spec.policy,
+        seed=spec.seed,
+        target_mape_pct=final if is_grid else spec.target_mape_pct,
+        t_hit_s=t_hit,
+        final_mape_pct=final,
+        max_found_gpa=top,
+        true_max_gpa=float(h.max()),
+        instrument_s=driver.clock_s(),
+        budget_s=budget,
+        indents=indents,
+        blocks=blocks,
+        reconfigurations=ledger.reconfigurations,
+        ledger=ledger.as_dict(),
+        stop_reason=stop,
+        wall_s=time.monotonic() - start,
+        trajectory=trajectory,
+        max_found=max_found,
+        collapse_alarms=alarms,
+        grid_sizes=sizes,
+        fast_hold_blocks=fast,
+        local_blocks=local,
+        peak_mape_after_hit_pct=peak_after,
+        maps=maps,
+    )
+
+
+def _maps(campaign: Any) -> dict[str, Any]:
+    f = campaign.map_fields(0, MAP_DISPLAY_N)
+    centres = np.array([(c.x_um, c.y_um) for c in campaign.centres])
+    kinds = [b.kind for b in campaign.blocks]
+    return {
+        "x_um": np.asarray(f.x_um),
+        "y_um": np.asarray(f.y_um),
+        "mean": np.asarray(f.mean_gpa),
+        "epistemic_sd": np.asarray(f.epistemic_sd_gpa),
+        "noise_sd": np.asarray(f.noise_sd_gpa),
+        "total_sd": np.asarray(f.total_sd_gpa),
+        "centres_um": centres,
+        "local": np.array([k == "local" for k in kinds]),
+        "reverse_x": bool(campaign.profile.reverse_x),
+    }
+
+
+# -- the whole bench -----------------------------------------------------------------------------------
+
+
+def write_rough_truth(path: Path, seed: int = 11, n: int = 101) -> Path:
+    """A rough real-looking map as a CSV lattice (what a user would load with ``--truth``)."""
+    from core.emulator import RoughField
+
+    field_ = RoughField(seed=seed)
+    xs = np.linspace(0.0, field_.side_um, n)
+    gx, gy = np.meshgrid(xs, xs)
+    h = field_.hardness_gpa(gx, gy)
+    sd = field_.noise_sd_gpa(gx, gy)
+    lines = ["x_um,y_um,hardness_gpa,noise_sd_gpa"]
+    lines += [
+        f"{x:.3f},{y:.3f},{hv:.6f},{sv:.6f}"
+        for x, y, hv, sv in zip(gx.ravel(), gy.ravel(), h.ravel(), sd.ravel(), strict=True)
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _parallel(
+    specs: Sequence[RunSpec], jobs: int, progress: Callable[[RunRecord], None] | None
+) -> list[RunRecord]:
+    if jobs <= 1:
+        out = []
+        for s in specs:
+            r = run_one(s)
+            if progress is not None:
+                progress(r)
+            out.append(r)
+        return out
+    from joblib import Parallel, delayed
+
+    # slowest first, so the pool does not end waiting on one long run
+    order = sorted(range(len(specs)), key=lambda i: -_expected_cost(specs[i]))
+    runner = Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")
+    results: dict[int, RunRecord] = {}
+    tagged = runner(delayed(_run_tagged)(i, specs[i]) for i in order)
+    for i, rec in tagged:
+        results[i] = rec
+        if progress is not None:
+            progress(rec)
+    return [results[i] for i in range(len(specs))]
+
+
+def _run_tagged(i: int, spec: RunSpec) -> tuple[int, RunRecord]:
+    return i, run_one(spec)
+
+
+def _expected_cost(spec: RunSpec) -> float:
+    return {"grid": 0.2, "uncertainty": 0.6, "cost-aware": 0.8, "adaptive-grid": 0.8}.get(spec.policy, 1.5)
+
+
+def run_bench(
+    config: BenchConfig, work_dir: Path, progress: Callable[[RunRecord], None] | None = None
+) -> list[RunRecord]:
+    """Grid baselines first (they set each seed's target and budget), then every other policy.
+
+    ``work_dir`` receives the files that runs read (the rough truth CSV); nothing is written elsewhere.
+    """
+    if config.seeds < 1:
+        raise InputError("--seeds", f"must be at least 1, got {config.seeds}")
+    if config.jobs < 1:
+        raise InputError("--jobs", f"must be at least 1, got {config.jobs}")
+    work_dir.mkdir(parents=True, exist_ok=True)
+    csv_paths: dict[str, str] = {}
+    for sc in config.scenarios:
+        if sc.truth_csv is not None:
+            csv_paths[sc.key] = str(write_rough_truth(work_dir / sc.truth_csv))
+    seeds = range(config.seeds)
+
+    def spec(sc: BenchScenario, policy: str, seed: int, **kw: Any) -> RunSpec:
+        return RunSpec(
+            scenario=sc,
+            policy=policy,
+            seed=seed,
+            lattice_n=config.lattice_n,
+            truth_csv=csv_paths.get(sc.key),
+            margin=config.margin,
+            max_blocks=config.max_blocks,
+            keep_maps=seed == 0 and policy in sc.maps_for,
+            **kw,
+        )
+
+    grids = _parallel([spec(sc, "grid", s) for sc in config.scenarios for s in seeds], config.jobs, progress)
+    by_key = {(r.scenario, r.seed): r for r in grids}
+    rest = [
+        spec(
+            sc,
+            p,
+            s,
+            budget_s=by_key[(sc.key, s)].instrument_s,
+            target_mape_pct=by_key[(sc.key, s)].final_mape_pct,
+        )
+        for sc in config.scenarios
+        for p in sc.policies
+        if p != "grid"
+        for s in seeds
+    ]
+    return grids + _parallel(rest, config.jobs, progress)
+
+
+# -- aggregation ----------------------------------------------------------------------------------------
+
+
+def _quartiles(values: Sequence[float]) -> tuple[float, float, float] | None:
+    """Quartiles that keep ±inf (a run that never reached the target) instead of turning them into NaN."""
+    vals = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    if not vals:
+        return None
+    big = 1e300
+    arr = np.clip(np.asarray(vals, dtype=float), -big, big)
+    q = np.quantile(arr, [0.25, 0.5, 0.75])
+    return tuple(math.copysign(math.inf, x) if abs(x) >= 1e299 else float(x) for x in q)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class PolicySummary:
+    scenario: str
+    policy: str
+    n_seeds: int
+    hit_rate: float  # share of seeds that reached the target
+    t_hit_s: tuple[float, float, float] | None  # quartiles; a miss counts as +inf
+    speedup_grid: tuple[float, float, float] | None
+    speedup_uncertainty: tuple[float, float, float] | None
+    speedup_ref: dict[str, tuple[float, float, float] | None]  # against other references (ablations)
+    t_loose_s: tuple[float, float, float] | None  # time to LOOSE_FACTOR × the target
+    speedup_grid_loose: tuple[float, float, float] | None
+    final_mape_pct: tuple[float, float, float] | None
+    max_found_gpa: tuple[float, float, float] | None
+    true_max_gpa: float
+    reconfigurations: tuple[float, float, float] | None
+    indents: tuple[float, float, float] | None
+    instrument_s: tuple[float, float, float] | None
+    ledger_s: dict[str, float]  # median seconds per category
+    collapse_alarms: tuple[float, float, float] | None
+    peak_mape_after_hit_pct: tuple[float, float, float] | None
+    worst_rise: tuple[float, float, float] | None  # MAPE / its best so far, worst over the run
+    wall_s: float  # total over seeds
+
+
+# the reference each idea is measured against (SPEC §7; the issue's targets)
+ABLATION_REFERENCE: dict[str, str] = {
+    "adaptive-grid": "uncertainty",
+    "meta-grid": "uncertainty",
+    "adaptive-hold": "cost-aware",
+    "aeni-bias-hold": "aeni",
+    "aeni-plus": "aeni",
+}
+
+
+LOOSE_FACTOR = 1.5  # a second, looser target: where the noise floor does not decide
+
+
+def _hit(r: RunRecord) -> float:
+    return r.t_hit_s if r.t_hit_s is not None else math.inf
+
+
+def _hit_loose(r: RunRecord) -> float:
+    if r.target_mape_pct is None:
+        return math.inf
+    return next((t for t, m in r.trajectory if m <= LOOSE_FACTOR * r.target_mape_pct), math.inf)
+
+
+def _paired_speedups(
+    runs: dict[int, RunRecord], refs: dict[int, RunRecord], hit: Callable[[RunRecord], float] = _hit
+) -> list[float]:
+    out = []
+    for seed, r in runs.items():
+        ref = refs.get(seed)
+        if ref is None:
+            continue
+        a, b = hit(ref), hit(r)
+        if math.isinf(a) and math.isinf(b):
+            continue  # neither reached the target: no ratio
+        out.append(math.inf if math.isinf(a) else (0.0 if math.isinf(b) else a / b))
+    return out
+
+
+def summarise(records: Sequence[RunRecord]) -> list[PolicySummary]:
+    groups: dict[tuple[str, str], dict[int, RunRecord]] = {}
+    for r in records:
+        groups.setdefault((r.scenario, r.policy), {})[r.seed] = r
+    out = []
+    for (scen, policy), runs in groups.items():
+        vals = list(runs.values())
+
+        def ref(name: str, scen: str = scen, runs: dict[int, RunRecord] = runs) -> Any:
+            other = groups.get((scen, name))
+            return _quartiles(_paired_speedups(runs, other)) if other else None
+
+        refs = {}
+        if policy in ABLATION_REFERENCE:
+            refs[ABLATION_REFERENCE[policy]] = ref(ABLATION_REFERENCE[policy])
+        ledger_keys = sorted({k for r in vals for k in r.ledger})
+        out.append(
+            PolicySummary(
+                scenario=scen,
+                policy=policy,
+                n_seeds=len(vals),
+                hit_rate=sum(r.t_hit_s is not None for r in vals) / len(vals),
+                t_hit_s=_quartiles([_hit(r) for r in vals]),
+                speedup_grid=ref("grid"),
+                speedup_uncertainty=ref("uncertainty"),
+                speedup_ref=refs,
+                t_loose_s=_quartiles([_hit_loose(r) for r in vals]),
+                speedup_grid_loose=(
+                    _quartiles(_paired_speedups(runs, groups[(scen, "grid")], _hit_loose))
+                    if (scen, "grid") in groups
+                    else None
+                ),
+                final_mape_pct=_quartiles([r.final_mape_pct for r in vals if r.final_mape_pct is not None]),
+                max_found_gpa=_quartiles([r.max_found_gpa for r in vals if r.max_found_gpa is not None]),
+                true_max_gpa=float(np.median([r.true_max_gpa for r in vals])),
+                reconfigurations=_quartiles([float(r.reconfigurations) for r in vals]),
+                indents=_quartiles([float(r.indents) for r in vals]),
+                instrument_s=_quartiles([r.instrument_s for r in vals]),
+                ledger_s={k: float(np.median([r.ledger.get(k, 0.0) for r in vals])) for k in ledger_keys},
+                collapse_alarms=_quartiles([float(r.collapse_alarms) for r in vals]),
+                peak_mape_after_hit_pct=_quartiles(
+                    [r.peak_mape_after_hit_pct for r in vals if r.peak_mape_after_hit_pct is not None]
+                ),
+                worst_rise=_quartiles([w for r in vals if (w := worst_rise(r.trajectory)) is not None]),
+                wall_s=float(sum(r.wall_s for r in vals)),
+            )
+        )
+    return out
+
+
+def _thin(
+    points: Sequence[tuple[float, float]], keep_t: float | None, most: int = 120
+) -> list[tuple[float, float]]:
+    """At most about ``most`` points, evenly by index, always with the first, the last and the hit."""
+    if len(points) <= most:
+        return list(points)
+    idx = set(np.linspace(0, len(points) - 1, most).astype(int).tolist())
+    idx |= {i for i, p in enumerate(points) if keep_t is not None and p[0] == keep_t}
+    return [points[i] for i in sorted(idx)]
+
+
+def worst_rise(trajectory: Sequence[tuple[float, float]]) -> float | None:
+    """The largest factor by which MAPE rose above its best so far: > 1.5 means the model diverged."""
+    if not trajectory:
+        return None
+    best, worst = math.inf, 1.0
+    for _, m in trajectory:
+        best = min(best, m)
+        worst = max(worst, m / best)
+    return worst
+
+
+def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: float) -> dict[str, Any]:
+    """results.json: the protocol, every run (without maps) and the summaries."""
+
+    def clean(obj: Any) -> Any:
+        if isinstance(obj, float):
+            return None if not math.isfinite(obj) else round(obj, 6)
+        if isinstance(obj, dict):
+            return {str(k): clean(v) for k, v in obj.items()}
+        if isinstance(obj, list | tuple):
+            return [clean(v) for v in obj]
+        return obj
+
+    runs = []
+    for r in records:
+        d = asdict(replace(r, maps=None))
+        d.pop("maps")
+        d["trajectory"] = [[round(t), round(m, 4)] for t, m in _thin(r.trajectory, r.t_hit_s)]
+        steps = [p for i, p in enumerate(r.max_found) if i == 0 or p[1] != r.max_found[i - 1][1]]
+        d["max_found"] = [[round(t), round(v, 4)] for t, v in steps]  # only where it rose
+        runs.append(d)
+    return clean(
+        {
+            "protocol": {
+                "quick": config.quick,
+                "seeds": config.seeds,
+                "jobs": config.jobs,
+                "lattice_n": config.lattice_n,
+                "margin": config.margin,
+                "max_blocks": config.max_blocks,
+                "scenarios": [
+                    {"key": s.key, "scenario": s.scenario, "title": s.title, "policies": list(s.policies)}
+                    for s in config.scenarios
+                ],
+                "wall_s": wall_s,
+            },
+            "summaries": [asdict(s) for s in summarise(records)],
+            "runs": runs,
+        }
+    )

@@ -1,0 +1,155 @@
+"""``aeni bench``: the quick bench end to end (relations between policies, never absolute times), the
+aggregation rules, the report files, and bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from aeni_console.cli import main
+from core.bench import BenchConfig, RunRecord, _paired_speedups, _quartiles, summarise
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, object]]:
+    out = tmp_path_factory.mktemp("bench")
+    assert main(["bench", "--quick", "--quiet", "--out", str(out)]) == 0
+    return out, json.loads((out / "results.json").read_text(encoding="utf-8"))
+
+
+def _summary(data: dict[str, object], policy: str) -> dict[str, object]:
+    summaries = data["summaries"]
+    assert isinstance(summaries, list)
+    return next(s for s in summaries if s["policy"] == policy and s["scenario"] == "ternary")
+
+
+def _median_hit(data: dict[str, object], policy: str) -> float:
+    q = _summary(data, policy)["t_hit_s"]
+    return math.inf if q is None or q[1] is None else float(q[1])  # type: ignore[index]
+
+
+def test_quick_bench_runs_every_policy_on_the_same_seeds(quick: tuple[Path, dict[str, object]]) -> None:
+    _, data = quick
+    runs = data["runs"]
+    assert isinstance(runs, list)
+    cfg = BenchConfig.make(quick=True)
+    expected = {(p, s) for sc in cfg.scenarios for p in sc.policies for s in range(cfg.seeds)}
+    assert {(r["policy"], r["seed"]) for r in runs} == expected
+    grid = {r["seed"]: r for r in runs if r["policy"] == "grid"}
+    for r in runs:
+        g = grid[r["seed"]]
+        # same target and budget for every policy on a seed: the grid's final MAPE and its time
+        assert r["target_mape_pct"] == pytest.approx(g["final_mape_pct"])
+        if r["policy"] != "grid":
+            assert r["budget_s"] == pytest.approx(g["instrument_s"])
+            assert r["instrument_s"] <= g["instrument_s"] * 1.02 + 1.0
+        assert sum(r["ledger"].values()) == pytest.approx(r["instrument_s"], rel=1e-9)
+        if r["t_hit_s"] is not None:
+            # results.json rounds the trajectory (1 s, 1e-4 %)
+            hit = next(t for t, m in r["trajectory"] if m <= r["target_mape_pct"] + 1e-4)
+            assert r["t_hit_s"] == pytest.approx(hit, abs=1.0)
+
+
+def test_quick_bench_relations(quick: tuple[Path, dict[str, object]]) -> None:
+    _, data = quick
+    grid = _median_hit(data, "grid")
+    assert grid == pytest.approx(286_600, rel=0.01)  # the grid reaches its own final MAPE at its end
+    for policy in ("uncertainty", "cost-aware", "aeni-plus"):
+        s = _summary(data, policy)
+        assert s["hit_rate"] == 1.0, policy
+        assert _median_hit(data, policy) < grid, policy
+    # cost-awareness and the full workflow pay: each reaches the grid's final MAPE sooner than the last
+    assert _median_hit(data, "cost-aware") < grid / 1.5
+    assert _median_hit(data, "aeni-plus") < _median_hit(data, "uncertainty")
+    assert _summary(data, "aeni-plus")["speedup_grid"][1] > 2.0  # type: ignore[index]
+    # the grid never finds the corner maximum; the adaptive policies get closer to it
+    grid_max = _summary(data, "grid")["max_found_gpa"][1]  # type: ignore[index]
+    assert _summary(data, "uncertainty")["max_found_gpa"][1] > grid_max + 0.5  # type: ignore[index]
+
+
+def test_quick_bench_writes_the_report(quick: tuple[Path, dict[str, object]]) -> None:
+    out, _ = quick
+    md = (out / "RESULTS.md").read_text(encoding="utf-8")
+    assert "| policy | reached | time to grid's final MAPE | speed-up vs grid | vs uncertainty |" in md
+    for policy in ("grid", "uncertainty", "cost-aware", "aeni", "aeni-plus"):
+        assert f"| `{policy}` |" in md
+    assert "## Targets" in md and "≥ 30×" in md
+    for name in ("curves_ternary.png", "maps_ternary.png", "costs.png"):
+        png = out / "figures" / name
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"figures/{name}" in md
+    assert not (out / "rough_truth.csv").exists()  # working files stay out of the report folder
+
+
+# -- aggregation rules ----------------------------------------------------------------------------------
+
+
+def _rec(policy: str, seed: int, hit: float | None, final: float = 0.5) -> RunRecord:
+    return RunRecord(
+        scenario="s",
+        policy=policy,
+        seed=seed,
+        target_mape_pct=0.5,
+        t_hit_s=hit,
+        final_mape_pct=final,
+        max_found_gpa=5.0,
+        true_max_gpa=6.0,
+        instrument_s=hit or 1000.0,
+        budget_s=1000.0,
+        indents=100,
+        blocks=10,
+        reconfigurations=0,
+        ledger={"indent": 100.0},
+        stop_reason="",
+        wall_s=1.0,
+        trajectory=[(hit or 1000.0, final)],
+        max_found=[(10.0, 5.0)],
+    )
+
+
+def test_quartiles_keep_misses_as_infinite() -> None:
+    assert _quartiles([1.0, 2.0, 3.0]) == (1.5, 2.0, 2.5)
+    assert _quartiles([1.0, 2.0, 3.0, math.inf]) == (1.75, 2.5, math.inf)
+    assert math.isinf(_quartiles([1.0, math.inf, math.inf])[1])  # type: ignore[index]
+    assert _quartiles([]) is None
+
+
+def test_speedups_are_paired_by_seed_and_misses_count_as_infinitely_slow() -> None:
+    ref = {0: _rec("grid", 0, 1000.0), 1: _rec("grid", 1, 1000.0), 2: _rec("grid", 2, None)}
+    pol = {0: _rec("p", 0, 250.0), 1: _rec("p", 1, None), 2: _rec("p", 2, 400.0)}
+    assert sorted(_paired_speedups(pol, ref)) == [0.0, 4.0, math.inf]
+    both_miss = {2: _rec("p", 2, None)}
+    assert _paired_speedups(both_miss, ref) == []
+    rows = summarise([*ref.values(), *pol.values()])
+    p = next(r for r in rows if r.policy == "p")
+    assert p.hit_rate == pytest.approx(2 / 3)
+    assert p.speedup_grid is not None and p.speedup_grid[1] == pytest.approx(4.0)
+
+
+# -- bad input ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [(["--seeds", "0"], "--seeds"), (["--jobs", "two"], "--jobs"), (["--out", "{file}"], "folder")],
+)
+def test_bench_bad_input_is_one_line_exit_2_and_nothing_written(
+    args: list[str], needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    afile = tmp_path / "taken.txt"
+    afile.write_text("x", encoding="utf-8")
+    args = [a.format(file=afile) for a in args]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "out")]
+    try:
+        code = main(["bench", "--quick", *args])
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    err = captured.err.strip()
+    assert "\n" not in err and needle in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.txt"]

@@ -194,11 +194,22 @@ def main() -> int:
                 proc.terminate()
                 proc.wait(timeout=30)
 
-    print(f"AE-NI console latency ({where}; 100×30 headless; {args.presses} presses; {posted} snapshots fed)")
+    import os
+
+    title = (
+        f"AE-NI console latency ({where}; 100×30 headless; {args.presses} presses; {posted} snapshots fed)"
+    )
+    print(title)
     print(f"{'measure':<56} {'n':>4} {'median ms':>10} {'p90 ms':>9}")
+    md = [f"# {title}", "", f"Load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.", ""]
+    md += ["| measure | n | median ms | p90 ms |", "|---|---:|---:|---:|"]
     for name, vals in rows.items():
         ms = [v * 1000 for v in vals]
         print(f"{name:<56} {len(ms):>4} {statistics.median(ms):>10.2f} {pct(ms, 90):>9.2f}")
+        md.append(f"| {name} | {len(ms)} | {statistics.median(ms):.2f} | {pct(ms, 90):.2f} |")
+    out = ROOT / "benchmarks" / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "console_latency.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     return 0
 
 

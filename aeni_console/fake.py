@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from core.cost import CostLedger, indent_steps
+from core.emulator import TernaryField
 from core.errors import InputError
 from core.plan import Alternative, Block, Decision, PlannerSettings, local_grid
 from core.profile import InstrumentProfile
@@ -37,21 +38,16 @@ from core.runview import (
 SIDE_UM = 1000.0
 
 
+_TERNARY = TernaryField(side_um=SIDE_UM, noise="hetero")
+
+
 def ternary_hardness(x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray:
-    """The spec's ternary library (SPEC §4), so the fake maps look like the emulator's."""
-    a = np.clip(np.asarray(x_um, float) / SIDE_UM, 0, 1)
-    b = np.clip(np.asarray(y_um, float) / SIDE_UM, 0, 1)
-    c = np.maximum(1 - a - b, 0.01)
-    s = a + b + c
-    a, b, c = a / s, b / s, c / s
-    return 3 * a + 5 * b + 7 * c - 4 * a * b - 3 * b * c - 2 * c * a - 6 * c**2 * (1 - c)
+    """The emulator's ternary library, so the fake maps look like a real run's."""
+    return _TERNARY.hardness_gpa(np.clip(x_um, 0, SIDE_UM), np.clip(y_um, 0, SIDE_UM))
 
 
 def ternary_noise(x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray:
-    a = np.clip(np.asarray(x_um, float) / SIDE_UM, 0, 1)
-    b = np.clip(np.asarray(y_um, float) / SIDE_UM, 0, 1)
-    c = np.maximum(1 - a - b, 0.01)
-    return 0.005 + 0.1 * a + 0.05 * b + 0.025 * c
+    return _TERNARY.noise_sd_gpa(np.clip(x_um, 0, SIDE_UM), np.clip(y_um, 0, SIDE_UM))
 
 
 VALID_ADJUST: dict[str, tuple[type, float | None, float | None]] = {

@@ -8,6 +8,7 @@ It never touches an instrument: the driver does that, and the engine moves data 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -118,7 +119,7 @@ class Campaign:
         self.last_stop_reason: str | None = None
 
     # -- static facts ----------------------------------------------------------------------------
-    @property
+    @functools.cached_property
     def grid_baseline_s(self) -> float:
         x0, x1, y0, y1 = self.calibration.bounds_um
         blocks = grid_baseline_blocks(

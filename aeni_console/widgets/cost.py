@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from rich.table import Table
 from rich.text import Text
-from textual.widgets import Static
 
+from aeni_console.widgets.base import SnapshotPanel
 from aeni_console.widgets.fmt import bar, hms, short_duration
 from core.runview import RunSnapshot
 
@@ -37,16 +37,10 @@ def cost_rows(ledger: dict[str, float]) -> list[tuple[str, float]]:
     return out
 
 
-class CostPanel(Static):
+class CostPanel(SnapshotPanel):
     """Seconds by category, total instrument time and the grid baseline for comparison."""
 
     BORDER_TITLE = "Cost"
-
-    snap: RunSnapshot | None = None
-
-    def on_resize(self) -> None:
-        if self.snap is not None:
-            self.show(self.snap)
 
     def show(self, snap: RunSnapshot) -> None:
         self.snap = snap

@@ -5,8 +5,8 @@ from __future__ import annotations
 from rich.console import Group
 from rich.table import Table
 from rich.text import Text
-from textual.widgets import Static
 
+from aeni_console.widgets.base import SnapshotPanel
 from aeni_console.widgets.fmt import bar, num, short_duration, xy
 from core.plan import Decision
 from core.runview import EngineState, RunSnapshot
@@ -93,17 +93,12 @@ def decision_renderable(snap: RunSnapshot, width: int, replay: bool = False) -> 
     return Group(*parts)  # type: ignore[arg-type]
 
 
-class DecisionPanel(Static):
+class DecisionPanel(SnapshotPanel):
     """The pending proposal, stay-vs-jump scores, predicted cost and the next-best alternatives."""
 
     BORDER_TITLE = "Decision"
 
-    snap: RunSnapshot | None = None
     replay = False  # in replay the pending decision is the one the planner made after this block
-
-    def on_resize(self) -> None:
-        if self.snap is not None:
-            self.show(self.snap)
 
     def show(self, snap: RunSnapshot) -> None:
         self.snap = snap

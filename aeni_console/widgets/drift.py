@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from rich.text import Text
-from textual.widgets import Static
 
+from aeni_console.widgets.base import SnapshotPanel
 from aeni_console.widgets.fmt import bar, hms
 from core.runview import RunSnapshot
 
@@ -40,16 +40,10 @@ def drift_text(snap: RunSnapshot, width: int) -> Text:
     return t
 
 
-class DriftPanel(Static):
+class DriftPanel(SnapshotPanel):
     """Last drift rate, hold mode, area error % against the 2 % threshold, drift events."""
 
     BORDER_TITLE = "Drift"
-
-    snap: RunSnapshot | None = None
-
-    def on_resize(self) -> None:
-        if self.snap is not None:
-            self.show(self.snap)
 
     def show(self, snap: RunSnapshot) -> None:
         self.snap = snap

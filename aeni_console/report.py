@@ -36,6 +36,8 @@ POLICY_COLORS: dict[str, str] = {
     "aeni": "#ff7f0e",
     "aeni-bias-hold": "#e377c2",
     "aeni-plus": "#d62728",
+    "aeni-ivr": "#8c564b",
+    "aeni-tight": "#393b79",
     "aeni-unguarded": "#9467bd",
 }
 LEDGER_COLORS: dict[str, str] = {
@@ -160,7 +162,11 @@ def targets(summaries: Sequence[PolicySummary], records: Sequence[RunRecord]) ->
                 ok,
                 f"vs {m_ca:.3f} %; reached {ah.hit_rate:.0%} vs {ca.hit_rate:.0%}" if m_ca else "",
             )
-    guarded, unguarded = _get(summaries, "collapse", "aeni"), _get(summaries, "collapse", "aeni-unguarded")
+    # the same tight planner with and without the guard (floor, prior and keep-last-good)
+    guarded, unguarded = (
+        _get(summaries, "collapse", "aeni-tight"),
+        _get(summaries, "collapse", "aeni-unguarded"),
+    )
     if guarded is not None and unguarded is not None:
         rise_g, rise_u = _med(guarded.worst_rise), _med(unguarded.worst_rise)
         alarms_g, alarms_u = _med(guarded.collapse_alarms), _med(unguarded.collapse_alarms)

@@ -19,6 +19,7 @@ import numpy as np
 from core.cost import CostLedger, grid_baseline_blocks, price_sequence
 from core.emulator import Scenario, make_scenario, truth_on_lattice
 from core.errors import InputError
+from core.estimators import CentreEstimator, centre_value, estimator_efficiency
 from core.geometry import CandidateLattice
 from core.metrics import mape_pct
 from core.plan import Block, Decision, IndentResult, PlannerSettings
@@ -30,6 +31,7 @@ from core.settings import adjust_settings, settings_from_dict, settings_to_dict
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
 VETO_HOLD_BLOCKS = 3
+UNGUARDED_FLOOR_UV = 0.001  # 1 µm on the 1000 µm square: a floor in name only (the unguarded ablation)
 
 
 @dataclass(frozen=True)
@@ -70,6 +72,8 @@ class CentreRecord:
     median_gpa: float
     spread_var_gpa2: float
     n_indents: int
+    value_gpa: float | None = None  # what the GP sees (the policy's centre estimator); None: the median
+    efficiency: float | None = None  # var(value)·n/σ²; None: the median's
 
 
 @dataclass
@@ -101,11 +105,15 @@ class Campaign:
             # default horizon: the instrument time of the full grid baseline on this area
             self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
         pitch_uv = min(self.lattice.pitch_uv)
+        floor = bool(getattr(self.policy, "surrogate_floor", True))
+        self.centre_estimator: CentreEstimator = getattr(self.policy, "centre_estimator", "median")
         self.surrogate = HeteroskedasticGP(
             heteroskedastic=True,
-            lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005),
+            lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005) if floor else UNGUARDED_FLOOR_UV,
+            lengthscale_prior=floor,
             seed=config.seed,
             guard=getattr(self.policy, "surrogate_guard", "keep-last-good"),
+            nugget=getattr(self.policy, "surrogate_nugget", False),
         )
         self.centres: list[CentreRecord] = []
         self.blocks: list[Block] = []
@@ -145,6 +153,7 @@ class Campaign:
             self.scenario.drift,
             seed=self.config.seed,
             lateral_sd_um=self.scenario.lateral_sd_um,
+            site_texture=self.scenario.site_texture,
         )
         return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())
 
@@ -155,17 +164,20 @@ class Campaign:
         if hyper is None or scale is None:
             return None
         ls = hyper["lengthscales_uv"]
-        return GPSummary(str(hyper["kernel"]), (float(ls[0]), float(ls[1])), float(scale))
+        return GPSummary(
+            str(hyper["kernel"]), (float(ls[0]), float(ls[1])), float(scale), self.surrogate.site_sd_gpa**2
+        )
 
     def _tested_noise_var(self) -> np.ndarray | None:
-        """Noise variance of each centre's median as the model sees it: eff(n)·σ²(x)/n."""
+        """Noise variance of each centre's value as the model sees it: eff(n)·σ²(x)/n (+ the site scatter)."""
         if self.prediction is None or not self.centres:
             return None
         from core.policies.variance import median_noise_var
 
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])
         sd = self.predict_stage(xy[:, 0], xy[:, 1]).noise_sd
-        return median_noise_var(sd, np.array([c.n_indents for c in self.centres]))
+        n = np.array([c.n_indents for c in self.centres])
+        return median_noise_var(sd, n, self.centre_estimator) + self.surrogate.site_sd_gpa**2
 
     def _program_state(self) -> tuple[tuple[float, float] | None, float | None, int]:
         centre: tuple[float, float] | None = None
@@ -271,6 +283,8 @@ class Campaign:
                 median_gpa=float(np.median(h)),
                 spread_var_gpa2=float(np.var(h, ddof=1)) if len(h) >= 2 else math.nan,
                 n_indents=len(h),
+                value_gpa=centre_value(h, self.centre_estimator),
+                efficiency=float(estimator_efficiency(self.centre_estimator, len(h))),
             )
         )
         self.blocks.append(block)
@@ -285,9 +299,16 @@ class Campaign:
         u, v = self.calibration.to_uv(xy[:, 0], xy[:, 1])
         return Observations(
             uv=np.column_stack([u, v]),
-            median_gpa=np.array([c.median_gpa for c in self.centres]),
+            median_gpa=np.array([c.median_gpa if c.value_gpa is None else c.value_gpa for c in self.centres]),
             spread_var_gpa2=np.array([c.spread_var_gpa2 for c in self.centres]),
             n_indents=np.array([c.n_indents for c in self.centres]),
+            efficiency=np.array(
+                [
+                    estimator_efficiency("median", c.n_indents) if c.efficiency is None else c.efficiency
+                    for c in self.centres
+                ],
+                dtype=float,
+            ),
         )
 
     def observe_block(

@@ -418,6 +418,36 @@ class RoughField:
         return 0.01 + 0.012 * self.trend_gpa(x_um, y_um)
 
 
+class SiteTexture:
+    """Indent-scale heterogeneity (grain clusters, roughness, thickness ripple) that a tight grid shares.
+
+    A seeded sum of random plane waves of ~``scale_um`` wavelength with standard deviation ``sd_gpa``:
+    indents 5 µm apart see nearly the same offset, centres 100 µm apart independent ones. It is measurement
+    error, not map: the truth (and MAPE) stays the smooth field. A within-grid spread cannot see it, so a
+    GP that takes its noise from those spreads alone has to explain it with short length-scales.
+    """
+
+    _MODES = 64
+
+    def __init__(self, sd_gpa: float, scale_um: float = 40.0, seed: int = 0) -> None:
+        for key, value in (("site_sd_gpa", sd_gpa), ("site_scale_um", scale_um)):
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(key, f"must be a positive finite number, got {value!r}")
+        self.sd_gpa = float(sd_gpa)
+        self.scale_um = float(scale_um)
+        rng = np.random.default_rng([_check_seed(seed), 0x53495445])
+        direction = rng.uniform(0.0, 2.0 * math.pi, self._MODES)
+        k = 2.0 * math.pi / (self.scale_um * rng.uniform(0.7, 1.4, self._MODES))
+        self._kx, self._ky = k * np.cos(direction), k * np.sin(direction)
+        self._phase = rng.uniform(0.0, 2.0 * math.pi, self._MODES)
+        self._amp = self.sd_gpa * math.sqrt(2.0 / self._MODES)
+
+    def offset_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        x, y = _xy(x_um, y_um)
+        arg = x[..., None] * self._kx + y[..., None] * self._ky + self._phase
+        return np.asarray(self._amp * np.cos(arg).sum(axis=-1), dtype=float)
+
+
 # --------------------------------------------------------------------------------------------- truth from a file
 
 _CSV_REQUIRED = ("x_um", "y_um", "hardness_gpa")
@@ -591,12 +621,14 @@ _DRIFT_PARAMS: dict[str, tuple[float, float, float]] = {
     "good": (0.3, 600.0, 3.0 * 3600.0),
     "bad": (1.0, 4000.0, 2.0 * 3600.0),
 }
-_DRIFT_BASE_NM_S = 0.005
+# SPEC §4 models drift as decaying events only, and scenario "none" must mean no drift; a steady rate is
+# available for studies (``DriftModel(base_nm_s=...)``) but no named scenario has one
+_DRIFT_BASE_NM_S = 0.0
 
 
 @dataclass(frozen=True)
 class DriftModel:
-    """Vertical thermal drift on the instrument clock: a small base rate plus decaying events.
+    """Vertical thermal drift on the instrument clock: decaying events over an optional steady rate.
 
     DR(t) = base + Σ_k A_k·exp(−(t − t0_k)/τ_k) for t ≥ t0_k. Loading the sample disturbs the enclosure, so
     the "good" and "bad" scenarios open with an event at t = 0; later events arrive as a seeded Poisson process.
@@ -683,8 +715,10 @@ class Emulator:
         nominal_depth_nm: float = 100.0,
         t_measure_s: float = 40.0,
         full_correction_hold_s: float = 80.0,
+        site_texture: SiteTexture | None = None,
     ) -> None:
         self.truth = truth
+        self.site_texture = site_texture
         self.drift = drift
         self.seed = _check_seed(seed)
         for key, value in (
@@ -733,6 +767,8 @@ class Emulator:
         h_true = float(self.truth.hardness_gpa(cx, cy))
         sd = float(self.truth.noise_sd_gpa(cx, cy))
         h_noisy = h_true + sd * float(self._rng(block_id, indent_index, _K_HARDNESS).standard_normal())
+        if self.site_texture is not None:
+            h_noisy += float(self.site_texture.offset_gpa(cx, cy))
         h_noisy = max(h_noisy, 1e-3)
         depth = self.nominal_depth_nm
         shrink = depth / (depth + self.depth_bias_nm(t_s, hold_s))
@@ -770,9 +806,16 @@ class Scenario:
     lateral_sd_um: float
     description: str
     seed: int = 0
+    site_texture: SiteTexture | None = None
 
     def make_emulator(self) -> Emulator:
-        return Emulator(self.truth, self.drift, self.seed, lateral_sd_um=self.lateral_sd_um)
+        return Emulator(
+            self.truth,
+            self.drift,
+            self.seed,
+            lateral_sd_um=self.lateral_sd_um,
+            site_texture=self.site_texture,
+        )
 
 
 SCENARIOS: dict[str, str] = {
@@ -784,7 +827,10 @@ SCENARIOS: dict[str, str] = {
     "edge-spot": "ternary library plus a small hard spot (+2 GPa, ~60 µm radius) near the right edge",
     "rotated-quaternary": "four-component spread with gradient axes rotated 30° from the stage axes",
     "rough": "smooth trend plus seeded multi-scale correlated roughness (a real-looking map)",
-    "collapse": "ternary library with noise up to 10 % of max H: provokes length-scale collapse",
+    "collapse": (
+        "ternary library with indent-scale heterogeneity (0.25 GPa over ~40 µm) that within-grid spreads"
+        " cannot see: provokes length-scale collapse"
+    ),
     "csv": "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa])",
 }
 
@@ -793,6 +839,10 @@ SCENARIOS: dict[str, str] = {
 _TILT_SQUARE = (0.005, 0.007)
 _TILT_FILM = (0.02, 0.01)
 _Z_MID_UM = 1500.0
+# the collapse provocation's site texture: larger than the median of a 5×5 grid can average (≈ 0.03 GPa),
+# shared by every indent of a 20 µm grid, independent between centres 100 µm apart
+_COLLAPSE_SITE_SD_GPA = 0.1
+_COLLAPSE_SITE_SCALE_UM = 40.0
 
 
 def _calibration_for(bounds: Bounds, tilt: tuple[float, float]) -> Calibration:
@@ -829,10 +879,12 @@ def make_scenario(
 
     profile, lattice_n, default_drift, lateral, tilt = "kla-imicro", 100, "none", 0.0, _TILT_SQUARE
     truth: TruthField
+    site_texture: SiteTexture | None = None
     if name in ("ternary", "ternary-good-drift", "ternary-bad-drift", "collapse"):
-        default_noise = "10pct" if name == "collapse" else "hetero"
-        truth = TernaryField(1000.0, noise or default_noise)
+        truth = TernaryField(1000.0, noise or "hetero")
         default_drift = {"ternary-good-drift": "good", "ternary-bad-drift": "bad"}.get(name, "none")
+        if name == "collapse":
+            site_texture = SiteTexture(_COLLAPSE_SITE_SD_GPA, _COLLAPSE_SITE_SCALE_UM, seed)
     elif name == "edge-spot":
         truth = EdgeSpotField(1000.0, noise or "hetero")
     else:
@@ -868,6 +920,7 @@ def make_scenario(
         lateral_sd_um=lateral if lateral_sd_um is None else float(lateral_sd_um),
         description=description,
         seed=seed,
+        site_texture=site_texture,
     )
 
 

@@ -30,12 +30,12 @@ from gpytorch.priors import GammaPrior
 from scipy.special import digamma, polygamma
 
 from core.errors import InputError
+from core.estimators import estimator_efficiency
 
 KernelName = Literal["matern52", "rbf"]
 GuardName = Literal["keep-last-good", "off"]
 
 HYPER_VERSION = 1
-MEDIAN_EFFICIENCY = math.pi / 2  # var(median of n) ≈ (π/2)·σ²/n for normal indents (the "1.57")
 MIN_NOISE_STD = 1e-8  # numerical floor on a point's noise, in standardised units
 MIN_SPREAD_GPA2 = 1e-8  # floor on a within-grid variance before its log is taken
 MIN_SPREADS_FOR_GP = 3  # fewer spreads than this: pooled constant variance instead of a noise GP
@@ -65,6 +65,8 @@ class Observations:
     spread_var_gpa2: np.ndarray  # (n,) within-grid sample variance (or detrended), NaN where there is none
     n_indents: np.ndarray  # (n,) ints
     spread_dof: np.ndarray | None = None  # (n,) degrees of freedom of each spread; None: n_indents − 1
+    # (n,) var(centre value)·n/σ²: how much the robust value wastes; None: the median's (SPEC §5)
+    efficiency: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         uv = np.asarray(self.uv, dtype=float)
@@ -95,6 +97,12 @@ class Observations:
         if dof.shape != (n,):
             raise InputError("observations.spread_dof", f"expected shape ({n},), got {dof.shape}")
         object.__setattr__(self, "spread_dof", dof)
+        eff = (
+            _median_efficiency(n_ind) if self.efficiency is None else np.asarray(self.efficiency, dtype=float)
+        )
+        if eff.shape != (n,) or not np.all(np.isfinite(eff)) or np.any(eff < 1.0):
+            raise InputError("observations.efficiency", f"expected ({n},) values ≥ 1, got {eff!r}")
+        object.__setattr__(self, "efficiency", eff)
 
     @property
     def n(self) -> int:
@@ -291,14 +299,18 @@ class _Problem:
     d1: torch.Tensor
     noise_fixed: torch.Tensor | None  # per-point noise, or None when it is learned
     noise_scale: torch.Tensor  # per-point multiplier of the learned noise variance
+    nugget: bool = False  # fixed noise plus one learned variance shared by every point (site-to-site scatter)
 
     @property
     def learn_noise(self) -> bool:
-        return self.noise_fixed is None
+        return self.noise_fixed is None or self.nugget
 
     def noise(self, u: _Unpacked) -> torch.Tensor:
         if self.noise_fixed is not None:
-            return self.noise_fixed
+            if not self.nugget:
+                return self.noise_fixed
+            assert u.noise_var is not None
+            return self.noise_fixed + u.noise_var
         assert u.noise_var is not None
         return (self.noise_scale * u.noise_var).clamp_min(MIN_NOISE_STD)
 
@@ -340,7 +352,9 @@ def _mll_and_grads(p: _Problem, u: _Unpacked) -> tuple[float, torch.Tensor]:
         -os * float((wd * q0).sum()) / float(ls[0]),
         -os * float((wd * q1).sum()) / float(ls[1]),
     ]
-    if p.learn_noise:
+    if p.nugget and p.noise_fixed is not None:
+        grads.append(0.5 * float(w.diagonal().sum()))
+    elif p.learn_noise:
         grads.append(0.5 * float((w.diagonal() * p.noise_scale).sum()))
     return mll, torch.tensor(grads, dtype=_DTYPE)
 
@@ -469,7 +483,7 @@ def _standardise(values: np.ndarray) -> tuple[float, float]:
 
 def _median_efficiency(n: np.ndarray) -> np.ndarray:
     """var(median)/(σ²/n): exactly 1 for one or two indents, ≈ π/2 beyond."""
-    return np.where(n <= 2, 1.0, MEDIAN_EFFICIENCY)
+    return estimator_efficiency("median", n)
 
 
 def _log_spread_targets(spread: np.ndarray, dof: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -542,6 +556,7 @@ class HeteroskedasticGP:
         lengthscale_prior: bool = True,
         collapse_min_points: int = 8,
         threads: int = 1,
+        nugget: bool = False,
     ) -> None:
         if kernel not in ("matern52", "rbf"):
             raise InputError("surrogate.kernel", f"unknown kernel {kernel!r}; allowed: matern52, rbf")
@@ -565,6 +580,9 @@ class HeteroskedasticGP:
         self.seed = seed  # the fit draws no random numbers: kept for the record
         self.lengthscale_prior = bool(lengthscale_prior)
         self.collapse_min_points = int(collapse_min_points)
+        # learn a site-to-site variance on top of the within-grid noise: scatter between centres that the
+        # spreads of tight grids cannot see (indent-scale heterogeneity) then needs no short length-scale
+        self.nugget = bool(nugget)
         if not 1 <= threads <= MAX_THREADS:
             raise InputError("surrogate.threads", f"must be 1..{MAX_THREADS}, got {threads}")
         if torch.get_num_threads() != threads:
@@ -576,6 +594,7 @@ class HeteroskedasticGP:
         self._noise: _Conditioned | None = None
         self._noise_kind = "learned"
         self._noise_var_gpa2 = 1.0  # pooled or learned per-indent variance when there is no noise GP
+        self._site_var_gpa2 = 0.0  # the learned site-to-site variance (nugget), GPa²
         self._y_loc = 0.0
         self._y_scale = 1.0
         self._t_loc = 0.0
@@ -634,6 +653,11 @@ class HeteroskedasticGP:
                 f"recorded for kernel {hyper.get('kernel')} / floor {hyper.get('lengthscale_floor_uv')}, "
                 f"this model is {self.kernel} / {self.floor_uv}",
             )
+        if bool(hyper.get("nugget", False)) != self.nugget:
+            raise InputError(
+                "surrogate.hyper",
+                f"recorded with nugget={hyper.get('nugget', False)}, this model has {self.nugget}",
+            )
         if obs.n == 0:
             raise InputError("observations", "no tested centres to condition on")
         if hyper["noise"]["kind"] == "gp" and int(np.sum(_spread_mask(obs))) < MIN_SPREADS_FOR_GP:
@@ -681,6 +705,12 @@ class HeteroskedasticGP:
                 parts.append(self._mean.mean(xs[start : start + PREDICT_CHUNK]).numpy())
         mean = np.concatenate(parts) if parts else np.empty(0)
         return np.asarray(mean * self._y_scale + self._y_loc, dtype=float)
+
+    @property
+    def site_sd_gpa(self) -> float:
+        """Scatter between centres beyond their indents' noise (0 without a nugget): more indents per
+        centre do not average it away, so grid sizing ignores it."""
+        return math.sqrt(self._site_var_gpa2)
 
     @property
     def outputscale_gpa2(self) -> float | None:
@@ -746,7 +776,8 @@ class HeteroskedasticGP:
         self._y_loc, self._y_scale = _standardise(obs.median_gpa)
         y = torch.as_tensor((obs.median_gpa - self._y_loc) / self._y_scale, dtype=_DTYPE)
         x = torch.as_tensor(obs.uv, dtype=_DTYPE)
-        scale = torch.as_tensor(_median_efficiency(obs.n_indents) / obs.n_indents, dtype=_DTYPE)
+        assert obs.efficiency is not None
+        scale = torch.as_tensor(obs.efficiency / obs.n_indents, dtype=_DTYPE)
         fixed: torch.Tensor | None = None
         self._noise = None
         if kind == "gp":
@@ -761,7 +792,10 @@ class HeteroskedasticGP:
         if fixed is not None:
             fixed = fixed.clamp_min(MIN_NOISE_STD)
         d0, d1 = _pair_sq_diffs(x)
-        return _Problem(self.kernel, self.floor_uv, self.lengthscale_prior, y, d0, d1, fixed, scale), x
+        problem = _Problem(
+            self.kernel, self.floor_uv, self.lengthscale_prior, y, d0, d1, fixed, scale, self.nugget
+        )
+        return problem, x
 
     def _noise_var_at(self, xs: torch.Tensor) -> torch.Tensor:
         """Per-indent noise variance (GPa²) at ``xs``."""
@@ -783,6 +817,11 @@ class HeteroskedasticGP:
             u = _unpack(theta, self.floor_uv, True)
             assert u.noise_var is not None
             self._noise_var_gpa2 = float(u.noise_var) * self._y_scale**2
+        self._site_var_gpa2 = 0.0
+        if pm.nugget and pm.noise_fixed is not None:
+            u = _unpack(theta, self.floor_uv, True)
+            assert u.noise_var is not None
+            self._site_var_gpa2 = float(u.noise_var) * self._y_scale**2
         self._hyper = hyper
 
     # -- hyperparameter records and the collapse guard --------------------------------------------
@@ -799,6 +838,7 @@ class HeteroskedasticGP:
             "lengthscale_floor_uv": self.floor_uv,
             "mean": {"raw": mean_raw},  # [constant, outputscale, ℓu, ℓv(, noise)] raw, standardised units
             "noise": noise,
+            "nugget": self.nugget,
             "lengthscales_uv": list(_lengthscales_of(mean_raw, self.floor_uv)),
             "n_points": obs.n,
         }

@@ -129,12 +129,26 @@ def test_speedups_are_paired_by_seed_and_misses_count_as_infinitely_slow() -> No
     assert p.speedup_grid is not None and p.speedup_grid[1] == pytest.approx(4.0)
 
 
+def test_scenario_subset_keeps_the_bench_order_of_the_given_keys() -> None:
+    full = BenchConfig.make(quick=False, only="film, collapse,film")
+    assert [s.key for s in full.scenarios] == ["film", "collapse"]
+    assert full.seeds == 10 and full.lattice_n == 50
+    # the collapse provocation runs on past its target: divergence shows only after it
+    assert full.scenarios[1].margin is not None and full.scenarios[1].margin > full.margin
+    assert {"aeni-tight", "aeni-unguarded"} <= set(full.scenarios[1].policies)
+
+
 # -- bad input ------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize(
     ("args", "needle"),
-    [(["--seeds", "0"], "--seeds"), (["--jobs", "two"], "--jobs"), (["--out", "{file}"], "folder")],
+    [
+        (["--seeds", "0"], "--seeds"),
+        (["--jobs", "two"], "--jobs"),
+        (["--out", "{file}"], "folder"),
+        (["--scenarios", "ternary,nope"], "nope"),
+    ],
 )
 def test_bench_bad_input_is_one_line_exit_2_and_nothing_written(
     args: list[str], needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]

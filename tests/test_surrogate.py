@@ -366,3 +366,68 @@ def test_sudden_drop_alone_raises_the_alarm(healthy: Observations) -> None:
     report = gp.fit(healthy)
     assert report.collapse
     assert "dropped" in report.collapse_reason and "floor" not in report.collapse_reason
+
+
+# -- site-to-site scatter (the nugget) -------------------------------------------------------------------
+
+
+def _site_scattered(site_sd: float, seed: int = 3) -> Observations:
+    """3×3 grids whose indents share one offset per centre: scatter that no within-grid spread shows."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0.03, 0.97, size=(80, 2))
+    uv, h, ids = _indent_grids(centres, 3, rng)
+    h = h + rng.normal(0.0, site_sd, len(centres))[ids]
+    return Observations.from_indents(uv, h, ids)
+
+
+def test_nugget_learns_site_scatter_that_the_spreads_cannot_see() -> None:
+    obs = _site_scattered(0.15)
+    plain, nug = HeteroskedasticGP(), HeteroskedasticGP(nugget=True)
+    rep_plain, rep_nug = plain.fit(obs), nug.fit(obs)
+    assert plain.site_sd_gpa == 0.0
+    assert nug.site_sd_gpa == pytest.approx(0.15, rel=0.35)
+    uv = _lattice(50)
+    truth, _ = _truth(uv)
+
+    def mape(gp: HeteroskedasticGP) -> float:
+        return float(np.mean(np.abs(gp.predict_mean(uv) - truth) / truth))
+
+    # without it the GP chases the scatter with shorter length-scales and maps it as if it were hardness
+    assert mape(nug) < 0.8 * mape(plain)
+    assert min(rep_nug.lengthscales_uv) > min(rep_plain.lengthscales_uv)
+    # its likelihood is still gpytorch's (fixed noise + the learned term)
+    ours, theirs = nug.reference_neg_mll()
+    assert ours == pytest.approx(theirs, abs=1e-9)
+    # it resumes bit for bit, and a record never loads into a model of the other kind
+    record = json.loads(json.dumps(rep_nug.hyper))
+    resumed = HeteroskedasticGP(nugget=True)
+    resumed.set_hyper(record, obs)
+    np.testing.assert_array_equal(resumed.predict(uv).mean, nug.predict(uv).mean)
+    assert resumed.site_sd_gpa == nug.site_sd_gpa
+    with pytest.raises(InputError, match="nugget"):
+        HeteroskedasticGP().set_hyper(record, obs)
+
+
+def test_nugget_stays_small_without_site_scatter(obs100: Observations) -> None:
+    gp = HeteroskedasticGP(nugget=True)
+    gp.fit(obs100)
+    truth, _ = _truth(_lattice(30))
+    assert gp.site_sd_gpa < 0.01  # against per-indent noise of up to 0.1 GPa
+    assert float(np.mean(np.abs(gp.predict_mean(_lattice(30)) - truth) / truth)) < 0.01
+
+
+def test_observations_carry_the_estimators_efficiency() -> None:
+    base = _obs(_lattice(3), g=3)
+    assert np.all(base.efficiency == pytest.approx(np.pi / 2))
+    huber = Observations(
+        base.uv, base.median_gpa, base.spread_var_gpa2, base.n_indents, efficiency=np.full(9, 1.08)
+    )
+    gp_m, gp_h = HeteroskedasticGP(), HeteroskedasticGP()
+    gp_m.fit(base)
+    gp_h.fit(huber)
+    # a more efficient centre value is a more certain one
+    assert np.all(gp_h.predict(base.uv).epistemic_sd < gp_m.predict(base.uv).epistemic_sd)
+    with pytest.raises(InputError, match="efficiency"):
+        Observations(
+            base.uv, base.median_gpa, base.spread_var_gpa2, base.n_indents, efficiency=np.full(9, 0.5)
+        )

@@ -18,7 +18,7 @@ def _handler(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "--out must be a folder, and this is a file")
-    config = BenchConfig.make(quick=args.quick, seeds=args.seeds, jobs=args.jobs)
+    config = BenchConfig.make(quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios)
     n_runs = sum(len(s.policies) for s in config.scenarios) * config.seeds
     start = time.monotonic()
     done = 0
@@ -63,6 +63,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument(
         "--jobs", type=whole_number("--jobs", 1, 64), default=2, help="worker processes (default 2)"
+    )
+    p.add_argument(
+        "--scenarios",
+        default=None,
+        metavar="KEY[,KEY...]",
+        help="run only these bench scenarios (keys as in RESULTS.md: ternary, good-drift, film, ...)",
     )
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

@@ -31,6 +31,7 @@ class GPSummary:
     kernel: str  # "matern52" or "rbf"
     lengthscales_uv: tuple[float, float]
     outputscale_gpa2: float
+    site_var_gpa2: float = 0.0  # learned scatter between centres that more indents do not average away
 
 
 @dataclass(frozen=True)

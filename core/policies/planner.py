@@ -16,6 +16,7 @@ import numpy as np
 
 from core.acquisition import ei, ucb, ue
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
+from core.estimators import CentreEstimator
 from core.geometry import edge_penalty
 from core.plan import BlockKind, Decision
 from core.policies.base import (
@@ -57,6 +58,11 @@ class PlannerFeatures:
     bias_aware_hold: bool = False  # fast hold only where its bias is small against the precision aimed at
     bias_fraction: float = 0.25  # "small": at most this fraction of the grid baseline's map error
     surrogate_guard: Literal["keep-last-good", "off"] = "keep-last-good"  # read by the Campaign
+    surrogate_nugget: bool = False  # the mean GP learns a site-to-site variance (read by the Campaign)
+    centre_estimator: CentreEstimator = "median"  # one value per grid: the median (SPEC) or Huber's
+    # the length-scale floor (half the candidate pitch) and its prior: with surrogate_guard, the SPEC §5
+    # guard; off only in the unguarded ablation, which is what a plain maximum-likelihood GP does
+    surrogate_floor: bool = True
 
 
 def choose_hold(
@@ -85,6 +91,9 @@ class BayesPlanner:
         self.name = name
         self.features = features
         self.surrogate_guard = features.surrogate_guard
+        self.surrogate_nugget = features.surrogate_nugget
+        self.centre_estimator = features.centre_estimator
+        self.surrogate_floor = features.surrogate_floor
 
     # -- acquisition ---------------------------------------------------------------------------
     def _acquisition(self, ctx: PlanContext) -> np.ndarray:
@@ -153,6 +162,7 @@ class BayesPlanner:
         du, dv = np.meshgrid(axis, axis)
         design = np.column_stack([du.ravel(), dv.ravel()])
         noise = median_noise_var(pred.noise_sd[_nearest_lattice(ctx.lattice.uv, design)], 25)
+        noise = noise + ctx.gp.site_var_gpa2  # the grid's medians carry the site scatter too
         return design_rel_error(ctx.gp, design, noise, ref, mu)
 
     def _jump_overhead_s(self, ctx: PlanContext) -> float:
@@ -235,7 +245,9 @@ class BayesPlanner:
         )
         noise_sd = pred.noise_sd[idx]
         # noise variance of a g×g median at every allowed candidate, one row per g
-        nvar = np.stack([median_noise_var(noise_sd, g * g) for g in range(G_MIN, G_MAX + 1)])
+        est = self.features.centre_estimator
+        nvar = np.stack([median_noise_var(noise_sd, g * g, est) for g in range(G_MIN, G_MAX + 1)])
+        nvar = nvar + ctx.gp.site_var_gpa2
         return model, idx, nvar
 
     def _score_ivr(

@@ -3,8 +3,9 @@
 Each paper idea has its own name so that its contribution can be measured against its reference:
 ``adaptive-grid`` and ``meta-grid`` against ``uncertainty`` (fixed 5×5 grids, a new program every block),
 ``adaptive-hold`` against ``cost-aware`` (fixed 80 s), ``aeni`` against ``grid`` and ``uncertainty``;
-``aeni-plus`` is the same workflow with the improvements of this product, ``aeni-unguarded`` the ablation
-that the length-scale collapse provocation needs.
+``aeni-plus`` is the same workflow with the improvements of this product (``aeni-ivr`` adds the
+variance-reduction planner to it); ``aeni-tight`` and ``aeni-unguarded`` are the pair that the length-scale
+collapse provocation compares (the same tight planner with and without the guard).
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ POLICY_DESCRIPTIONS: dict[str, str] = {
     "adaptive-hold": "cost-aware with a drift-aware 5 s / 80 s hold and the g²·(80 − 5) switch rule",
     "aeni": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
     "aeni-bias-hold": "aeni with the bias-aware hold of aeni-plus only (ablation: that improvement alone)",
-    "aeni-plus": "aeni with variance-reduction acquisition, jointly planned programs, bias-aware hold",
-    "aeni-unguarded": "ablation: aeni with tight local grids, no exploratory phase and no collapse guard",
+    "aeni-plus": "aeni with Huber centre values, a learned site-to-site variance and the bias-aware hold",
+    "aeni-ivr": "aeni-plus with variance-reduction acquisition and jointly planned programs (ablation)",
+    "aeni-tight": "ablation: aeni with tight 2×2 local grids and no exploratory phase, guard on",
+    "aeni-unguarded": "ablation: aeni-tight with no length-scale floor, prior or collapse guard",
 }
 
 
@@ -46,6 +49,12 @@ def _features() -> dict[str, PlannerFeatures]:
     )
     from dataclasses import replace
 
+    # what this product adds to the paper's workflow, each measured on its own in the bench
+    plus = replace(aeni, centre_estimator="huber", surrogate_nugget=True, bias_aware_hold=True)
+    # the collapse provocation's planner: many tight local grids from the first program on
+    tight = replace(
+        aeni, exploratory_iterations=0, adaptive_grid=False, fixed_g=2, local_hop_um=60.0, local_limit=20
+    )
     return {
         "uncertainty": PlannerFeatures(cost_aware=False, stay=False),
         "cost-aware": PlannerFeatures(cost_aware=True, stay=True),
@@ -54,18 +63,10 @@ def _features() -> dict[str, PlannerFeatures]:
         "adaptive-hold": PlannerFeatures(cost_aware=True, stay=True, adaptive_hold=True),
         "aeni": aeni,
         "aeni-bias-hold": replace(aeni, bias_aware_hold=True),
-        "aeni-plus": replace(
-            aeni, acquisition="ivr", edge_penalty=False, joint_program=True, bias_aware_hold=True
-        ),
-        "aeni-unguarded": replace(
-            aeni,
-            exploratory_iterations=0,
-            adaptive_grid=False,
-            fixed_g=2,
-            local_hop_um=60.0,
-            local_limit=20,
-            surrogate_guard="off",
-        ),
+        "aeni-plus": plus,
+        "aeni-ivr": replace(plus, acquisition="ivr", edge_penalty=False, joint_program=True),
+        "aeni-tight": tight,
+        "aeni-unguarded": replace(tight, surrogate_guard="off", surrogate_floor=False),
     }
 
 

@@ -18,16 +18,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from core.estimators import CentreEstimator, estimator_efficiency
 from core.policies.base import GPSummary
 
-MEDIAN_EFFICIENCY = math.pi / 2  # var(median of n) ≈ (π/2)·σ²/n for n > 2 (the surrogate uses the same)
 REFERENCE_N = 12  # reference lattice per side on which the variance is integrated
 
 
-def median_noise_var(noise_sd_gpa: np.ndarray, n_indents: np.ndarray | int) -> np.ndarray:
-    """Noise variance of the median of n indents with per-indent sd σ (GPa²)."""
+def median_noise_var(
+    noise_sd_gpa: np.ndarray, n_indents: np.ndarray | int, estimator: CentreEstimator = "median"
+) -> np.ndarray:
+    """Noise variance of the centre value of n indents with per-indent sd σ (GPa²)."""
     n = np.asarray(n_indents, dtype=float)
-    eff = np.where(n <= 2, 1.0, MEDIAN_EFFICIENCY)
+    eff = estimator_efficiency(estimator, n)
     return np.asarray(eff * np.asarray(noise_sd_gpa, dtype=float) ** 2 / n, dtype=float)
 
 

@@ -37,6 +37,7 @@ POLICY_COLORS: dict[str, str] = {
     "aeni-bias-hold": "#e377c2",
     "aeni-plus": "#d62728",
     "aeni-ivr": "#8c564b",
+    "aeni-nugget": "#ff9896",
     "aeni-tight": "#393b79",
     "aeni-unguarded": "#9467bd",
 }
@@ -193,9 +194,8 @@ def _time_share(summaries: Sequence[PolicySummary]) -> str:
     share = (s.ledger_s.get("indent", 0.0) + s.ledger_s.get("hold", 0.0)) / total if total else 0.0
     return (
         f"- **How much is left to save on the ternary field:** `aeni-plus` spends {share:.0%} of its instrument"
-        f" time indenting and holding (median {s.indents[1]:.0f} indents per run, against the grid's 2,025), so"
-        " overheads are no longer the bottleneck; a 30× run would have to match the grid's error with about"
-        " 80 indents at 80 s, and on this field even 100 well-spread 2×2 centres (400 indents) only just do."
+        f" time indenting and holding (median {s.indents[1]:.0f} indents per run, against the grid's 2,025):"
+        " overheads are no longer what decides its speed."
     )
 
 
@@ -231,6 +231,11 @@ def results_markdown(
         f"- The other policies run until they reach the target and then on for {100 * config.margin:.0f} % of"
         f" that time, or until the budget or a cap of {config.max_blocks} blocks ends them. MAPE is the GP mean"
         " against the truth on the 100×100 lattice, after every refit.",
+        *[
+            f"- `{sc.key}` runs on for {100 * sc.margin:.0f} % instead: a collapse shows after the target, not before."
+            for sc in config.scenarios
+            if sc.margin is not None
+        ],
         "- **Speed-up** = reference time / policy time to reach the target, paired by seed; a run that never"
         " reaches it counts as infinitely slow (a speed-up of 0, or ∞ when only the reference misses).",
         f"- The looser target ({LOOSE_FACTOR:g}× the grid's final MAPE) shows the comparison where the noise floor"
@@ -252,11 +257,7 @@ def results_markdown(
             lines.append(
                 f"| {t['target']} | {t['goal']} | {_fmt_target(t['measured'], t['goal'])} | {met} | {t['note']} |"
             )
-        lines += ["", WHY, _time_share(summaries)]
-        collapse = next((t for t in tgts if t["target"].startswith("collapse guard")), None)
-        if collapse is not None and collapse["met"] is False:
-            lines.append(WHY_COLLAPSE)
-        lines.append("")
+        lines += ["", why_text(summaries), _time_share(summaries), ""]
     for group, title in (
         ("paper", "The paper's comparisons"),
         ("robustness", "Robustness: fields nothing was tuned on"),
@@ -312,28 +313,83 @@ def _quartiles_of(values: Sequence[float | None]) -> float | None:
     return float(np.median(vals)) if vals else None
 
 
-WHY = """### Why some targets are not met
+# benchmarks/oracle_bound.py (6 seeds): evenly spread designs on the ternary field, fitted by the same GP
+ORACLE_NOTE = (
+    "`benchmarks/oracle_bound.py` spreads indents evenly over the square with no travel, drift or overhead"
+    " (2×2…5×5 grids or single indents, 5 s hold, the same GP): see `docs/benchmarks.md`."
+)
 
-- **The grid's final MAPE sits on a noise and bias floor.** The grid ends with 2,025 indents; a map as good
-  needs a comparable amount of indent information wherever noise limits the error (film, 10 % noise: the
-  grid's MAPE comes from averaging ~2,000 noisy indents, so no policy can need ≪ 2,000 × 120 s of indenting).
-  The paper's 30× compares against a run's endpoint, not against the error a full grid reaches.
-- **A 5 s hold is biased in this emulator**: it leaves ~94 % of the drift in the depth, so even the quiet base
-  drift (0.005 nm/s) reads hardness ~0.4 % low, close to the grid's ~0.55 % final MAPE on the ternary field. The
-  paper's 2 %-area-error rule therefore trades a 2.7× cheaper indent for a map that cannot reach the grid's
-  error; `adaptive-hold` and `aeni` often never reach the target. `aeni-plus` compares the bias with the
-  precision it aims at (what the 9×9 grid would reach under the fitted model) and only holds 5 s where the
-  bias is small against it (e.g. the 10 %-noise collapse field).
-- **Speed-ups against `uncertainty`** are paired per seed; where `uncertainty` never reaches the target within
-  the grid's time, the ratio is ∞ for a policy that does.
-- **Adaptive grid and meta-grid** save what the paper says they save (smaller grids where the noise allows,
-  no lift/engage/drift between sub-grids), but on this field 2×2 medians are noisy and the target is the
-  grid's own final error, so the savings are ≈ 1.4× and ≈ 2× rather than 4× and 10×; at the looser target
-  they are larger (see the tables)."""
-WHY_COLLAPSE = """- **The collapse provocation does not make this surrogate diverge.** Tight, noisy local grids get their
-  noise from the within-grid spreads (the noise GP), and the length-scale prior keeps ℓ off its floor, so the
-  unguarded planner's MAPE does not run away; there is nothing for the guard to catch here. The guard stays
-  in the product for fits that do collapse (it is tested in the surrogate's own tests)."""
+
+def why_text(summaries: Sequence[PolicySummary]) -> str:
+    """Why the unmet targets are unmet, with this run's own figures."""
+
+    def med(scen: str, pol: str, attr: str) -> float | None:
+        s = _get(summaries, scen, pol)
+        return None if s is None else _med(getattr(s, attr))
+
+    out = ["### Why some targets are not met", ""]
+    grid_t = med("ternary", "grid", "instrument_s")
+    aeni_n, aeni_x = med("ternary", "aeni", "indents"), med("ternary", "aeni", "speedup_grid")
+    if grid_t and aeni_n is not None and aeni_x is not None:
+        out.append(
+            f"- **30× against the grid's own final error asks for a map from ≤ {grid_t / 30 / 45:.0f} indents.**"
+            f" The target is the MAPE that 2,025 indents at 80 s end with; 30× means reaching it within"
+            f" {grid_t / 30:,.0f} s, i.e. at most {grid_t / 30 / 45:.0f} indents of 40 + 5 s with no lift, engage,"
+            f" drift settle or travel at all. `aeni` gets there with a median of {aeni_n:.0f} indents"
+            f" ({aeni_x:.1f}×). {ORACLE_NOTE} No even design of ≤ 212 indents comes within 25 % of the grid's"
+            " MAPE; the cheapest one that reaches it needs about 400 single indents (≤ 16×)."
+        )
+    film = _get(summaries, "film", "aeni-plus")
+    if film is not None:
+        loose = _med(film.speedup_grid_loose)
+        out.append(
+            "- **The film is noise-limited.** Its noise reaches 10 % of the maximum hardness, so the grid's final"
+            " error is what averaging ~2,000 noisy indents gives, and a map as good needs a comparable number of"
+            f" indents: `aeni-plus` reaches it on {round(film.hit_rate * film.n_seeds)} of {film.n_seeds} seeds"
+            + (
+                f"; at 1.5× the grid's MAPE it is {loose:.1f}× faster than the grid."
+                if loose is not None
+                else "."
+            )
+        )
+    ah = _get(summaries, "good-drift", "adaptive-hold")
+    if ah is not None:
+        out.append(
+            "- **The paper's 2 % area-error rule lets a 5 s hold carry up to ~1.9 % of hardness bias** (the"
+            " threshold is DR ≈ 0.025 nm/s over 40 s on a 100 nm indent), four times the grid's final MAPE. After"
+            " every good-drift event the fast hold comes back while the bias is still 0.2–1.9 %, and bias does"
+            " not average out, so `adaptive-hold` needs more indents than the fixed 80 s hold to reach the grid's"
+            " error. `aeni-plus` goes fast only where the bias is small against the precision it aims at."
+        )
+    out.append(
+        "- **Adaptive grid and meta-grid** save what the paper says they save (smaller grids where the noise"
+        " allows; no lift, engage and drift settle between sub-grids), but against the grid's own final error"
+        " the information in the indents decides, not the overheads; the paper's 4× and 10× were read off"
+        " curves at an error level its fixed grids reach early. At 1.5× the grid's MAPE the gains are larger"
+        " (see the tables)."
+    )
+    rise_t, rise_u = (
+        med("collapse", "aeni-tight", "worst_rise"),
+        med("collapse", "aeni-unguarded", "worst_rise"),
+    )
+    fin_p, fin_t = (
+        med("collapse", "aeni-plus", "final_mape_pct"),
+        med("collapse", "aeni-tight", "final_mape_pct"),
+    )
+    if rise_t is not None and rise_u is not None:
+        text = (
+            "- **Collapse:** indent-scale texture (0.1 GPa over ~40 µm) is shared by a tight grid's indents, so"
+            " the within-grid spreads miss it and a GP that trusts them must explain the scatter between"
+            " centres with short length-scales. With the guard (floor, prior, keep-last-good) the tight planner's"
+            f" MAPE rises at worst {rise_t:.2f}× over its best, without it {rise_u:.2f}×."
+        )
+        if fin_p is not None and fin_t is not None:
+            text += (
+                " The guard limits the damage but does not remove its cause; `aeni-nugget` learns the scatter as"
+                f" a site-to-site variance (a nugget) and ends at {fin_p:.2f} % against {fin_t:.2f} %."
+            )
+        out.append(text)
+    return "\n".join(out)
 
 
 # -- figures ---------------------------------------------------------------------------------------------

@@ -67,7 +67,7 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
         "good-drift",
         "ternary-good-drift",
         "Ternary library, good drift (paper Fig 5)",
-        ("grid", "cost-aware", "adaptive-hold", "aeni", "aeni-bias-hold", "aeni-plus"),
+        ("grid", "cost-aware", "adaptive-hold", "aeni", "aeni-plus"),
     ),
     BenchScenario(
         "bad-drift",
@@ -79,15 +79,15 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
         "film",
         "film",
         "Quaternary film, film profile with the 520 s jump (paper Figs 7, 8)",
-        (*PAPER, "aeni", "aeni-bias-hold", "aeni-plus"),
+        (*PAPER, "aeni", "aeni-plus", "aeni-nugget"),
         maps_for=("aeni", "aeni-plus"),
     ),
     BenchScenario(
         "collapse",
         "collapse",
         "Length-scale collapse provocation: indent-scale heterogeneity, many tight local grids",
-        ("grid", "aeni", "aeni-tight", "aeni-unguarded", "aeni-plus"),
-        maps_for=("aeni-tight", "aeni-unguarded", "aeni-plus"),
+        ("grid", "aeni", "aeni-tight", "aeni-unguarded", "aeni-plus", "aeni-nugget"),
+        maps_for=("aeni-tight", "aeni-unguarded", "aeni-nugget"),
         margin=2.0,  # divergence shows after the target: run on for twice the time it took
     ),
     BenchScenario(
@@ -115,7 +115,7 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
         "rough-csv",
         "csv",
         "Rough real-looking map loaded with --truth (not tuned on)",
-        ("grid", "uncertainty", "aeni", "aeni-plus"),
+        ("grid", "uncertainty", "aeni", "aeni-plus", "aeni-nugget"),
         group="robustness",
         truth_csv="rough_truth.csv",
     ),
@@ -515,6 +515,7 @@ ABLATION_REFERENCE: dict[str, str] = {
     "aeni-bias-hold": "aeni",
     "aeni-plus": "aeni",
     "aeni-ivr": "aeni-plus",
+    "aeni-nugget": "aeni-plus",
     "aeni-unguarded": "aeni-tight",
 }
 

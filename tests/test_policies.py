@@ -166,7 +166,10 @@ def test_local_blocks_stay_in_the_safe_band_and_meta_grid_hops_stay_within_500_u
             assert prev_last is not None
             assert np.hypot(b.center_x_um - prev_last[0], b.center_y_um - prev_last[1]) <= hop_limit + 1e-6
         prev_last = (b.indents[-1].x_um, b.indents[-1].y_um)
-    assert locals_seen >= 2, f"{policy} never stayed in a program on {scenario}"
+    # the film's 520 s jump is cheap against its 5×5 grids at 10 % noise: programs there are short
+    assert locals_seen >= (1 if scenario == "film" else 2), (
+        f"{policy} rarely stayed in a program on {scenario}"
+    )
 
 
 # -- the paper's rules ----------------------------------------------------------------------------------
@@ -343,10 +346,11 @@ def test_aeni_ivr_prices_jumps_with_their_programs_and_holds_fast_when_drift_is_
     assert any("planned sub-grids" in d.reason for d in later if d.block.kind == "global")
 
 
-def test_aeni_plus_uses_huber_values_and_learns_the_site_scatter() -> None:
-    run = _cached("aeni-plus")
+def test_aeni_nugget_uses_huber_values_and_learns_the_site_scatter() -> None:
+    run = _cached("aeni-nugget")
     c = run.campaign
     assert c.centre_estimator == "huber" and c.surrogate.nugget
+    assert not Campaign(CampaignConfig(policy="aeni-plus")).surrogate.nugget
     assert all(rec.efficiency is not None and rec.efficiency < 1.2 for rec in c.centres)
     obs = c.observations()
     assert np.allclose(obs.efficiency, [rec.efficiency for rec in c.centres])
@@ -354,8 +358,9 @@ def test_aeni_plus_uses_huber_values_and_learns_the_site_scatter() -> None:
     assert c.surrogate.site_sd_gpa < 0.05
 
 
-def test_aeni_plus_resumes_to_the_same_decision() -> None:
-    c, ctx, history = _context_and_history("aeni-plus", blocks=5)
+@pytest.mark.parametrize("policy", ["aeni-plus", "aeni-nugget"])
+def test_aeni_plus_resumes_to_the_same_decision(policy: str) -> None:
+    c, ctx, history = _context_and_history(policy, blocks=5)
     first = c.policy.propose(ctx)
     assert first is not None and first.phase != "seed"
     fresh = Campaign(c.config)
@@ -374,3 +379,26 @@ def test_features_are_frozen_data() -> None:
     f = PlannerFeatures()
     with pytest.raises(dataclasses.FrozenInstanceError):
         f.cost_aware = False  # type: ignore[misc]
+
+
+def test_aeni_nugget_learns_the_collapse_fields_site_scatter() -> None:
+    """On the collapse provocation the scatter between centres is real (0.1 GPa of site texture): the nugget
+    finds it, so the length-scales need not shrink to explain it."""
+    run = _cached("aeni-nugget", "collapse")
+    c = run.campaign
+    assert 0.04 < c.surrogate.site_sd_gpa < 0.2
+    report = c.fit_report()
+    assert report is not None and min(report.lengthscales_uv) > 0.05
+
+
+def test_tight_and_unguarded_differ_only_in_the_guard() -> None:
+    tight, loose = (
+        Campaign(CampaignConfig(policy="aeni-tight")),
+        Campaign(CampaignConfig(policy="aeni-unguarded")),
+    )
+    assert tight.surrogate.guard == "keep-last-good" and tight.surrogate.lengthscale_prior
+    assert tight.surrogate.floor_uv >= 0.005
+    assert loose.surrogate.guard == "off" and not loose.surrogate.lengthscale_prior
+    assert loose.surrogate.floor_uv < 0.25 * tight.surrogate.floor_uv
+    ft, fl = tight.policy.features, loose.policy.features  # type: ignore[attr-defined]
+    assert replace(fl, surrogate_guard="keep-last-good", surrogate_floor=True) == ft

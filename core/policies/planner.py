@@ -130,7 +130,7 @@ class BayesPlanner:
             if f.bias_aware_hold and hold == FAST_HOLD_S and err is not None and map_rel_err is None:
                 # the precision to aim at is not known until the exploratory phase has shaped the model
                 hold = SLOW_HOLD_S
-                mode = "bias-aware: slow 80 s while the model is still exploratory"
+                mode = "bias-aware: slow 80 s until a model sets the precision to aim at"
             elif f.bias_aware_hold and hold == FAST_HOLD_S and err is not None and map_rel_err is not None:
                 # a fast hold leaves the drift in the hardness (bias ≈ the area error) and bias does not
                 # average out: worth it only where it stays well below the precision the map aims at
@@ -373,7 +373,9 @@ class BayesPlanner:
         map_rel_err: float | None = None
         if f.acquisition == "ivr":
             ivr = self._ivr_model(ctx, allowed)
-        if f.bias_aware_hold and not self._exploring(ctx):
+        if f.bias_aware_hold:
+            # the aim is known once the seeds have shaped a model; the exploratory programs need not hold
+            # 80 s where a 5 s hold's bias is already far below it
             map_rel_err = self._aim_rel_error(ctx)
         hold, err, hold_mode = self._hold(ctx, map_rel_err)
 

@@ -27,7 +27,8 @@ POLICY_DESCRIPTIONS: dict[str, str] = {
     "adaptive-hold": "cost-aware with a drift-aware 5 s / 80 s hold and the g²·(80 − 5) switch rule",
     "aeni": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
     "aeni-bias-hold": "aeni with the bias-aware hold of aeni-plus only (ablation: that improvement alone)",
-    "aeni-plus": "aeni with Huber centre values, a learned site-to-site variance and the bias-aware hold",
+    "aeni-plus": "aeni with Huber centre values and the bias-aware hold",
+    "aeni-nugget": "aeni-plus whose GP learns a site-to-site variance: for indent-scale heterogeneity",
     "aeni-ivr": "aeni-plus with variance-reduction acquisition and jointly planned programs (ablation)",
     "aeni-tight": "ablation: aeni with tight 2×2 local grids and no exploratory phase, guard on",
     "aeni-unguarded": "ablation: aeni-tight with no length-scale floor, prior or collapse guard",
@@ -50,7 +51,7 @@ def _features() -> dict[str, PlannerFeatures]:
     from dataclasses import replace
 
     # what this product adds to the paper's workflow, each measured on its own in the bench
-    plus = replace(aeni, centre_estimator="huber", surrogate_nugget=True, bias_aware_hold=True)
+    plus = replace(aeni, centre_estimator="huber", bias_aware_hold=True)
     # the collapse provocation's planner: many tight local grids from the first program on
     tight = replace(
         aeni, exploratory_iterations=0, adaptive_grid=False, fixed_g=2, local_hop_um=60.0, local_limit=20
@@ -64,6 +65,7 @@ def _features() -> dict[str, PlannerFeatures]:
         "aeni": aeni,
         "aeni-bias-hold": replace(aeni, bias_aware_hold=True),
         "aeni-plus": plus,
+        "aeni-nugget": replace(plus, surrogate_nugget=True),
         "aeni-ivr": replace(plus, acquisition="ivr", edge_penalty=False, joint_program=True),
         "aeni-tight": tight,
         "aeni-unguarded": replace(tight, surrogate_guard="off", surrogate_floor=False),

@@ -152,7 +152,7 @@ def main() -> int:
         )
     )
     lines = [
-        "# Oracle bound on the ternary field",
+        "# Even designs against the grid's final error (ternary field)",
         "",
         f"`python benchmarks/oracle_bound.py --seeds {args.seeds}` ({wall / 60:.1f} min). The grid baseline "
         f"(9×9 of 5×5 at 80 s, {grid_time_s:,.0f} s) ends at a median MAPE of **{target:.3f} %**. "

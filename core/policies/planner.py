@@ -128,7 +128,7 @@ class BayesPlanner:
             hold, err = choose_hold(rate)
             mode = f"adaptive: {'fast' if hold == FAST_HOLD_S else 'slow'} {hold:g} s"
             if f.bias_aware_hold and hold == FAST_HOLD_S and err is not None and map_rel_err is None:
-                # the precision to aim at is not known until the exploratory phase has shaped the model
+                # the precision to aim at is not known until the seeds have shaped a model
                 hold = SLOW_HOLD_S
                 mode = "bias-aware: slow 80 s until a model sets the precision to aim at"
             elif f.bias_aware_hold and hold == FAST_HOLD_S and err is not None and map_rel_err is not None:

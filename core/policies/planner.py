@@ -34,7 +34,6 @@ FAST_HOLD_S = 5.0
 SLOW_HOLD_S = 80.0
 G_MIN, G_MAX = 2, 5
 DRIFT_WINDOW = 12  # drift readings whose median the bias-aware hold trusts
-DRIFT_RECENT = 4
 PROGRAM_SUBSET = 300  # sub-grid candidates considered when a program is planned ahead
 PROGRAM_CANDIDATES = 6  # aeni-plus: global centres whose whole program is planned before choosing a jump
 
@@ -56,7 +55,7 @@ class PlannerFeatures:
     local_limit: int | None = None  # local centres per program; None: the operator's setting (default 5)
     joint_program: bool = False  # price a jump with the sub-grids its program will run (planned jointly)
     bias_aware_hold: bool = False  # fast hold only where its bias is small against the precision aimed at
-    bias_fraction: float = 0.25  # "small": at most this fraction of the grid baseline's map error
+    bias_fraction: float = 0.5  # "small": at most this fraction of the grid baseline's map error
     surrogate_guard: Literal["keep-last-good", "off"] = "keep-last-good"  # read by the Campaign
     surrogate_nugget: bool = False  # the mean GP learns a site-to-site variance (read by the Campaign)
     centre_estimator: CentreEstimator = "median"  # one value per grid: the median (SPEC) or Huber's
@@ -465,10 +464,11 @@ class BayesPlanner:
 
 
 def _robust_rate(readings: tuple[float, ...]) -> float:
-    """One drift reading is noisy: the larger of the median of the last few readings and of the last
-    DRIFT_WINDOW (a rise shows at once, a fall only once it is clear)."""
-    last = float(np.median(readings[-DRIFT_RECENT:]))
-    return max(last, float(np.median(readings[-DRIFT_WINDOW:])))
+    """One drift reading is noisy: the median of the last DRIFT_WINDOW, unless the last reading alone breaks
+    the paper's 2 % rule (an event shows at once; the readings' own noise never sends a quiet run slow)."""
+    window = float(np.median(readings[-DRIFT_WINDOW:]))
+    last = float(readings[-1])
+    return max(window, last) if area_error_pct(last) >= AREA_ERROR_THRESHOLD_PCT else window
 
 
 def _nearest_lattice(lattice_uv: np.ndarray, pts_uv: np.ndarray) -> np.ndarray:

@@ -335,8 +335,8 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
             f"- **30× against the grid's own final error asks for a map from ≤ {grid_t / 30 / 45:.0f} indents.**"
             f" The target is the MAPE that 2,025 indents at 80 s end with; 30× means reaching it within"
             f" {grid_t / 30:,.0f} s, i.e. at most {grid_t / 30 / 45:.0f} indents of 40 + 5 s with no lift, engage,"
-            f" drift settle or travel at all. `aeni` gets there with a median of {aeni_n:.0f} indents"
-            f" ({aeni_x:.1f}×). {ORACLE_NOTE} The best even design of ≤ 212 indents (196 single indents) ends"
+            f" drift settle or travel at all. `aeni` reaches it {aeni_x:.1f}× faster than the grid and has used a"
+            f" median of {aeni_n:.0f} indents when its run ends (the target plus the run-on). {ORACLE_NOTE} The best even design of ≤ 212 indents (196 single indents) ends"
             " 1.33× above the grid's MAPE; the cheapest one that reaches it takes 529 single indents (≤ 12×)."
         )
     film = _get(summaries, "film", "aeni-plus")

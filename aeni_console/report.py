@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from core.bench import (
-    ABLATION_REFERENCE,
     LOOSE_FACTOR,
     BenchConfig,
     PolicySummary,
@@ -116,7 +115,7 @@ def _get(summaries: Sequence[PolicySummary], scenario: str, policy: str) -> Poli
     return next((s for s in summaries if s.scenario == scenario and s.policy == policy), None)
 
 
-def targets(summaries: Sequence[PolicySummary], records: Sequence[RunRecord]) -> list[dict[str, Any]]:
+def targets(summaries: Sequence[PolicySummary]) -> list[dict[str, Any]]:
     """The issue's targets, each with the measured median and whether it is met."""
     out: list[dict[str, Any]] = []
 
@@ -244,7 +243,7 @@ def results_markdown(
         " is 100×100); the decisions use the same cost model, GP and rules as `aeni simulate`.",
         "",
     ]
-    tgts = targets(summaries, records)
+    tgts = targets(summaries)
     if tgts:
         lines += [
             "## Targets",
@@ -593,4 +592,4 @@ def write_report(
     return [out_dir / "RESULTS.md", out_dir / "results.json", *written]
 
 
-__all__ = ["ABLATION_REFERENCE", "results_markdown", "targets", "write_report"]
+__all__ = ["results_markdown", "targets", "write_report"]

@@ -30,6 +30,7 @@ import numpy as np  # noqa: E402
 from core.campaign import Campaign, CampaignConfig  # noqa: E402
 from core.emulator import Emulator, make_scenario, truth_on_lattice  # noqa: E402
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency  # noqa: E402
+from core.metrics import mape_pct  # noqa: E402
 from core.surrogate import HeteroskedasticGP, Observations  # noqa: E402
 
 SIDE_UM = 1000.0
@@ -69,8 +70,7 @@ def measure_design(
 def mape_of(obs: Observations, truth_uv: np.ndarray, truth_h: np.ndarray) -> float:
     gp = HeteroskedasticGP(heteroskedastic=True, lengthscale_floor_uv=0.005)
     gp.fit(obs)
-    pred = gp.predict_mean(truth_uv)
-    return float(np.mean(np.abs(pred - truth_h) / truth_h) * 100.0)
+    return mape_pct(gp.predict_mean(truth_uv), truth_h)
 
 
 def lattice(k: int, lo: float, hi: float) -> list[tuple[float, float]]:

@@ -72,8 +72,8 @@ class CentreRecord:
     median_gpa: float
     spread_var_gpa2: float
     n_indents: int
-    value_gpa: float | None = None  # what the GP sees (the policy's centre estimator); None: the median
-    efficiency: float | None = None  # var(value)·n/σ²; None: the median's
+    value_gpa: float  # what the GP sees: the policy's centre estimator (the median by default)
+    efficiency: float  # var(value)·n/σ²
 
 
 @dataclass
@@ -165,7 +165,7 @@ class Campaign:
             return None
         ls = hyper["lengthscales_uv"]
         return GPSummary(
-            str(hyper["kernel"]), (float(ls[0]), float(ls[1])), float(scale), self.surrogate.site_sd_gpa**2
+            str(hyper["kernel"]), (float(ls[0]), float(ls[1])), float(scale), self.surrogate.site_var_gpa2
         )
 
     def _tested_noise_var(self) -> np.ndarray | None:
@@ -177,7 +177,7 @@ class Campaign:
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])
         sd = self.predict_stage(xy[:, 0], xy[:, 1]).noise_sd
         n = np.array([c.n_indents for c in self.centres])
-        return median_noise_var(sd, n, self.centre_estimator) + self.surrogate.site_sd_gpa**2
+        return median_noise_var(sd, n, self.centre_estimator) + self.surrogate.site_var_gpa2
 
     def _program_state(self) -> tuple[tuple[float, float] | None, float | None, int]:
         centre: tuple[float, float] | None = None
@@ -235,7 +235,6 @@ class Campaign:
             avoid_xy_um=avoid + tuple(self.settings.avoid_centers_um),
             globals_done=sum(1 for b in self.blocks if b.kind == "global"),
             recent_drift_rates_nm_s=tuple(self.drift_rates[-25:]),
-            tested_n_indents=np.array([c.n_indents for c in self.centres], dtype=int),
             tested_noise_var_gpa2=self._tested_noise_var() if self._needs_covariance else None,
             gp=self._gp_summary() if self._needs_covariance else None,
         )
@@ -299,16 +298,10 @@ class Campaign:
         u, v = self.calibration.to_uv(xy[:, 0], xy[:, 1])
         return Observations(
             uv=np.column_stack([u, v]),
-            median_gpa=np.array([c.median_gpa if c.value_gpa is None else c.value_gpa for c in self.centres]),
+            median_gpa=np.array([c.value_gpa for c in self.centres]),
             spread_var_gpa2=np.array([c.spread_var_gpa2 for c in self.centres]),
             n_indents=np.array([c.n_indents for c in self.centres]),
-            efficiency=np.array(
-                [
-                    estimator_efficiency("median", c.n_indents) if c.efficiency is None else c.efficiency
-                    for c in self.centres
-                ],
-                dtype=float,
-            ),
+            efficiency=np.array([c.efficiency for c in self.centres], dtype=float),
         )
 
     def observe_block(

@@ -828,7 +828,7 @@ SCENARIOS: dict[str, str] = {
     "rotated-quaternary": "four-component spread with gradient axes rotated 30° from the stage axes",
     "rough": "smooth trend plus seeded multi-scale correlated roughness (a real-looking map)",
     "collapse": (
-        "ternary library with indent-scale heterogeneity (0.25 GPa over ~40 µm) that within-grid spreads"
+        "ternary library with indent-scale heterogeneity (0.1 GPa over ~40 µm) that within-grid spreads"
         " cannot see: provokes length-scale collapse"
     ),
     "csv": "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa])",

@@ -14,7 +14,6 @@ from typing import Literal
 import numpy as np
 
 CentreEstimator = Literal["median", "huber"]
-CENTRE_ESTIMATORS: tuple[str, ...] = ("median", "huber")
 
 MEDIAN_EFFICIENCY = math.pi / 2  # var(median of n) ≈ (π/2)·σ²/n for normal indents (the "1.57")
 HUBER_C = 1.345  # the classic tuning: 95 % efficiency at the normal

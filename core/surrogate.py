@@ -98,7 +98,9 @@ class Observations:
             raise InputError("observations.spread_dof", f"expected shape ({n},), got {dof.shape}")
         object.__setattr__(self, "spread_dof", dof)
         eff = (
-            _median_efficiency(n_ind) if self.efficiency is None else np.asarray(self.efficiency, dtype=float)
+            estimator_efficiency("median", n_ind)
+            if self.efficiency is None
+            else np.asarray(self.efficiency, dtype=float)
         )
         if eff.shape != (n,) or not np.all(np.isfinite(eff)) or np.any(eff < 1.0):
             raise InputError("observations.efficiency", f"expected ({n},) values ≥ 1, got {eff!r}")
@@ -481,11 +483,6 @@ def _standardise(values: np.ndarray) -> tuple[float, float]:
     return loc, scale
 
 
-def _median_efficiency(n: np.ndarray) -> np.ndarray:
-    """var(median)/(σ²/n): exactly 1 for one or two indents, ≈ π/2 beyond."""
-    return estimator_efficiency("median", n)
-
-
 def _log_spread_targets(spread: np.ndarray, dof: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unbiased log-variance targets and their sampling variances for chi-square variances with k dof:
     E[log s²] = log σ² + ψ(k/2) − log(k/2), var[log s²] = ψ′(k/2)."""
@@ -705,6 +702,10 @@ class HeteroskedasticGP:
                 parts.append(self._mean.mean(xs[start : start + PREDICT_CHUNK]).numpy())
         mean = np.concatenate(parts) if parts else np.empty(0)
         return np.asarray(mean * self._y_scale + self._y_loc, dtype=float)
+
+    @property
+    def site_var_gpa2(self) -> float:
+        return self._site_var_gpa2
 
     @property
     def site_sd_gpa(self) -> float:

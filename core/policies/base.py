@@ -62,7 +62,6 @@ class PlanContext:
     r_excl_um: float = 20.0
     extras: dict[str, object] = field(default_factory=dict)
     globals_done: int = 0  # global blocks (programs) run so far, seeds included
-    tested_n_indents: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (k,)
     tested_noise_var_gpa2: np.ndarray | None = (
         None  # (k,) noise variance of each centre's median, per the model
     )

@@ -42,6 +42,28 @@ def _kernel(kind: str, a: np.ndarray, b: np.ndarray, ls: np.ndarray, os: float) 
     return np.asarray(os * (1.0 + r + r * r / 3.0) * np.exp(-r))
 
 
+class _Whitener:
+    """The fitted kernel on some measured (or planned) centres, factored once: L⁻¹k(X, ·) for any points."""
+
+    def __init__(self, summary: GPSummary, uv: np.ndarray, noise_var: np.ndarray) -> None:
+        from scipy.linalg import solve_triangular
+
+        self.kind = summary.kernel
+        self.ls = np.asarray(summary.lengthscales_uv, dtype=float)
+        self.os = float(summary.outputscale_gpa2)
+        self.uv = uv
+        k = _kernel(self.kind, uv, uv, self.ls, self.os)
+        k[np.diag_indices_from(k)] += np.maximum(noise_var, 1e-10 * self.os)
+        self._chol = np.linalg.cholesky(k)
+        self._solve = solve_triangular
+
+    def kernel(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return _kernel(self.kind, a, b, self.ls, self.os)
+
+    def whiten(self, pts: np.ndarray) -> np.ndarray:
+        return np.asarray(self._solve(self._chol, self.kernel(self.uv, pts), lower=True))
+
+
 @dataclass
 class PosteriorCov:
     """Posterior covariance of the latent map between a reference lattice R and candidate centres C.
@@ -72,16 +94,10 @@ class PosteriorCov:
         ref_uv: np.ndarray,
         ref_w: np.ndarray,
     ) -> PosteriorCov:
-        ls = np.asarray(summary.lengthscales_uv, dtype=float)
-        os = float(summary.outputscale_gpa2)
-        kxx = _kernel(summary.kernel, train_uv, train_uv, ls, os)
-        kxx[np.diag_indices_from(kxx)] += np.maximum(train_noise_var, 1e-10 * os)
-        chol = np.linalg.cholesky(kxx)
-        from scipy.linalg import solve_triangular
-
-        a_cand = solve_triangular(chol, _kernel(summary.kernel, train_uv, cand_uv, ls, os), lower=True)
-        a_ref = solve_triangular(chol, _kernel(summary.kernel, train_uv, ref_uv, ls, os), lower=True)
-        cov_rc = _kernel(summary.kernel, ref_uv, cand_uv, ls, os) - a_ref.T @ a_cand
+        w = _Whitener(summary, train_uv, train_noise_var)
+        os = w.os
+        a_cand, a_ref = w.whiten(cand_uv), w.whiten(ref_uv)
+        cov_rc = w.kernel(ref_uv, cand_uv) - a_ref.T @ a_cand
         var_c = np.maximum(os - np.einsum("ij,ij->j", a_cand, a_cand), 1e-12 * os)
         return cls(summary, ref_uv, ref_w / ref_w.sum(), cand_uv, train_uv, a_cand, cov_rc, var_c)
 
@@ -162,13 +178,7 @@ def design_rel_error(
     The planner compares biases with it, e.g. a fast hold's drift bias with what the 9×9 grid baseline
     would reach on this sample under the current kernel.
     """
-    ls = np.asarray(summary.lengthscales_uv, dtype=float)
-    os = float(summary.outputscale_gpa2)
-    kdd = _kernel(summary.kernel, design_uv, design_uv, ls, os)
-    kdd[np.diag_indices_from(kdd)] += np.maximum(design_noise_var, 1e-10 * os)
-    chol = np.linalg.cholesky(kdd)
-    from scipy.linalg import solve_triangular
-
-    a = solve_triangular(chol, _kernel(summary.kernel, design_uv, ref_uv, ls, os), lower=True)
-    var = np.maximum(os - np.einsum("ij,ij->j", a, a), 0.0)
+    w = _Whitener(summary, design_uv, design_noise_var)
+    a = w.whiten(ref_uv)
+    var = np.maximum(w.os - np.einsum("ij,ij->j", a, a), 0.0)
     return float(np.sqrt(np.mean(var / np.maximum(ref_mu, 1e-6) ** 2)))

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from core.cost import CostLedger, grid_baseline_blocks, price_sequence
+from core.drift import drift_corrected_hardness_gpa
 from core.emulator import Scenario, make_scenario, truth_on_lattice
 from core.errors import InputError
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency
@@ -107,6 +108,7 @@ class Campaign:
         pitch_uv = min(self.lattice.pitch_uv)
         floor = bool(getattr(self.policy, "surrogate_floor", True))
         self.centre_estimator: CentreEstimator = getattr(self.policy, "centre_estimator", "median")
+        self.drift_correction = bool(getattr(self.policy, "drift_correction", False))
         self.surrogate = HeteroskedasticGP(
             heteroskedastic=True,
             lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005) if floor else UNGUARDED_FLOOR_UV,
@@ -272,6 +274,14 @@ class Campaign:
         if not results:
             return
         h = np.array([r.hardness_gpa for r in results])
+        raw_median = float(np.median(h))
+        if self.drift_correction:
+            h = drift_corrected_hardness_gpa(
+                h,
+                np.array([r.drift_rate_nm_s for r in results]),
+                np.array([r.hold_s for r in results]),
+                full_hold_s=max(self.profile.allowed_holds_s),
+            )
         xs = np.array([r.actual_x_um for r in results])
         ys = np.array([r.actual_y_um for r in results])
         self.centres.append(
@@ -279,7 +289,7 @@ class Campaign:
                 block_id=block.block_id,
                 x_um=float(xs.mean()),
                 y_um=float(ys.mean()),
-                median_gpa=float(np.median(h)),
+                median_gpa=raw_median,
                 spread_var_gpa2=float(np.var(h, ddof=1)) if len(h) >= 2 else math.nan,
                 n_indents=len(h),
                 value_gpa=centre_value(h, self.centre_estimator),

@@ -702,8 +702,10 @@ class Emulator:
     """Turns a commanded indent into what the instrument would report.
 
     Depth bias from vertical drift is DR(t)·t_measure·r(hold), r = max(0, 1 − hold/full_correction_hold_s):
-    the post-hold drift measurement corrects the depth fully after 80 s and barely after 5 s. The uncorrected
-    bias deepens the apparent indent, so the contact area (∝ depth²) grows and hardness reads low.
+    the post-hold drift measurement corrects the depth fully after 80 s and barely after 5 s. The test runs
+    to its nominal depth as measured (drift included), so the true depth is shallower by the uncorrected
+    bias: the instrument overestimates the contact area (∝ depth²) and hardness reads low. This is the
+    convention of the paper's Eq. 7 (h_true = h_meas − DR·t), which the hold rule and the correction use.
     """
 
     def __init__(
@@ -771,7 +773,8 @@ class Emulator:
             h_noisy += float(self.site_texture.offset_gpa(cx, cy))
         h_noisy = max(h_noisy, 1e-3)
         depth = self.nominal_depth_nm
-        shrink = depth / (depth + self.depth_bias_nm(t_s, hold_s))
+        # true / measured depth; a drift displacement of the whole depth would leave no indent to read
+        shrink = max(depth - self.depth_bias_nm(t_s, hold_s), 0.01 * depth) / depth
         # the same contact-area error drives both: H ∝ 1/A, E ∝ 1/√A, so E carries half of H's relative error
         e_true = float(modulus_from_hardness_gpa(h_true))
         rel = 0.5 * (h_noisy - h_true) / h_true + 0.01 * float(

@@ -98,6 +98,20 @@ def test_every_registered_policy_builds_and_unknown_names_fail() -> None:
         make_policy("nope")
 
 
+def test_each_improvement_is_one_feature_on_top_of_the_paper_version() -> None:
+    """The ablations measure one idea each only if the policies differ in exactly those features."""
+
+    def features(name: str) -> PlannerFeatures:
+        return make_policy(name).features  # type: ignore[attr-defined,no-any-return]
+
+    assert replace(features("adaptive-hold"), drift_correction=True) == features("adaptive-hold-corrected")
+    assert replace(
+        features("aeni"), centre_estimator="huber", bias_aware_hold=True, drift_correction=True
+    ) == features("aeni-plus")
+    assert replace(features("aeni-plus"), surrogate_nugget=True) == features("aeni-nugget")
+    assert not features("aeni").drift_correction and not features("cost-aware").drift_correction
+
+
 # -- placement and cost invariants ----------------------------------------------------------------------
 
 

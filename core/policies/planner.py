@@ -59,6 +59,9 @@ class PlannerFeatures:
     surrogate_guard: Literal["keep-last-good", "off"] = "keep-last-good"  # read by the Campaign
     surrogate_nugget: bool = False  # the mean GP learns a site-to-site variance (read by the Campaign)
     centre_estimator: CentreEstimator = "median"  # one value per grid: the median (SPEC) or Huber's
+    # fast indents corrected with their own drift reading by Eq. 7 before the centre value (read by the
+    # Campaign; the journal keeps what the instrument reported)
+    drift_correction: bool = False
     # the length-scale floor (half the candidate pitch) and its prior: with surrogate_guard, the SPEC §5
     # guard; off only in the unguarded ablation, which is what a plain maximum-likelihood GP does
     surrogate_floor: bool = True
@@ -92,6 +95,7 @@ class BayesPlanner:
         self.surrogate_guard = features.surrogate_guard
         self.surrogate_nugget = features.surrogate_nugget
         self.centre_estimator = features.centre_estimator
+        self.drift_correction = features.drift_correction
         self.surrogate_floor = features.surrogate_floor
 
     # -- acquisition ---------------------------------------------------------------------------

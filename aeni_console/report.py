@@ -383,8 +383,8 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
                 " the 1/16 of the bias that a 5 s hold had already corrected"
                 + "".join(
                     f"; in {scen} it reaches the target on {_seeds(c)} seeds (`adaptive-hold` {_seeds(a)}),"
-                    f" final MAPE {_fmt_num(_med(c.final_mape_pct), 3, ' %')}"
-                    f" (`adaptive-hold` {_fmt_num(_med(a.final_mape_pct), 3, ' %')})"
+                    f" final MAPE {_fmt_num(c.final_mape_pct, 3, ' %')}"
+                    f" (`adaptive-hold` {_fmt_num(a.final_mape_pct, 3, ' %')})"
                     for scen, a, c in corr
                 )
                 + "."
@@ -596,6 +596,10 @@ def write_report(
     from aeni_console.commands.common import write_atomic
 
     out_dir.mkdir(parents=True, exist_ok=True)
+    # the measurements first: a figure or a table that fails to render must not take the numbers with it
+    write_atomic(
+        out_dir / "results.json", json.dumps(records_to_json(records, config, wall_s), separators=(",", ":"))
+    )
     written: list[Path] = []
     figures: dict[str, list[str]] = {}
     note = ""
@@ -622,9 +626,6 @@ def write_report(
         written.append(fig_dir / "costs.png")
     md = results_markdown(records, config, wall_s, figures, note)
     write_atomic(out_dir / "RESULTS.md", md)
-    write_atomic(
-        out_dir / "results.json", json.dumps(records_to_json(records, config, wall_s), separators=(",", ":"))
-    )
     for p in (out_dir / "RESULTS.md", out_dir / "results.json"):
         p.chmod(0o644)
     return [out_dir / "RESULTS.md", out_dir / "results.json", *written]

@@ -147,16 +147,9 @@ class Campaign:
         return ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
 
     def make_sim_driver(self, speed: float | None = None) -> Any:
-        from core.emulator import Emulator
         from drivers.simulated import SimulatedDriver
 
-        emulator = Emulator(
-            self.scenario.truth,
-            self.scenario.drift,
-            seed=self.config.seed,
-            lateral_sd_um=self.scenario.lateral_sd_um,
-            site_texture=self.scenario.site_texture,
-        )
+        emulator = dataclasses.replace(self.scenario, seed=self.config.seed).make_emulator()
         return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())
 
     # -- planning --------------------------------------------------------------------------------

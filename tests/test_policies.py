@@ -357,6 +357,8 @@ def test_aeni_ivr_prices_jumps_with_their_programs_and_holds_fast_when_drift_is_
     assert all(d.block.hold_s == SLOW_HOLD_S for d in run.decisions if d.phase == "seed")
     assert any("bias-aware: fast" in d.hold_mode for d in later)
     assert all(d.block.hold_s == FAST_HOLD_S for d in later if "bias-aware: fast" in d.hold_mode)
+    # the operator sees that the fast indents' hardness will be drift-corrected before the model uses it
+    assert all(d.hold_mode.endswith("; drift-corrected") for d in later if "bias-aware: fast" in d.hold_mode)
     assert any("planned sub-grids" in d.reason for d in later if d.block.kind == "global")
 
 

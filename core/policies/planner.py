@@ -142,6 +142,8 @@ class BayesPlanner:
                     mode = f"bias-aware: slow 80 s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
                 else:
                     mode = f"bias-aware: fast 5 s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
+            if f.drift_correction and hold < SLOW_HOLD_S:
+                mode += "; drift-corrected"
             return hold, err, mode
         hold = ctx.settings.fixed_hold_s
         return hold, None, f"fixed {hold:g} s"

@@ -15,11 +15,15 @@ from typing import Any
 import numpy as np
 
 from core.bench import (
+    LEVEL_FACTORS,
+    LEVEL_PAIRS,
     LOOSE_FACTOR,
     BenchConfig,
     PolicySummary,
     RunRecord,
+    mape_at_equal_time,
     records_to_json,
+    speedup_by_level,
     summarise,
 )
 
@@ -116,7 +120,7 @@ def _get(summaries: Sequence[PolicySummary], scenario: str, policy: str) -> Poli
     return next((s for s in summaries if s.scenario == scenario and s.policy == policy), None)
 
 
-def targets(summaries: Sequence[PolicySummary]) -> list[dict[str, Any]]:
+def targets(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = ()) -> list[dict[str, Any]]:
     """The issue's targets, each with the measured median and whether it is met."""
     out: list[dict[str, Any]] = []
 
@@ -147,13 +151,19 @@ def targets(summaries: Sequence[PolicySummary]) -> list[dict[str, Any]]:
             ratio = None if t_ah is None or t_ca is None or math.isinf(t_ca) else t_ah / t_ca
             m_ah, m_ca = _med(ah.final_mape_pct), _med(ca.final_mape_pct)
             if ratio_goal:
-                ok = None if ratio is None else ratio <= 0.6 and (m_ah or 0) <= (m_ca or 0) * 1.05
+                # "no worse" at the same instrument time: a run that reaches the target sooner stops sooner
+                same = mape_at_equal_time(records, scen, pol, "cost-aware")
+                mine, theirs = same if same is not None else (m_ah, m_ca)
+                ok = None if ratio is None else ratio <= 0.6 and (mine or 0) <= (theirs or 0) * 1.05
+                note = f"final MAPE {m_ah:.3f} % vs {m_ca:.3f} %" if m_ah and m_ca else ""
+                if same is not None:
+                    note += f"; when it stops {same[0]:.3f} %, fixed 80 s at that time {same[1]:.3f} %"
                 add(
                     f"`{pol}` time / fixed 80 s (`cost-aware`), good drift",
                     "≤ 0.6×, MAPE no worse",
                     ratio,
                     ok,
-                    f"final MAPE {m_ah:.3f} % vs {m_ca:.3f} %" if m_ah and m_ca else "",
+                    note,
                 )
             else:
                 ok = (
@@ -188,6 +198,52 @@ def targets(summaries: Sequence[PolicySummary]) -> list[dict[str, Any]]:
             else "",
         )
     return out
+
+
+def level_table(records: Sequence[RunRecord]) -> list[str]:
+    """Each idea against its reference at the grid's final MAPE and at looser multiples of it."""
+    rows = []
+    for scen, pol, ref in LEVEL_PAIRS:
+        cells = [speedup_by_level(records, scen, pol, ref, f) for f in LEVEL_FACTORS]
+        if any(c is not None for c in cells):
+            rows.append(f"| {scen} | `{pol}` | `{ref}` | " + " | ".join(_fmt_ratio(c) for c in cells) + " |")
+    if not rows:
+        return []
+    return [
+        "## Speed-up by error level",
+        "",
+        "The paper's figures were read off MAPE curves at error levels it does not state. Reference time /"
+        " policy time to reach f × the grid's final MAPE, paired by seed (median [inter-quartile range]).",
+        "",
+        "| scenario | policy | against | "
+        + " | ".join(f"{f:g}× the grid's MAPE" for f in LEVEL_FACTORS)
+        + " |",
+        "|---|---|---|" + "---|" * len(LEVEL_FACTORS),
+        *rows,
+        "",
+    ]
+
+
+def _centre_costs_s() -> dict[str, float]:
+    """Seconds per tested centre (the profile's cost model): a 5×5 or 2×2 grid as a new program, and a 2×2
+    sub-grid 300 µm away inside an engaged program, at 80 s or 5 s holds."""
+    from core.cost import block_costs_for
+    from core.plan import Block, local_grid
+    from core.profile import load_profile
+
+    prof = load_profile("kla-imicro")
+
+    def cost(g: int, hold_s: float, engaged: bool) -> float:
+        kind = "local" if engaged else "global"
+        blk = Block(1, kind, 800.0, 500.0, g, 5.0, hold_s, local_grid(800.0, 500.0, g, 5.0, hold_s))
+        return float(block_costs_for(prof, blk, (500.0, 500.0), engaged))
+
+    return {
+        "5x5": cost(5, 80.0, False),
+        "2x2": cost(2, 80.0, False),
+        "2x2 sub": cost(2, 80.0, True),
+        "2x2 sub fast": cost(2, 5.0, True),
+    }
 
 
 def _seeds(s: PolicySummary) -> str:
@@ -253,7 +309,7 @@ def results_markdown(
         " is 100×100); the decisions use the same cost model, GP and rules as `aeni simulate`.",
         "",
     ]
-    tgts = targets(summaries)
+    tgts = targets(summaries, records)
     if tgts:
         lines += [
             "## Targets",
@@ -267,6 +323,7 @@ def results_markdown(
                 f"| {t['target']} | {t['goal']} | {_fmt_target(t['measured'], t['goal'])} | {met} | {t['note']} |"
             )
         lines += ["", why_text(summaries), _time_share(summaries), ""]
+    lines += level_table(records)
     for group, title in (
         ("paper", "The paper's comparisons"),
         ("robustness", "Robustness: fields nothing was tuned on"),
@@ -349,19 +406,27 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
             f" median of {aeni_n:.0f} indents when its run ends (the target plus the run-on). {ORACLE_NOTE} The best even design of ≤ 212 indents (196 single indents) ends"
             " 1.33× above the grid's MAPE; the cheapest one that reaches it takes 529 single indents (≤ 12×)."
         )
-    film = _get(summaries, "film", "aeni-plus")
-    if film is not None:
-        loose = _med(film.speedup_grid_loose)
-        out.append(
-            "- **The film is noise-limited.** Its noise reaches 10 % of the maximum hardness, so the grid's final"
-            " error is what averaging ~2,000 noisy indents gives, and a map as good needs a comparable number of"
-            f" indents: `aeni-plus` reaches it on {round(film.hit_rate * film.n_seeds)} of {film.n_seeds} seeds"
-            + (
-                f"; at 1.5× the grid's MAPE it is {loose:.1f}× faster than the grid."
-                if loose is not None
-                else "."
-            )
+    film, film_aeni = _get(summaries, "film", "aeni-plus"), _get(summaries, "film", "aeni")
+    if film is not None and film_aeni is not None:
+        x = _med(film.speedup_grid)
+        text = (
+            "- **The film** (noise up to 10 % of the maximum hardness, good drift, 520 s jumps): `aeni` reaches"
+            f" the grid's final error on {_seeds(film_aeni)} seeds and `aeni-plus` on {_seeds(film)}"
+            + (f", {x:.1f}× faster than the grid" if x is not None and 0 < x < math.inf else "")
+            + ". "
         )
+        if film.hit_rate > film_aeni.hit_rate:
+            text += (
+                "The drift correction makes the difference: the paper's hold leaves the bias of fast indents in"
+                " the map, and where the noise alone already sets the grid's final error that bias is enough to"
+                " miss it."
+            )
+        else:
+            text += (
+                "The noise sets the grid's final error there: it is what averaging ~2,000 noisy indents gives,"
+                " and a map as good needs a comparable number of indents."
+            )
+        out.append(text)
     ah = _get(summaries, "good-drift", "adaptive-hold")
     if ah is not None:
         text = (
@@ -379,8 +444,9 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
         if corr:
             text += (
                 " `adaptive-hold-corrected` keeps the paper's rule and undoes Eq. 7 on every fast indent with"
-                " that indent's own drift reading (H·(1 + area error)); what is left is the reading's noise and"
-                " the 1/16 of the bias that a 5 s hold had already corrected"
+                " the drift rate measured around it (H·(1 + area error), the running median of 5 readings);"
+                " what is left is the readings' noise and the 1/16 of the bias that a 5 s hold had already"
+                " corrected"
                 + "".join(
                     f"; in {scen} it reaches the target on {_seeds(c)} seeds (`adaptive-hold` {_seeds(a)}),"
                     f" final MAPE {_fmt_num(c.final_mape_pct, 3, ' %')}"
@@ -406,12 +472,16 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
                 + "."
             )
         out.append(text)
+    c = _centre_costs_s()
     out.append(
-        "- **Adaptive grid and meta-grid** save what the paper says they save (smaller grids where the noise"
-        " allows; no lift, engage and drift settle between sub-grids), but against the grid's own final error"
-        " the information in the indents decides, not the overheads; the paper's 4× and 10× were read off"
-        " curves at an error level its fixed grids reach early. At 1.5× the grid's MAPE the gains are larger"
-        " (see the tables)."
+        "- **Adaptive grid and meta-grid cannot reach 4× and 10× at equal information.** What they save is"
+        f" time per tested centre: a 5×5 grid as a new program takes {c['5x5']:,.0f} s, a 2×2 one"
+        f" {c['2x2']:,.0f} s ({c['5x5'] / c['2x2']:.1f}× less), a 2×2 sub-grid inside an engaged program"
+        f" {c['2x2 sub']:,.0f} s ({c['5x5'] / c['2x2 sub']:.1f}× less; {c['5x5'] / c['2x2 sub fast']:.0f}× with"
+        " 5 s holds). These are the most either could gain if a 2×2 centre told the model as much as a 5×5"
+        " one; it tells less (its median's variance is ~4.8× larger), so the measured gain is smaller at every"
+        " error level (see *Speed-up by error level*). The paper's ≈ 4× matches the per-centre cost of"
+        " adaptive sizing; its ≈ 10× needs sub-grids that also hold fast."
     )
     rise_t, rise_u = (
         med("collapse", "aeni-tight", "worst_rise"),
@@ -590,9 +660,17 @@ def figure_costs(records: Sequence[RunRecord], config: BenchConfig, path: Path) 
 
 
 def write_report(
-    records: Sequence[RunRecord], config: BenchConfig, out_dir: Path, wall_s: float
+    records: Sequence[RunRecord],
+    config: BenchConfig,
+    out_dir: Path,
+    wall_s: float,
+    keep_existing_maps: bool = False,
 ) -> list[Path]:
-    """RESULTS.md, results.json and (with matplotlib) figures/*.png in ``out_dir``; the paths written."""
+    """RESULTS.md, results.json and (with matplotlib) figures/*.png in ``out_dir``; the paths written.
+
+    ``keep_existing_maps``: records read back from results.json carry no maps; the map figures already in
+    ``out_dir`` (drawn by the run itself) stay and are referenced.
+    """
     from aeni_console.commands.common import write_atomic
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -621,6 +699,8 @@ def write_report(
             if figure_maps(records, sc.key, sc.title, fig_dir / name):
                 figures[sc.key].append(name)
                 written.append(fig_dir / name)
+            elif keep_existing_maps and (fig_dir / name).is_file():
+                figures[sc.key].append(name)
         figure_costs(records, config, fig_dir / "costs.png")
         figures["_all"] = ["costs.png"]
         written.append(fig_dir / "costs.png")

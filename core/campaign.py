@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from core.cost import CostLedger, grid_baseline_blocks, price_sequence
-from core.drift import drift_corrected_hardness_gpa
+from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.emulator import Scenario, make_scenario, truth_on_lattice
 from core.errors import InputError
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency
@@ -271,7 +271,7 @@ class Campaign:
         if self.drift_correction:
             h = drift_corrected_hardness_gpa(
                 h,
-                np.array([r.drift_rate_nm_s for r in results]),
+                smoothed_drift_rates_nm_s(np.array([r.drift_rate_nm_s for r in results])),
                 np.array([r.hold_s for r in results]),
                 full_hold_s=max(self.profile.allowed_holds_s),
             )

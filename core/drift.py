@@ -18,6 +18,20 @@ def area_error_pct(
     return abs(h_meas**2 - h_true**2) / h_true**2 * 100.0
 
 
+def smoothed_drift_rates_nm_s(rates_nm_s: np.ndarray, half_width: int = 2) -> np.ndarray:
+    """A running median over consecutive indents' drift readings (the window shrinks at the ends).
+
+    One reading is noisy (and, when the instrument is quiet, mostly its noise floor, which would bias every
+    corrected indent upwards); drift changes over minutes, several indents. A median keeps the step of an
+    event that starts mid-block sharp, where a mean would smear it over the indents before it.
+    """
+    r = np.asarray(rates_nm_s, dtype=float)
+    n = r.size
+    if n == 0 or half_width <= 0:
+        return r.copy()
+    return np.array([np.median(r[max(0, i - half_width) : i + half_width + 1]) for i in range(n)])
+
+
 def drift_corrected_hardness_gpa(
     hardness_gpa: np.ndarray,
     drift_rate_nm_s: np.ndarray,
@@ -28,11 +42,12 @@ def drift_corrected_hardness_gpa(
 ) -> np.ndarray:
     """Undo Eq. 7's area error on indents whose hold was too short for the instrument to correct the drift.
 
-    H ∝ 1/A and A ∝ h², so H_true = H_meas·(1 + area error) with the indent's own drift reading. An 80 s
-    hold is left alone (the instrument's post-hold segment corrected it). A fast indent hit by an event
-    after its block was planned carries a bias far above the grid's noise; its own reading shows the event,
-    so the correction pulls it back instead of leaving it to the robust centre value. Beyond DR·t ≥ depth
-    the formula has no answer and the reading is kept as measured.
+    H ∝ 1/A and A ∝ h², so H_true = H_meas·(1 + area error) with the drift rate measured at the indent (the
+    campaign passes the running median of the block's readings). An 80 s hold is left alone (the
+    instrument's post-hold segment corrected it). A fast indent hit by an event after its block was planned
+    carries a bias far above the grid's noise; the readings show the event, so the correction pulls it back
+    instead of leaving it to the robust centre value. Beyond DR·t ≥ depth the formula has no answer and the
+    value is kept as measured.
     """
     h = np.asarray(hardness_gpa, dtype=float)
     rate = np.abs(np.asarray(drift_rate_nm_s, dtype=float))

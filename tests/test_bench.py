@@ -201,3 +201,25 @@ def test_the_full_report_renders_every_section_from_synthetic_runs(tmp_path: Pat
     assert "### Why some targets are not met" in md
     write_report(records, config, tmp_path, 60.0)
     assert json.loads((tmp_path / "results.json").read_text(encoding="utf-8"))["runs"]
+    assert "## Speed-up by error level" in md and "| ternary | `meta-grid` | `uncertainty` |" in md
+
+
+def test_render_from_results_json_gives_the_same_report(
+    quick: tuple[Path, dict[str, object]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, _ = quick
+    again = tmp_path / "again"
+    (again / "figures").mkdir(parents=True)
+    (again / "figures" / "maps_ternary.png").write_bytes((out / "figures" / "maps_ternary.png").read_bytes())
+    assert main(["bench", "--render-from", str(out / "results.json"), "--out", str(again)]) == 0
+    assert "rendered" in capsys.readouterr().out
+    old = (out / "RESULTS.md").read_text(encoding="utf-8")
+    new = (again / "RESULTS.md").read_text(encoding="utf-8")
+    assert new == old  # the tables come from the stored runs; the map drawn by the run is kept
+    # not bench output: one line, exit 2
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"runs": []}', encoding="utf-8")
+    assert main(["bench", "--render-from", str(bad), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "bad.json" in err and "not the output of aeni bench" in err
+    assert not (tmp_path / "x").exists()

@@ -307,7 +307,7 @@ def test_hold_corrects_drift_bias() -> None:
 
 
 def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
-    """A fast indent corrected with its own reading lands within a fraction of its bias of the truth."""
+    """A fast indent corrected with its measured drift rate lands within a fraction of its bias of the truth."""
     from core.drift import drift_corrected_hardness_gpa
 
     truth = TernaryField()
@@ -329,6 +329,19 @@ def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
     # an 80 s hold was corrected by the instrument; beyond DR·t ≥ depth Eq. 7 has no answer
     same = drift_corrected_hardness_gpa(np.array([5.0, 5.0]), np.array([0.3, 3.0]), np.array([80.0, 5.0]))
     assert same.tolist() == [5.0, 5.0]
+
+
+def test_smoothed_drift_rates_keep_an_events_step_and_quieten_the_noise_floor() -> None:
+    from core.drift import smoothed_drift_rates_nm_s
+
+    step = np.array([0.0] * 6 + [0.3] * 6)
+    assert smoothed_drift_rates_nm_s(step).tolist() == step.tolist()  # the event starts where it starts
+    rng = np.random.default_rng(1)
+    quiet = np.maximum(0.002 * rng.standard_normal(2000), 0.0)  # the meter's floor: no drift at all
+    smooth = np.concatenate([smoothed_drift_rates_nm_s(quiet[i : i + 25]) for i in range(0, 2000, 25)])
+    assert smooth.mean() < 0.6 * quiet.mean() and smooth.std() < 0.6 * quiet.std()
+    assert smoothed_drift_rates_nm_s(np.array([0.1])).tolist() == [0.1]
+    assert smoothed_drift_rates_nm_s(np.array([])).size == 0
 
 
 def test_lateral_drift_and_modulus() -> None:

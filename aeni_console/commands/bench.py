@@ -18,6 +18,8 @@ def _handler(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "--out must be a folder, and this is a file")
+    if args.render_from is not None:
+        return _render(Path(args.render_from), out)
     config = BenchConfig.make(quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios)
     n_runs = sum(len(s.policies) for s in config.scenarios) * config.seeds
     start = time.monotonic()
@@ -43,6 +45,30 @@ def _handler(args: argparse.Namespace) -> int:
         f"{len(records)} campaigns in {wall / 60:.1f} min; wrote {', '.join(str(p) for p in paths[:2])}"
         f" and {len(paths) - 2} figure(s)"
     )
+    return 0
+
+
+def _render(source: Path, out: Path) -> int:
+    """The report again from a run's results.json (after a change to the report, or if rendering failed)."""
+    import json
+
+    from aeni_console.report import write_report
+    from core.bench import records_from_json
+
+    try:
+        data = json.loads(source.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(str(source), f"cannot read it ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise InputError(str(source), f"not JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(str(source), "not the output of aeni bench (expected a JSON object)")
+    try:
+        records, config, wall = records_from_json(data)
+    except InputError as exc:
+        raise InputError(str(source), exc.problem) from None
+    paths = write_report(records, config, out, wall, keep_existing_maps=True)
+    print(f"rendered {len(records)} campaigns from {source}; wrote {paths[0]} and {len(paths) - 2} figure(s)")
     return 0
 
 
@@ -72,4 +98,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument(
+        "--render-from",
+        default=None,
+        metavar="RESULTS_JSON",
+        help="run nothing: write the report into --out again from a bench's results.json",
+    )
     p.set_defaults(func=_handler)

@@ -59,7 +59,7 @@ class PlannerFeatures:
     surrogate_guard: Literal["keep-last-good", "off"] = "keep-last-good"  # read by the Campaign
     surrogate_nugget: bool = False  # the mean GP learns a site-to-site variance (read by the Campaign)
     centre_estimator: CentreEstimator = "median"  # one value per grid: the median (SPEC) or Huber's
-    # fast indents corrected with their own drift reading by Eq. 7 before the centre value (read by the
+    # fast indents corrected with the measured drift rate by Eq. 7 before the centre value (read by the
     # Campaign; the journal keeps what the instrument reported)
     drift_correction: bool = False
     # the length-scale floor (half the candidate pitch) and its prior: with surrogate_guard, the SPEC §5

@@ -26,7 +26,7 @@ POLICY_DESCRIPTIONS: dict[str, str] = {
     "adaptive-grid": "σ/cost, a new program every block, grid size 2×2…5×5 from the noise and the target SEM",
     "meta-grid": "adaptive grid + sub-grids ≤ 500 µm apart in the safe band, stay-vs-jump after each",
     "adaptive-hold": "cost-aware with a drift-aware 5 s / 80 s hold and the g²·(80 − 5) switch rule",
-    "adaptive-hold-corrected": "adaptive-hold whose fast indents are drift-corrected by Eq. 7 (own reading)",
+    "adaptive-hold-corrected": "adaptive-hold whose fast indents are drift-corrected by Eq. 7 (measured drift rate)",
     "aeni": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
     "aeni-bias-hold": "aeni with the bias-aware hold of aeni-plus only (ablation: that improvement alone)",
     "aeni-plus": "aeni with Huber centre values, the bias-aware hold and drift-corrected fast indents",

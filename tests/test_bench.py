@@ -213,9 +213,11 @@ def test_render_from_results_json_gives_the_same_report(
     (again / "figures" / "maps_ternary.png").write_bytes((out / "figures" / "maps_ternary.png").read_bytes())
     assert main(["bench", "--render-from", str(out / "results.json"), "--out", str(again)]) == 0
     assert "rendered" in capsys.readouterr().out
-    old = (out / "RESULTS.md").read_text(encoding="utf-8")
-    new = (again / "RESULTS.md").read_text(encoding="utf-8")
-    assert new == old  # the tables come from the stored runs; the map drawn by the run is kept
+    old = (out / "RESULTS.md").read_text(encoding="utf-8").splitlines()
+    new = (again / "RESULTS.md").read_text(encoding="utf-8").splitlines()
+    assert "Rendered again from the run's `results.json`" in new[4]
+    # the tables come from the stored runs; the map drawn by the run is kept
+    assert new[:4] + new[6:] == old
     # not bench output: one line, exit 2
     bad = tmp_path / "bad.json"
     bad.write_text('{"runs": []}', encoding="utf-8")
@@ -223,3 +225,20 @@ def test_render_from_results_json_gives_the_same_report(
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "bad.json" in err and "not the output of aeni bench" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_no_worse_mape_is_asked_at_the_time_the_faster_policy_stopped() -> None:
+    from dataclasses import replace
+
+    from core.bench import mape_at_equal_time, speedup_by_level
+
+    fast = replace(_rec("fast", 0, 100.0, final=0.5), trajectory=[(60.0, 0.8), (100.0, 0.5)])
+    slow = replace(
+        _rec("slow", 0, 400.0, final=0.3), instrument_s=500.0, trajectory=[(50.0, 0.9), (400.0, 0.45)]
+    )
+    # at 100 s the slow policy's map is still at 0.9 %, even though it ends better
+    assert mape_at_equal_time([fast, slow], "s", "fast", "slow") == (0.5, 0.9)
+    assert mape_at_equal_time([fast], "s", "fast", "slow") is None
+    # target 0.5: 4× at 1× the target; at 2× (1.0 %) both are there from their first point
+    assert speedup_by_level([fast, slow], "s", "fast", "slow", 1.0) == (4.0, 4.0, 4.0)
+    assert speedup_by_level([fast, slow], "s", "fast", "slow", 2.0) == (50 / 60, 50 / 60, 50 / 60)

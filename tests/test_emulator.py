@@ -308,7 +308,11 @@ def test_hold_corrects_drift_bias() -> None:
 
 def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
     """A fast indent corrected with its measured drift rate lands within a fraction of its bias of the truth."""
-    from core.drift import drift_corrected_hardness_gpa
+    from core.drift import (
+        DRIFT_READING_FLOOR_NM_S,
+        drift_corrected_hardness_gpa,
+        smoothed_drift_rates_nm_s,
+    )
 
     truth = TernaryField()
     none = Emulator(truth, DriftModel.scenario("none", 0), seed=3)
@@ -329,6 +333,13 @@ def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
     # an 80 s hold was corrected by the instrument; beyond DR·t ≥ depth Eq. 7 has no answer
     same = drift_corrected_hardness_gpa(np.array([5.0, 5.0]), np.array([0.3, 3.0]), np.array([80.0, 5.0]))
     assert same.tolist() == [5.0, 5.0]
+    # a quiet meter reads its noise floor, not drift: correcting it would only add that noise (and its bias)
+    # (the campaign corrects with the running median of a block's readings)
+    readings = np.array([none.measure(400, 400, 5.0, 100.0, 2, i).drift_rate_nm_s for i in range(200)])
+    quiet = np.concatenate([smoothed_drift_rates_nm_s(readings[i : i + 25]) for i in range(0, 200, 25)])
+    assert quiet.max() < DRIFT_READING_FLOOR_NM_S < 0.025
+    raw = np.full(200, 5.0)
+    assert drift_corrected_hardness_gpa(raw, quiet, np.full(200, 5.0)).tolist() == raw.tolist()
 
 
 def test_smoothed_drift_rates_keep_an_events_step_and_quieten_the_noise_floor() -> None:

@@ -108,7 +108,7 @@ def scenario_table(rows: Sequence[PolicySummary]) -> str:
             ref = f"{_fmt_ratio(q)} ({name})"
         mx = "—" if r.max_found_gpa is None else f"{r.max_found_gpa[1]:.2f} ({r.true_max_gpa:.2f}) GPa"
         lines.append(
-            f"| `{r.policy}` | {round(r.hit_rate * r.n_seeds)}/{r.n_seeds} | {_fmt_time(r.t_hit_s)} "
+            f"| `{r.policy}` | {_seeds(r)} | {_fmt_time(r.t_hit_s)} "
             f"| {_fmt_ratio(r.speedup_grid)} | {_fmt_ratio(r.speedup_uncertainty)} | {ref or '—'} "
             f"| {_fmt_ratio(r.speedup_grid_loose)} | {_fmt_num(r.final_mape_pct, 3, ' %')} | {mx} "
             f"| {_fmt_num(r.reconfigurations, 0)} | {_fmt_num(r.indents, 0)} |"
@@ -234,8 +234,16 @@ def _centre_costs_s() -> dict[str, float]:
     prof = load_profile("kla-imicro")
 
     def cost(g: int, hold_s: float, engaged: bool) -> float:
-        kind = "local" if engaged else "global"
-        blk = Block(1, kind, 800.0, 500.0, g, 5.0, hold_s, local_grid(800.0, 500.0, g, 5.0, hold_s))
+        blk = Block(
+            1,
+            "local" if engaged else "global",
+            800.0,
+            500.0,
+            g,
+            5.0,
+            hold_s,
+            local_grid(800.0, 500.0, g, 5.0, hold_s),
+        )
         return float(block_costs_for(prof, blk, (500.0, 500.0), engaged))
 
     return {
@@ -244,6 +252,17 @@ def _centre_costs_s() -> dict[str, float]:
         "2x2 sub": cost(2, 80.0, True),
         "2x2 sub fast": cost(2, 5.0, True),
     }
+
+
+def _drift_pairs(
+    summaries: Sequence[PolicySummary], paper: str, ours: str
+) -> list[tuple[str, PolicySummary, PolicySummary]]:
+    """(scenario, paper's policy, its improved version) in each drift scenario that ran both."""
+    return [
+        (scen, a, b)
+        for scen in ("good-drift", "bad-drift")
+        if (a := _get(summaries, scen, paper)) is not None and (b := _get(summaries, scen, ours)) is not None
+    ]
 
 
 def _seeds(s: PolicySummary) -> str:
@@ -445,12 +464,7 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
             " every drift event the fast hold comes back while the bias is still 0.2–1.9 %, an event that starts"
             " during a fast block biases the rest of it by up to ~20 %, and bias does not average out."
         )
-        corr = [
-            (scen, a, c)
-            for scen in ("good-drift", "bad-drift")
-            if (a := _get(summaries, scen, "adaptive-hold")) is not None
-            and (c := _get(summaries, scen, "adaptive-hold-corrected")) is not None
-        ]
+        corr = _drift_pairs(summaries, "adaptive-hold", "adaptive-hold-corrected")
         if corr:
             text += (
                 " `adaptive-hold-corrected` keeps the paper's rule and undoes Eq. 7 on every fast indent with"
@@ -465,12 +479,7 @@ def why_text(summaries: Sequence[PolicySummary]) -> str:
                 )
                 + "."
             )
-        plus = [
-            (scen, p, a)
-            for scen in ("good-drift", "bad-drift")
-            if (p := _get(summaries, scen, "aeni-plus")) is not None
-            and (a := _get(summaries, scen, "aeni")) is not None
-        ]
+        plus = [(scen, p, a) for scen, a, p in _drift_pairs(summaries, "aeni", "aeni-plus")]
         if plus:
             text += (
                 " `aeni-plus` corrects its fast indents the same way and goes fast only where the bias is small"

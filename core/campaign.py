@@ -147,7 +147,7 @@ class Campaign:
         return ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
 
     def make_sim_driver(self, speed: float | None = None) -> Any:
-        from drivers.simulated import SimulatedDriver
+        from drivers.sim.driver import SimulatedDriver
 
         emulator = dataclasses.replace(self.scenario, seed=self.config.seed).make_emulator()
         return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())

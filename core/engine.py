@@ -19,12 +19,12 @@ import traceback
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Protocol
 
+from core.driver import DriverAborted
 from core.errors import InputError
 from core.journal import DriverState, Journal, user_name
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.runconfig import SUPERVISION_MODES
 from core.runview import CommandKind, EngineState, MapFields
-from drivers.base import DriverAborted
 
 
 class CampaignLike(Protocol):

@@ -11,10 +11,10 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+from core.driver import DriverAborted, DriverEvent
 from core.errors import InputError
 from core.journal import JournalReader
 from core.plan import Block, IndentResult, StepRecord
-from drivers.base import DriverAborted, DriverEvent
 
 
 class ReplayDriver:

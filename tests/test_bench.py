@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from aeni_console.bench.harness import BenchConfig, RunRecord, _paired_speedups, _quartiles, summarise
 from aeni_console.cli import main
-from core.bench import BenchConfig, RunRecord, _paired_speedups, _quartiles, summarise
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +175,7 @@ def test_the_full_report_renders_every_section_from_synthetic_runs(tmp_path: Pat
     missing the target, so each code path of the report is taken."""
     from dataclasses import replace
 
-    from aeni_console.report import results_markdown, targets, write_report
+    from aeni_console.bench.report import results_markdown, targets, write_report
 
     config = BenchConfig.make(quick=False, seeds=3)
     records = []
@@ -230,7 +230,7 @@ def test_render_from_results_json_gives_the_same_report(
 def test_no_worse_mape_is_asked_at_the_time_the_faster_policy_stopped() -> None:
     from dataclasses import replace
 
-    from core.bench import mape_at_equal_time, speedup_by_level
+    from aeni_console.bench.harness import mape_at_equal_time, speedup_by_level
 
     fast = replace(_rec("fast", 0, 100.0, final=0.5), trajectory=[(60.0, 0.8), (100.0, 0.5)])
     slow = replace(

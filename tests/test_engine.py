@@ -24,7 +24,7 @@ from core.plan import Block, Decision, IndentResult, PlannerSettings, local_grid
 from core.profile import load_profile
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import adjust_settings, settings_from_dict, settings_to_dict
-from drivers.simulated import SimulatedDriver
+from drivers.sim.driver import SimulatedDriver
 
 CENTRES = [(200.0, 200.0), (260.0, 200.0), (260.0, 260.0), (700.0, 700.0), (760.0, 700.0), (300.0, 800.0)]
 

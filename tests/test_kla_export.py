@@ -18,7 +18,7 @@ import pytest
 
 from aeni_console.commands import kla as kla_command
 from core.errors import InputError
-from drivers.kla_export import KlaExport, read_kla_export
+from drivers.kla.export import KlaExport, read_kla_export
 
 SUMMARY = {"Average", "Standard Deviation", "Coefficient of Variation", "Mean", "Std. Dev.", "% COV"}
 

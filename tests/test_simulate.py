@@ -62,7 +62,7 @@ def test_every_policy_keeps_the_json_contract(policy: str, capsys: pytest.Captur
 
 
 def test_truth_from_a_rough_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from core.bench import write_rough_truth
+    from aeni_console.bench.harness import write_rough_truth
 
     csv = write_rough_truth(tmp_path / "rough.csv", seed=4, n=41)
     data = _simulate(capsys, "--policy", "aeni-plus", "--truth", str(csv), "--budget-s", "15000")

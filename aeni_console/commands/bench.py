@@ -12,8 +12,8 @@ from core.errors import InputError
 
 
 def _handler(args: argparse.Namespace) -> int:
-    from aeni_console.report import write_report
-    from core.bench import BenchConfig, RunRecord, run_bench
+    from aeni_console.bench.harness import BenchConfig, RunRecord, run_bench
+    from aeni_console.bench.report import write_report
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -52,8 +52,8 @@ def _render(source: Path, out: Path) -> int:
     """The report again from a run's results.json (after a change to the report, or if rendering failed)."""
     import json
 
-    from aeni_console.report import write_report
-    from core.bench import records_from_json
+    from aeni_console.bench.harness import records_from_json
+    from aeni_console.bench.report import write_report
 
     try:
         data = json.loads(source.read_text(encoding="utf-8"))

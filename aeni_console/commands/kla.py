@@ -11,7 +11,7 @@ from aeni_console.commands.common import dumps, write_atomic
 from core.errors import InputError
 
 if TYPE_CHECKING:
-    from drivers.kla_export import KlaExport
+    from drivers.kla.export import KlaExport
 
 
 def register(subparsers: Any) -> None:
@@ -30,7 +30,7 @@ def register(subparsers: Any) -> None:
 
 
 def _read(args: argparse.Namespace) -> int:
-    from drivers.kla_export import read_kla_export, records  # pandas/scipy load only when used
+    from drivers.kla.export import read_kla_export, records  # pandas/scipy load only when used
 
     export = read_kla_export(args.file)
     if args.csv is not None:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from core.bench import (
+from aeni_console.bench.harness import (
     LEVEL_FACTORS,
     LEVEL_PAIRS,
     LOOSE_FACTOR,

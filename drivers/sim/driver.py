@@ -12,9 +12,9 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 from core.cost import comeback_step, indent_steps
+from core.driver import DriverAborted, DriverEvent
 from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
-from drivers.base import DriverAborted, DriverEvent
 
 if TYPE_CHECKING:
     from core.emulator import Emulator

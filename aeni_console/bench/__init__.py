@@ -1,0 +1,1 @@
+"""The benchmark harness (policies x fields x seeds) and its report."""

@@ -1,0 +1,1 @@
+"""The KLA iMicro driver: InView export reader and file exchange."""

@@ -1,0 +1,1 @@
+"""The simulated instrument: the only place that knows the ground truth."""

@@ -120,7 +120,7 @@ class FakeRun:
         self.indents_per_tick = indents_per_tick
         self._lock = threading.RLock()
         self.state = EngineState.RUNNING
-        self.settings = PlannerSettings()
+        self.settings = PlannerSettings(fixed_hold_s=self.profile.default_hold_s)
         self.ledger = CostLedger()
         self.clock_s = 0.0
         self.wall_s = 0.0

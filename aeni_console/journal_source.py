@@ -8,7 +8,6 @@ block by block and see the map, the ledger and the decision that came next.
 
 from __future__ import annotations
 
-import statistics
 import threading
 from dataclasses import replace
 from datetime import datetime
@@ -119,13 +118,9 @@ class JournalReplay(JournalSource):
             rec.finished_t_s if rec.finished_t_s is not None else max((x.t_s for x in results), default=0.0)
         )
         tested = tuple(
-            TestedCenter(
-                r.block.center_x_um,
-                r.block.center_y_um,
-                r.block.block_id,
-                float(statistics.median(x.hardness_gpa for x in r.results)),
-            )
+            TestedCenter(r.block.center_x_um, r.block.center_y_um, r.block.block_id, float(r.median_gpa))
             for r in self._observed[: block_index + 1]
+            if r.median_gpa is not None  # a block whose indents all failed has no centre value
         )
         later = [r for r in self._records if r.block.block_id > bid]
         nxt: Decision | None = later[0].decision if later else None

@@ -53,16 +53,16 @@ class RunSpec:
     speed: float | None = 20000.0  # slow enough that kills land inside blocks, not only in GP fits
 
     def config_dict(self) -> dict[str, Any]:
-        from core.campaign import CampaignConfig, campaign_config_to_dict
-        from core.plan import PlannerSettings
+        from core.campaign import campaign_config_to_dict
+        from core.runconfig import make_campaign_config
 
-        cfg = CampaignConfig(
+        cfg = make_campaign_config(
+            f"crash-{self.policy}-{self.seed}",
             policy=self.policy,
             scenario=self.scenario,
             seed=self.seed,
             lattice_n=self.lattice_n,
-            settings=PlannerSettings(budget_s=self.budget_s),
-            name=f"crash-{self.policy}-{self.seed}",
+            settings={"budget_s": self.budget_s},
         )
         return campaign_config_to_dict(cfg)
 

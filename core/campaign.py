@@ -28,7 +28,7 @@ from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext
 from core.policies.registry import make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
-from core.settings import adjust_settings, settings_from_dict, settings_to_dict
+from core.settings import adjust_settings, check_holds, settings_from_dict, settings_to_dict
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
 VETO_HOLD_BLOCKS = 3
@@ -102,6 +102,9 @@ class Campaign:
             getattr(features, "bias_aware_hold", False)
         )
         self.settings = config.settings
+        check_holds(self.settings, self.profile.allowed_holds_s)
+        if self.settings.fixed_hold_s is None:
+            self.settings = dataclasses.replace(self.settings, fixed_hold_s=self.profile.default_hold_s)
         if self.settings.budget_s is None and self.settings.indent_budget is None:
             # default horizon: the instrument time of the full grid baseline on this area
             self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
@@ -265,6 +268,12 @@ class Campaign:
     # -- learning --------------------------------------------------------------------------------
     def _record(self, block: Block, results: Sequence[IndentResult]) -> None:
         if not results:
+            return
+        # a failed or not-run indent carries no value: the model never sees it; a block with no measured
+        # indent still ran (the program moved there) but adds no centre, and the fit goes on without it
+        results = [r for r in results if r.measured]
+        if not results:
+            self.blocks.append(block)
             return
         h = np.array([r.hardness_gpa for r in results])
         raw_median = float(np.median(h))

@@ -40,7 +40,7 @@ def drift_corrected_hardness_gpa(
     hardness_gpa: np.ndarray,
     drift_rate_nm_s: np.ndarray,
     hold_s: np.ndarray,
-    full_hold_s: float = 80.0,
+    full_hold_s: float,
     nominal_depth_nm: float = 100.0,
     t_measure_s: float = 40.0,
     floor_nm_s: float = DRIFT_READING_FLOOR_NM_S,
@@ -52,7 +52,8 @@ def drift_corrected_hardness_gpa(
     instrument's post-hold segment corrected it), and so is a rate at the meter's noise floor. A fast indent
     hit by an event after its block was planned carries a bias far above the grid's noise; the readings show
     the event, so the correction pulls it back instead of leaving it to the robust centre value. Beyond
-    DR·t ≥ depth the formula has no answer and the value is kept as measured.
+    DR·t ≥ depth the formula has no answer and the value is kept as measured. ``full_hold_s`` is the
+    profile's longest hold (the one the instrument's own correction is complete after).
     """
     h = np.asarray(hardness_gpa, dtype=float)
     rate = np.abs(np.asarray(drift_rate_nm_s, dtype=float))

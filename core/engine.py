@@ -9,28 +9,38 @@ from the journal (:meth:`Engine.run` on a reopened journal continues where the l
 from __future__ import annotations
 
 import contextlib
-import inspect
 import math
 import os
-import sqlite3
 import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-from core.driver import DriverAborted
+from core.driver import Driver, DriverAborted, PhysicsClock, Recoverable, Restorable
 from core.errors import InputError
 from core.journal import DriverState, Journal, user_name
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
-from core.runconfig import SUPERVISION_MODES
 from core.runview import CommandKind, EngineState, MapFields
+from core.settings import SUPERVISION_MODES, coerce_supervision
+
+if TYPE_CHECKING:
+    from core.surrogate import FitReport  # the refit's report (torch stays out of the engine's import)
+
+
+class StageFrame(Protocol):
+    """The campaign's calibration, as far as the engine needs it: unit-square (u, v) to stage µm."""
+
+    def to_stage(self, u: float, v: float) -> tuple[Any, Any]: ...
 
 
 class CampaignLike(Protocol):
     """What the engine needs from core.campaign.Campaign (a fake in tests)."""
 
     settings: PlannerSettings
+    calibration: StageFrame
+    # why the last propose() returned None (budget, target, the policy has nothing left)
+    last_stop_reason: str | None
 
     def propose(
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
@@ -40,7 +50,7 @@ class CampaignLike(Protocol):
 
     def adjust(self, **changes: Any) -> PlannerSettings: ...
 
-    def observe_block(self, block: Block, results: Sequence[IndentResult]) -> Any: ...
+    def observe_block(self, block: Block, results: Sequence[IndentResult]) -> FitReport | None: ...
 
     def map_fields(self, snapshot_id: int, display_n: int = ...) -> MapFields: ...
 
@@ -64,7 +74,7 @@ class Engine:
         self,
         journal: Journal,
         campaign: CampaignLike,
-        driver: Any,
+        driver: Driver,
         supervision: str = "auto",
         *,
         poll_s: float = 0.1,
@@ -84,6 +94,10 @@ class Engine:
         self.journal = journal
         self.campaign = campaign
         self.driver = driver
+        # the driver's optional capabilities, asked once
+        self._restorable = driver if isinstance(driver, Restorable) else None
+        self._recoverable = driver if isinstance(driver, Recoverable) else None
+        self._physics = driver if isinstance(driver, PhysicsClock) else None
         self.supervision = supervision
         self.poll_s = poll_s
         self.sleep = sleep
@@ -120,11 +134,10 @@ class Engine:
         return self._clock() - self._recovery_s
 
     def _driver_state(self, reason: str) -> DriverState:
-        phys = getattr(self.driver, "physics_clock_s", None)
         x, y = self.driver.position_um()
         return DriverState(
             clock_s=self._clock(),
-            physics_clock_s=float(phys()) if callable(phys) else None,
+            physics_clock_s=float(self._physics.physics_clock_s()) if self._physics is not None else None,
             position_um=(float(x), float(y)),
             program_open=bool(self.driver.program_open()),
             reason=reason,
@@ -156,14 +169,10 @@ class Engine:
         """Thread- and signal-safe: stop at the next checkpoint (finish the indent, lift, stop)."""
         self._external_abort.set()
 
-    def _journal_has_history(self) -> bool:
-        row = self.journal.conn.execute("SELECT COUNT(*) FROM sessions").fetchone()
-        return int(row[0]) > 0
-
     # -- the run -----------------------------------------------------------------------------------
     def run(self) -> EngineState:
         """Run (or resume) until the planner is done, the operator stops it, or it fails."""
-        resumed = self._journal_has_history()
+        resumed = self.journal.has_history()
         row = self.journal.q.engine_row()
         if resumed and row.get("completed"):
             self.completed = True
@@ -233,7 +242,7 @@ class Engine:
             did, _, _ = self._pending
             self.journal.resolve_decision(did, "dropped", "engine")
             self._pending = None
-        if self._needs_recovery and hasattr(self.driver, "set_state"):
+        if self._needs_recovery and self._restorable is not None:
             # the tip was engaged when the last engine died: make sure the comeback lifts it
             ds = self._driver_state("stop")
             self._set_driver(ds.clock_s, ds.position_um, True, ds.physics_clock_s)
@@ -279,12 +288,8 @@ class Engine:
     def _offer(self, decision: Decision | None) -> bool:
         """Journal a fresh decision; run it, or hold it for the operator. False: nothing left to do."""
         if decision is None:
-            reason = getattr(self.campaign, "last_stop_reason", None)
-            if reason is None:
-                stop = getattr(self.campaign, "stop_reason", None)
-                reason = stop(self._plan_clock()) if callable(stop) else None
             self.completed = True
-            self.stop_reason = reason or "the planner has nothing more to propose"
+            self.stop_reason = self.campaign.last_stop_reason or "the planner has nothing more to propose"
             return False
         why = self._approval_reason(decision)
         self.journal.note_clock(self._clock())
@@ -424,11 +429,8 @@ class Engine:
         if not changes:
             return "rejected", "nothing to adjust"
         supervision = changes.pop("supervision", None)
-        if supervision is not None and supervision not in SUPERVISION_MODES:
-            return (
-                "rejected",
-                f"supervision {supervision!r} is not allowed: expected {', '.join(SUPERVISION_MODES)}",
-            )
+        if supervision is not None:
+            supervision = coerce_supervision(supervision)  # InputError: rejected with its message
         if changes:
             try:
                 self.campaign.adjust(**changes)
@@ -469,21 +471,22 @@ class Engine:
     def _set_driver(
         self, clock_s: float, pos: tuple[float, float], is_open: bool, physics: float | None
     ) -> None:
-        set_state = self.driver.set_state
-        if physics is not None and "physics_clock_s" in inspect.signature(set_state).parameters:
-            set_state(clock_s, pos, is_open, physics_clock_s=physics)
-        else:
-            set_state(clock_s, pos, is_open)
+        if self._restorable is None:
+            raise InputError(
+                str(self.journal.path),
+                f"the {type(self.driver).__name__} cannot be put back where the journal left the instrument, "
+                "so this run cannot be resumed with it",
+            )
+        self._restorable.set_state(clock_s, pos, is_open, physics_clock_s=physics)
 
     def _execute(self, block: Block, start: int) -> bool:
         """Run a block from indent ``start``; False when the run must stop (aborted)."""
         must_engage = not self.driver.program_open() and (block.kind == "local" or start > 0)
         if self._needs_recovery or must_engage:
-            recover = getattr(self.driver, "recover", None)
-            if callable(recover):
+            if self._recoverable is not None:
                 why = "tip state unknown after the crash" if self._needs_recovery else "tip was lifted"
                 self._journal_steps(
-                    recover(block.block_id),
+                    self._recoverable.recover(block.block_id),
                     f"recovery: {why}; re-engaged and settled drift before block {block.block_id}",
                     "recovery",
                     block.block_id,
@@ -541,9 +544,9 @@ class Engine:
         mape, max_found = self.campaign.metrics() if self.track_metrics else (None, None)
         fields = self.campaign.map_fields(sid, self.map_display_n) if report is not None else None
         summary = self._fit_summary(report, mape, max_found)
-        if report is not None and getattr(report, "collapse", False):
-            self._last_collapse = (sid, str(getattr(report, "collapse_reason", "")))
-        hyper = getattr(report, "hyper", None) if report is not None else None
+        if report is not None and report.collapse:
+            self._last_collapse = (sid, report.collapse_reason)
+        hyper = report.hyper if report is not None else None
         t = self._clock()
         line = (
             f"block {block.block_id:>4}  {block.kind:<6}  g={block.grid_g}  hold {block.hold_s:>4g} s  "
@@ -566,32 +569,31 @@ class Engine:
         self._last_snapshot = sid
         self._say(line)
 
-    def _fit_summary(self, report: Any, mape: float | None, max_found: float | None) -> dict[str, Any]:
+    def _fit_summary(
+        self, report: FitReport | None, mape: float | None, max_found: float | None
+    ) -> dict[str, Any]:
         out: dict[str, Any] = {"mape_pct": mape, "max_found_gpa": max_found}
         if report is None:
             return out
-        ls_uv = getattr(report, "lengthscales_uv", None)
-        nls_uv = getattr(report, "noise_lengthscales_uv", None)
+        ls_uv = report.lengthscales_uv
+        nls_uv = report.noise_lengthscales_uv
         out.update(
-            lengthscales_um=list(self._uv_to_um(ls_uv)) if ls_uv is not None else [],
+            lengthscales_um=list(self._uv_to_um(ls_uv)),
             noise_lengthscales_um=list(self._uv_to_um(nls_uv)) if nls_uv is not None else [],
-            lengthscales_uv=list(ls_uv) if ls_uv is not None else [],
-            collapse_alarm=bool(getattr(report, "collapse", False)),
-            collapse_reason=str(getattr(report, "collapse_reason", "")),
-            used_last_good=bool(getattr(report, "used_last_good", False)),
-            refit_s=getattr(report, "seconds", None),
-            n_points=getattr(report, "n_points", None),
-            iterations=getattr(report, "iterations", None),
-            outputscale=getattr(report, "outputscale", None),
-            mean_const=getattr(report, "mean_const", None),
+            lengthscales_uv=list(ls_uv),
+            collapse_alarm=bool(report.collapse),
+            collapse_reason=str(report.collapse_reason),
+            used_last_good=bool(report.used_last_good),
+            refit_s=report.seconds,
+            n_points=report.n_points,
+            iterations=report.iterations,
+            outputscale=report.outputscale,
+            mean_const=report.mean_const,
         )
         return out
 
     def _uv_to_um(self, ls: Sequence[float]) -> tuple[float, ...]:
-        cal = getattr(self.campaign, "calibration", None)
-        to_stage = getattr(cal, "to_stage", None)
-        if not callable(to_stage):
-            return tuple(float(v) for v in ls)
+        to_stage = self.campaign.calibration.to_stage
         x0, y0 = to_stage(0.0, 0.0)
         xu, yu = to_stage(1.0, 0.0)
         xv, yv = to_stage(0.0, 1.0)
@@ -666,33 +668,12 @@ class Engine:
 
     def _watch(self) -> None:
         assert self.watch_s is not None
-        try:
-            conn = sqlite3.connect(str(self.journal.path), isolation_level=None, timeout=10)
-        except sqlite3.Error:
+        watch = self.journal.command_watch(self.owner_uid)
+        if watch is None:
             return
         try:
-            conn.execute("PRAGMA busy_timeout = 10000")
-            aborted = False
             while not self._watch_stop.wait(self.watch_s):
-                try:
-                    conn.execute(
-                        "UPDATE engine_state SET state = 'pausing' WHERE state = 'running' AND EXISTS "
-                        "(SELECT 1 FROM commands WHERE processed = 0 AND kind = 'pause' AND uid = ?)",
-                        (self.owner_uid,),
-                    )
-                    row = conn.execute(
-                        "SELECT 1 FROM commands WHERE processed = 0 AND kind = 'abort' AND uid = ? LIMIT 1",
-                        (self.owner_uid,),
-                    ).fetchone()
-                    if row is not None and not aborted:
-                        conn.execute(
-                            "UPDATE engine_state SET state = 'stopping' WHERE state IN ('running', 'pausing')"
-                        )
-                        aborted = True
-                        abort = getattr(self.driver, "abort", None)
-                        if callable(abort):
-                            abort()
-                except sqlite3.Error:
-                    continue
+                if watch.poll():
+                    self.driver.abort()
         finally:
-            conn.close()
+            watch.close()

@@ -6,10 +6,14 @@ and the console can show it without knowing who made it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 BlockKind = Literal["global", "local"]
+# what became of a commanded indent: only a measured one carries numbers the model may learn from
+IndentStatus = Literal["measured", "failed", "not_run"]
+INDENT_STATUSES: tuple[IndentStatus, ...] = ("measured", "failed", "not_run")
 
 # Ledger categories, in the order the console lists them.
 LEDGER_CATEGORIES: tuple[str, ...] = (
@@ -71,7 +75,12 @@ class StepRecord:
 
 @dataclass(frozen=True)
 class IndentResult:
-    """What the instrument reports for one finished indent."""
+    """What the instrument reports for one commanded indent.
+
+    A ``failed`` indent (the instrument tried and reported no valid value) or a ``not_run`` one (it
+    never happened) is journaled as such with NaN in place of every value it did not measure; the
+    campaign never learns from it. ``note`` says why, in the instrument's words.
+    """
 
     block_id: int
     indent_index: int
@@ -84,6 +93,43 @@ class IndentResult:
     modulus_gpa: float
     drift_rate_nm_s: float
     t_s: float  # instrument clock when the indent finished
+    status: IndentStatus = "measured"
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        if self.status == "measured" and not math.isfinite(self.hardness_gpa):
+            raise ValueError(
+                f"block {self.block_id} indent {self.indent_index}: a measured indent needs a finite hardness "
+                f"(got {self.hardness_gpa!r}); report it as failed"
+            )
+
+    @property
+    def measured(self) -> bool:
+        return self.status == "measured"
+
+    @classmethod
+    def unmeasured(
+        cls, block_id: int, indent_index: int, spec: IndentSpec, t_s: float, status: IndentStatus, note: str
+    ) -> IndentResult:
+        """A failed or not-run indent: where it was commanded, when, why; no values."""
+        if status == "measured":
+            raise ValueError("an unmeasured indent needs the status failed or not_run")
+        nan = float("nan")
+        return cls(
+            block_id,
+            indent_index,
+            spec.x_um,
+            spec.y_um,
+            nan,
+            nan,
+            spec.hold_s,
+            nan,
+            nan,
+            nan,
+            t_s,
+            status,
+            note,
+        )
 
 
 @dataclass(frozen=True)
@@ -129,7 +175,7 @@ class PlannerSettings:
     target_sem_gpa: float = 0.05
     beta: float = 4.0
     hold_policy: Literal["fixed", "adaptive"] = "fixed"
-    fixed_hold_s: float = 80.0
+    fixed_hold_s: float | None = None  # None: the instrument profile's default hold
     local_center_limit: int = 5
     edge_penalty: float = 0.5
     budget_s: float | None = None

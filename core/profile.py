@@ -94,6 +94,11 @@ class InstrumentProfile:
         t = self.reconfig_threshold_um
         return abs(dx_um) >= t or abs(dy_um) >= t
 
+    @property
+    def fast_hold_s(self) -> float:
+        """The adaptive hold's fast choice: the shortest allowed hold that still reads the drift (> 0 s)."""
+        return min((h for h in self.allowed_holds_s if h > 0), default=self.default_hold_s)
+
     def indent_s(self, hold_s: float) -> float:
         return self.indent_base_s + hold_s
 

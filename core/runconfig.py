@@ -14,16 +14,27 @@ get the same one-line message naming the field, the value and what is allowed.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from core.errors import InputError
-from core.plan import PlannerSettings
+from core.settings import ADJUSTABLE, SUPERVISION_MODES, coerce_setting, settings_from_dict
 
-SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
+if TYPE_CHECKING:
+    from core.campaign import CampaignConfig
+
+__all__ = [
+    "SUPERVISION_MODES",
+    "RunConfig",
+    "RunOptions",
+    "load_run_config",
+    "make_campaign_config",
+    "parse_run_config",
+]
 DRIVERS: tuple[str, ...] = ("sim",)
 
 
@@ -62,17 +73,28 @@ class CampaignSection(_Strict):
 
 
 class PlannerSection(_Strict):
-    target_sem_gpa: float = Field(default=0.05, gt=0)
-    beta: float = Field(default=4.0, ge=0)
-    hold_policy: Literal["fixed", "adaptive"] = "fixed"
-    fixed_hold_s: float = Field(default=80.0, ge=0)
-    local_center_limit: int = Field(default=5, ge=0, le=20)
-    edge_penalty: float = Field(default=0.5, ge=0, le=1)
-    budget_s: float | None = Field(default=None, gt=0)
-    indent_budget: int | None = Field(default=None, ge=1)
-    sigma_target_gpa: float | None = Field(default=None, gt=0)
-    mape_target_pct: float | None = Field(default=None, gt=0)
+    """The PlannerSettings knobs, each checked by its rule in core.settings (the one validator)."""
+
+    target_sem_gpa: Any = None
+    beta: Any = None
+    hold_policy: Any = None
+    fixed_hold_s: Any = None
+    local_center_limit: Any = None
+    edge_penalty: Any = None
+    budget_s: Any = None
+    indent_budget: Any = None
+    sigma_target_gpa: Any = None
+    mape_target_pct: Any = None
     avoid_centers_um: list[tuple[float, float]] = Field(default_factory=list)
+
+    @field_validator(*ADJUSTABLE)
+    @classmethod
+    def _rule(cls, v: Any, info: ValidationInfo) -> Any:
+        try:
+            # the profile's holds are checked when the campaign starts (the profile may come from the scenario)
+            return coerce_setting(str(info.field_name), v, None)
+        except InputError as exc:
+            raise ValueError(exc.problem.partition(" is not allowed: ")[2] or exc.problem) from None
 
 
 class RunSection(_Strict):
@@ -163,20 +185,7 @@ def parse_run_config(
         rf = RunFile.model_validate(merged)
     except ValidationError as exc:
         raise InputError(source, _message(exc)) from None
-    p = rf.planner
-    settings = PlannerSettings(
-        target_sem_gpa=p.target_sem_gpa,
-        beta=p.beta,
-        hold_policy=p.hold_policy,
-        fixed_hold_s=p.fixed_hold_s,
-        local_center_limit=p.local_center_limit,
-        edge_penalty=p.edge_penalty,
-        budget_s=p.budget_s,
-        indent_budget=p.indent_budget,
-        sigma_target_gpa=p.sigma_target_gpa,
-        mape_target_pct=p.mape_target_pct,
-        avoid_centers_um=tuple((float(x), float(y)) for x, y in p.avoid_centers_um),
-    )
+    settings = settings_from_dict(rf.planner.model_dump(exclude_unset=True))
     c = rf.campaign
     if c.scenario == "csv" and not c.truth_csv:
         raise InputError(source, "field campaign.truth_csv is missing: scenario 'csv' needs a truth CSV file")
@@ -200,6 +209,25 @@ def parse_run_config(
         driver=r.driver, supervision=r.supervision, journal=r.journal, speed=r.speed, runs_dir=r.runs_dir
     )
     return RunConfig(campaign=campaign, options=options)
+
+
+def make_campaign_config(
+    name: str = "run",
+    *,
+    settings: Mapping[str, Any] | None = None,
+    source: str = "arguments",
+    **campaign: Any,
+) -> CampaignConfig:
+    """The one way to assemble a CampaignConfig outside a run file (simulate, bench, demo, benchmarks).
+
+    ``campaign`` holds ``[campaign]`` fields and ``settings`` ``[planner]`` fields; None leaves a default.
+    Everything passes the run file's validation, so a bad value gets the same one-line message.
+    """
+    overrides: dict[str, Any] = {f"campaign.{k}": v for k, v in campaign.items()}
+    overrides.update({f"planner.{k}": v for k, v in (settings or {}).items()})
+    overrides["name"] = name
+    config: CampaignConfig = parse_run_config({}, source, overrides).campaign
+    return config
 
 
 def load_run_config(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> RunConfig:

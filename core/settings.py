@@ -1,90 +1,203 @@
-"""Validated operator adjustments of the planner settings (the console's adjust form, the engine's adjust command)."""
+"""The one home of the planner settings' rules, and the one codec that reads and writes them.
+
+Every way a setting enters a run goes through :func:`coerce_setting`: the run file's ``[planner]``
+section, ``aeni send adjust`` (before it queues anything), the console's adjust form and the engine's
+adjust command. The journal and the run file read settings back through :func:`settings_from_dict`.
+The allowed holds are the instrument profile's; where no profile is known yet (the run file is read
+before the campaign picks its profile) a hold is checked as a number and again when the campaign
+starts.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields, replace
-from typing import Any
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any, Literal
 
 from core.errors import InputError
 from core.plan import PlannerSettings
 
-HOLD_POLICIES = ("fixed", "adaptive")
+HOLD_POLICIES: tuple[str, ...] = ("fixed", "adaptive")
+SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
 
-_RULES: dict[str, tuple[str, str]] = {
-    # field: (kind, what is allowed)
-    "target_sem_gpa": ("pos", "a number > 0 (GPa)"),
-    "beta": ("nonneg", "a number ≥ 0"),
-    "hold_policy": ("choice", "fixed or adaptive"),
-    "fixed_hold_s": ("hold", "one of the profile's holds"),
-    "local_center_limit": ("int0_20", "a whole number from 0 to 20"),
-    "edge_penalty": ("unit", "a number from 0 to 0.95"),
-    "budget_s": ("pos_or_none", "a number > 0 (s) or empty"),
-    "indent_budget": ("posint_or_none", "a whole number > 0 or empty"),
-    "sigma_target_gpa": ("pos_or_none", "a number > 0 (GPa) or empty"),
-    "mape_target_pct": ("pos_or_none", "a number > 0 (%) or empty"),
-}
-ADJUSTABLE: tuple[str, ...] = tuple(_RULES)
+RuleKind = Literal["number", "whole", "choice", "hold"]
 
 
-def _bad(name: str, value: Any) -> InputError:
-    return InputError(name, f"{value!r} is not allowed: expected {_RULES[name][1]}")
+@dataclass(frozen=True)
+class SettingRule:
+    """What one adjustable knob may hold; the adjust form takes its labels and limits from here."""
+
+    name: str
+    label: str
+    kind: RuleKind
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False  # the lower bound itself is not allowed
+    optional: bool = False  # None (or an empty text) means "none": budgets and targets
+    choices: tuple[str, ...] = ()
+    unit: str = ""
+
+    def allowed(self, allowed_holds_s: Sequence[float] | None = None) -> str:
+        """What is allowed, in words (the second half of every error message)."""
+        if self.kind == "choice":
+            text = " or ".join(self.choices)
+        elif self.kind == "hold":
+            if allowed_holds_s is None:
+                text = "a number ≥ 0 (s) that is one of the instrument profile's holds"
+            else:
+                text = "one of " + ", ".join(f"{h:g}" for h in allowed_holds_s) + " s (the profile's holds)"
+        else:
+            what = "a whole number" if self.kind == "whole" else "a number"
+            if self.lo is not None and self.hi is not None:
+                text = f"{what} from {self.lo:g} to {self.hi:g}"
+            elif self.lo is not None:
+                text = f"{what} {'>' if self.lo_open else '≥'} {self.lo:g}"
+            else:
+                text = what
+            if self.unit:
+                text += f" ({self.unit})"
+        return text + (" or empty" if self.optional else "")
 
 
-def _num(name: str, value: Any) -> float:
+RULES: tuple[SettingRule, ...] = (
+    SettingRule("target_sem_gpa", "target SEM (GPa)", "number", lo=0.0, lo_open=True, unit="GPa"),
+    SettingRule("beta", "UCB β", "number", lo=0.0),
+    SettingRule("hold_policy", "hold policy", "choice", choices=HOLD_POLICIES),
+    SettingRule("fixed_hold_s", "fixed hold (s)", "hold"),
+    SettingRule("local_center_limit", "local centres", "whole", lo=0, hi=20),
+    SettingRule("edge_penalty", "edge penalty", "number", lo=0.0, hi=0.95),
+    SettingRule("budget_s", "time budget (s)", "number", lo=0.0, lo_open=True, optional=True, unit="s"),
+    SettingRule("indent_budget", "indent budget", "whole", lo=1, optional=True),
+    SettingRule(
+        "sigma_target_gpa", "σ target (GPa)", "number", lo=0.0, lo_open=True, optional=True, unit="GPa"
+    ),
+    SettingRule(
+        "mape_target_pct", "MAPE target (%)", "number", lo=0.0, lo_open=True, optional=True, unit="%"
+    ),
+)
+RULE_BY_NAME: dict[str, SettingRule] = {r.name: r for r in RULES}
+ADJUSTABLE: tuple[str, ...] = tuple(RULE_BY_NAME)
+
+
+def _bad(rule: SettingRule, value: Any, allowed_holds_s: Sequence[float] | None) -> InputError:
+    return InputError(rule.name, f"{value!r} is not allowed: expected {rule.allowed(allowed_holds_s)}")
+
+
+def _number(rule: SettingRule, value: Any, allowed_holds_s: Sequence[float] | None) -> float:
     if isinstance(value, bool):
-        raise _bad(name, value)
+        raise _bad(rule, value, allowed_holds_s)
     try:
-        x = float(value)
+        x = float(value.strip() if isinstance(value, str) else value)
     except (TypeError, ValueError):
-        raise _bad(name, value) from None
+        raise _bad(rule, value, allowed_holds_s) from None
     if not math.isfinite(x):
-        raise _bad(name, value)
+        raise _bad(rule, value, allowed_holds_s)
     return x
 
 
-def coerce_setting(name: str, value: Any, allowed_holds_s: tuple[float, ...] = (0.0, 5.0, 80.0)) -> Any:
-    if name not in _RULES:
+def coerce_setting(name: str, value: Any, allowed_holds_s: Sequence[float] | None) -> Any:
+    """The clean value of one setting (text from a form or a flag is parsed); InputError naming it if not allowed.
+
+    ``allowed_holds_s`` is the instrument profile's list; None where the profile is not known yet.
+    """
+    rule = RULE_BY_NAME.get(name)
+    if rule is None:
         raise InputError(name, f"is not an adjustable setting (adjustable: {', '.join(ADJUSTABLE)})")
-    kind = _RULES[name][0]
-    if kind.endswith("_or_none") and (value is None or (isinstance(value, str) and not value.strip())):
+    if rule.optional and (value is None or (isinstance(value, str) and not value.strip())):
         return None
-    if kind == "choice":
-        if value not in HOLD_POLICIES:
-            raise _bad(name, value)
+    if rule.kind == "choice":
+        if value not in rule.choices:
+            raise _bad(rule, value, allowed_holds_s)
         return value
-    x = _num(name, value)
-    if kind in ("pos", "pos_or_none") and x <= 0:
-        raise _bad(name, value)
-    if kind == "nonneg" and x < 0:
-        raise _bad(name, value)
-    if kind == "unit" and not 0.0 <= x <= 0.95:
-        raise _bad(name, value)
-    if kind in ("int0_20", "posint_or_none"):
-        if x != int(x) or (kind == "int0_20" and not 0 <= x <= 20) or (kind == "posint_or_none" and x < 1):
-            raise _bad(name, value)
-        return int(x)
-    if kind == "hold" and not any(math.isclose(x, h) for h in allowed_holds_s):
-        holds = ", ".join(f"{h:g}" for h in allowed_holds_s)
-        raise InputError(name, f"{value!r} is not allowed: expected one of {holds} s")
-    return x
+    x = _number(rule, value, allowed_holds_s)
+    if rule.kind == "hold":
+        ok = x >= 0 if allowed_holds_s is None else any(math.isclose(x, h) for h in allowed_holds_s)
+        if not ok:
+            raise _bad(rule, value, allowed_holds_s)
+        return x
+    too_low = rule.lo is not None and (x < rule.lo or (rule.lo_open and x == rule.lo))
+    too_high = rule.hi is not None and x > rule.hi
+    if too_low or too_high or (rule.kind == "whole" and x != int(x)):
+        raise _bad(rule, value, allowed_holds_s)
+    return int(x) if rule.kind == "whole" else x
+
+
+def coerce_supervision(value: Any) -> str:
+    """A supervision mode (the adjust command may switch it); InputError otherwise."""
+    if value not in SUPERVISION_MODES:
+        raise InputError("supervision", f"{value!r} is not allowed: expected {', '.join(SUPERVISION_MODES)}")
+    return str(value)
+
+
+def check_adjust(changes: Mapping[str, Any], allowed_holds_s: Sequence[float] | None) -> dict[str, Any]:
+    """An adjust command's payload, cleaned: settings by their rules, plus an optional supervision mode.
+
+    What ``aeni send adjust`` checks before it queues, and what the engine applies.
+    """
+    if not changes:
+        raise InputError("adjust", "nothing to adjust")
+    return {
+        k: coerce_supervision(v) if k == "supervision" else coerce_setting(k, v, allowed_holds_s)
+        for k, v in changes.items()
+    }
 
 
 def adjust_settings(
-    settings: PlannerSettings, changes: dict[str, Any], allowed_holds_s: tuple[float, ...] = (0.0, 5.0, 80.0)
+    settings: PlannerSettings, changes: Mapping[str, Any], allowed_holds_s: Sequence[float] | None
 ) -> PlannerSettings:
     """A new PlannerSettings with ``changes`` applied; InputError naming the first bad field."""
     clean = {name: coerce_setting(name, value, allowed_holds_s) for name, value in changes.items()}
     return replace(settings, **clean)
 
 
+def check_holds(settings: PlannerSettings, allowed_holds_s: Sequence[float], source: str = "planner") -> None:
+    """Once the profile is known: the fixed hold must be one of its holds (InputError ``source.fixed_hold_s``)."""
+    if settings.fixed_hold_s is None:
+        return
+    try:
+        coerce_setting("fixed_hold_s", settings.fixed_hold_s, allowed_holds_s)
+    except InputError as exc:
+        raise InputError(f"{source}.fixed_hold_s", exc.problem) from None
+
+
+# --------------------------------------------------------------------------------------------------
+# the codec: what the journal stores and what a run file's [planner] table holds
+
+_FIELDS = tuple(f.name for f in fields(PlannerSettings))
+
+
 def settings_to_dict(settings: PlannerSettings) -> dict[str, Any]:
-    out = {f.name: getattr(settings, f.name) for f in fields(settings)}
+    out = {name: getattr(settings, name) for name in _FIELDS}
     out["avoid_centers_um"] = [list(p) for p in settings.avoid_centers_um]
     return out
 
 
-def settings_from_dict(data: dict[str, Any]) -> PlannerSettings:
-    d = dict(data)
-    d["avoid_centers_um"] = tuple(tuple(p) for p in d.get("avoid_centers_um", ()))
-    return PlannerSettings(**d)
+def _avoid(value: Any) -> tuple[tuple[float, float], ...]:
+    try:
+        pts = tuple((float(x), float(y)) for x, y in value)
+    except (TypeError, ValueError):
+        raise InputError(
+            "avoid_centers_um", f"{value!r} is not allowed: expected a list of [x, y] pairs in µm"
+        ) from None
+    if not all(math.isfinite(c) for p in pts for c in p):
+        raise InputError("avoid_centers_um", f"{value!r} is not allowed: coordinates must be finite")
+    return pts
+
+
+def settings_from_dict(
+    data: Mapping[str, Any], allowed_holds_s: Sequence[float] | None = None
+) -> PlannerSettings:
+    """PlannerSettings from a stored or written table, every field through its rule; missing fields take
+    the defaults. InputError naming the field for an unknown field or a bad value."""
+    clean: dict[str, Any] = {}
+    for name, value in data.items():
+        if name == "avoid_centers_um":
+            clean[name] = _avoid(value)
+        elif name == "fixed_hold_s" and value is None:
+            clean[name] = None  # not chosen: the profile's default hold
+        elif name in RULE_BY_NAME:
+            clean[name] = coerce_setting(name, value, allowed_holds_s)
+        else:
+            raise InputError(name, f"is not a planner setting (allowed: {', '.join(_FIELDS)})")
+    return PlannerSettings(**clean)

@@ -8,7 +8,7 @@ replay never invents a measurement.
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 
 from core.driver import DriverAborted, DriverEvent
@@ -59,7 +59,14 @@ class ReplayDriver:
     def program_open(self) -> bool:
         return self._open
 
-    def set_state(self, clock_s: float, position_um: tuple[float, float], program_open: bool) -> None:
+    def set_state(
+        self,
+        clock_s: float,
+        position_um: tuple[float, float],
+        program_open: bool,
+        physics_clock_s: float | None = None,
+    ) -> None:
+        """Restorable: the recorded clock is the only clock, so ``physics_clock_s`` is not used."""
         self._clock, self._pos, self._open = clock_s, position_um, program_open
 
     def abort(self) -> None:
@@ -79,7 +86,7 @@ class ReplayDriver:
             self._cursor += 1
             yield self._play(step, t_end)
 
-    def execute_block(self, block: Block, start_index: int = 0) -> Iterator[DriverEvent]:
+    def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         if self._abort.is_set():
             raise DriverAborted("replay was aborted")
         rec = self._blocks.get(block.block_id)
@@ -102,7 +109,7 @@ class ReplayDriver:
                 yield from self.end_program()
                 raise DriverAborted(f"replay aborted after indent {i} of block {block.block_id}")
 
-    def end_program(self) -> Iterator[DriverEvent]:
+    def end_program(self) -> Iterator[StepRecord]:
         """Play the recorded steps that ended the program (the comeback), if any follow."""
         while self._cursor < len(self._steps):
             _, step, t_end = self._steps[self._cursor]

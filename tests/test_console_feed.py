@@ -126,7 +126,9 @@ def test_poke_wakes_the_feed_early() -> None:
 
 
 def test_adjust_form_parsing() -> None:
-    current = PlannerSettings()
+    current = PlannerSettings(
+        fixed_hold_s=80.0
+    )  # as a run shows it: the campaign fills in the profile default
     spec = {f.name: f for f in FIELDS}
     assert parse_field(spec["target_sem_gpa"], "0.02") == (0.02, None)
     assert parse_field(spec["target_sem_gpa"], "0")[1] == "target SEM (GPa): must be > 0"

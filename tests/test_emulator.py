@@ -323,7 +323,7 @@ def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
         fast = [emu.measure(400, 400, 5.0, 100.0, 2, i) for i in range(200)]
         raw = np.array([m.hardness_gpa for m in fast])
         corrected = drift_corrected_hardness_gpa(
-            raw, np.array([m.drift_rate_nm_s for m in fast]), np.full(200, 5.0)
+            raw, np.array([m.drift_rate_nm_s for m in fast]), np.full(200, 5.0), 80.0
         )
         raw_bias = float(np.mean(raw / clean - 1))
         left = float(np.mean(corrected / clean - 1))
@@ -331,7 +331,9 @@ def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
         # Eq. 7 takes the depth as uncorrected; a 5 s hold corrected 1/16 of it: a small over-correction
         assert 0 < left < 0.2 * abs(raw_bias)
     # an 80 s hold was corrected by the instrument; beyond DR·t ≥ depth Eq. 7 has no answer
-    same = drift_corrected_hardness_gpa(np.array([5.0, 5.0]), np.array([0.3, 3.0]), np.array([80.0, 5.0]))
+    same = drift_corrected_hardness_gpa(
+        np.array([5.0, 5.0]), np.array([0.3, 3.0]), np.array([80.0, 5.0]), 80.0
+    )
     assert same.tolist() == [5.0, 5.0]
     # a quiet meter reads its noise floor, not drift: correcting it would only add that noise (and its bias)
     # (the campaign corrects with the running median of a block's readings)
@@ -339,7 +341,7 @@ def test_eq7_correction_removes_most_of_a_fast_indents_drift_bias() -> None:
     quiet = np.concatenate([smoothed_drift_rates_nm_s(readings[i : i + 25]) for i in range(0, 200, 25)])
     assert quiet.max() < DRIFT_READING_FLOOR_NM_S < 0.025
     raw = np.full(200, 5.0)
-    assert drift_corrected_hardness_gpa(raw, quiet, np.full(200, 5.0)).tolist() == raw.tolist()
+    assert drift_corrected_hardness_gpa(raw, quiet, np.full(200, 5.0), 80.0).tolist() == raw.tolist()
 
 
 def test_smoothed_drift_rates_keep_an_events_step_and_quieten_the_noise_floor() -> None:

@@ -56,6 +56,7 @@ class FakeCampaign:
         self.observed: list[tuple[Block, list[IndentResult]]] = []
         self.vetoed: list[tuple[float, float]] = []
         self.proposals = 0
+        self.last_stop_reason: str | None = None
 
     def propose(
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int

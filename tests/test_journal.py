@@ -280,6 +280,15 @@ def test_unknown_schema_version_is_refused(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(InputError, match="schema version 99 is not supported"):
         JournalReader(path)
+    # a journal from before indents had a status: refused with one line that says where to read why
+    conn = sqlite3.connect(path)
+    conn.execute("UPDATE schema_version SET version = 1")
+    conn.commit()
+    conn.close()
+    with pytest.raises(InputError) as info:
+        JournalReader(path)
+    assert "schema version 1 is not supported (this program reads version 2" in str(info.value)
+    assert "docs/journal.md" in str(info.value) and "\n" not in str(info.value)
 
 
 def test_reader_sees_consistent_snapshots_while_a_process_writes(tmp_path: Path) -> None:

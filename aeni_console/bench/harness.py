@@ -228,20 +228,21 @@ def _set_threads() -> None:
 def run_one(spec: RunSpec) -> RunRecord:
     """One campaign under the bench protocol (a worker process runs many of these)."""
     _set_threads()
-    from core.campaign import Campaign, CampaignConfig
+    from core.campaign import Campaign
     from core.emulator import truth_on_lattice
-    from core.plan import IndentResult, PlannerSettings
+    from core.plan import IndentResult
+    from core.runconfig import make_campaign_config
 
     start = time.monotonic()
     scen = spec.scenario
-    cfg = CampaignConfig(
+    cfg = make_campaign_config(
+        f"bench-{scen.key}-{spec.policy}-{spec.seed}",
         policy=spec.policy,
         scenario=scen.scenario,
         truth_csv=spec.truth_csv,
         seed=spec.seed,
         lattice_n=spec.lattice_n,
-        settings=PlannerSettings(budget_s=spec.budget_s),
-        name=f"bench-{scen.key}-{spec.policy}-{spec.seed}",
+        settings={"budget_s": spec.budget_s},
     )
     campaign = Campaign(cfg)
     budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
@@ -275,7 +276,7 @@ def run_one(spec: RunSpec) -> RunRecord:
         blocks += 1
         indents += len(results)
         sizes[b.grid_g] = sizes.get(b.grid_g, 0) + 1
-        fast += int(b.hold_s < 80.0)
+        fast += int(b.hold_s < campaign.profile.default_hold_s)
         local += int(b.kind == "local")
         refit = not is_grid or blocks % GRID_REFIT_EVERY == 0
         report = campaign.observe_block(b, results, refit=refit)

@@ -246,11 +246,12 @@ def _centre_costs_s() -> dict[str, float]:
         )
         return float(block_costs_for(prof, blk, (500.0, 500.0), engaged))
 
+    slow, fast = prof.default_hold_s, prof.fast_hold_s
     return {
-        "5x5": cost(5, 80.0, False),
-        "2x2": cost(2, 80.0, False),
-        "2x2 sub": cost(2, 80.0, True),
-        "2x2 sub fast": cost(2, 5.0, True),
+        "5x5": cost(5, slow, False),
+        "2x2": cost(2, slow, False),
+        "2x2 sub": cost(2, slow, True),
+        "2x2 sub fast": cost(2, fast, True),
     }
 
 

@@ -61,16 +61,11 @@ def _cmd_console(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from aeni_console.commands.run import start_engine_process
-    from core.campaign import CampaignConfig
     from core.journal import default_journal_path
+    from core.runconfig import make_campaign_config
 
-    if args.policy is not None:
-        from core.policies.registry import policy_names
-
-        if args.policy not in policy_names():
-            raise InputError("--policy", f"{args.policy!r} is not one of {', '.join(policy_names())}")
-    config = CampaignConfig(
-        policy=args.policy or "cost-aware", scenario=args.scenario, seed=args.seed, name="demo"
+    config = make_campaign_config(
+        "demo", source="command line", policy=args.policy, scenario=args.scenario, seed=args.seed
     )
     journal = Path(args.journal) if args.journal else default_journal_path("demo", args.runs_dir)
     print(

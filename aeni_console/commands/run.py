@@ -370,7 +370,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         for res in rec.results:
             print(
                 f"  {res.indent_index:>3} {res.actual_x_um:>10.2f} {res.actual_y_um:>10.2f} {res.hold_s:>6g} "
-                f"{res.hardness_gpa:>8.3f} {res.t_s:>10,.0f}"
+                + (f"{res.hardness_gpa:>8.3f}" if res.measured else f"{res.status:>8}")
+                + f" {res.t_s:>10,.0f}"
             )
         return 0
     print(f"replay of {name}: {len(blocks)} blocks")
@@ -530,6 +531,12 @@ def _cmd_send(args: argparse.Namespace) -> int:
         payload[key] = _payload_value(value)
     if args.kind == "adjust" and not payload:
         raise InputError("adjust", "give at least one field=value (e.g. beta=2.5 target_sem_gpa=0.1)")
+    if args.kind == "adjust":  # the engine's own rules and the run's holds: a bad value is never queued
+        from core.journal import JournalReader
+        from core.settings import check_adjust
+
+        with JournalReader(path) as reader:
+            payload = check_adjust(payload, reader.profile.allowed_holds_s)
     cid = send_command(path, Command(CommandKind(args.kind), author=getpass.getuser(), payload=payload))
     print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")
     return 0

@@ -36,10 +36,10 @@ def run_simulation(
     progress: bool = False,
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract)."""
-    from core.campaign import Campaign, CampaignConfig, run_headless
-    from core.plan import PlannerSettings
+    from core.campaign import Campaign, run_headless
+    from core.runconfig import make_campaign_config
 
-    config = CampaignConfig(
+    config = make_campaign_config(
         policy=policy,
         scenario="csv" if truth else scenario,
         noise=noise,
@@ -48,7 +48,7 @@ def run_simulation(
         seed=seed,
         profile=profile,
         lattice_n=lattice_n,
-        settings=PlannerSettings(budget_s=budget_s),
+        settings={"budget_s": budget_s},
     )
     campaign = Campaign(config)
     driver = campaign.make_sim_driver()

@@ -68,6 +68,12 @@ class PlanContext:
     gp: GPSummary | None = None  # the fitted kernel, for planners that need covariances (y-free)
     recent_drift_rates_nm_s: tuple[float, ...] = ()  # the last drift readings (up to 25), oldest first
 
+    @property
+    def fixed_hold_s(self) -> float:
+        """The operator's fixed hold, or the profile's default where none was chosen."""
+        hold = self.settings.fixed_hold_s
+        return self.profile.default_hold_s if hold is None else hold
+
     def rng(self, salt: int = 0) -> np.random.Generator:
         return np.random.default_rng([self.seed, self.block_id, salt])
 

@@ -23,7 +23,7 @@ class GridPolicy:
             self.n_blocks,
             self.g,
             ctx.pitch_um,
-            ctx.settings.fixed_hold_s,
+            ctx.fixed_hold_s,
             origin_um=(x0, y0),
         )
         if ctx.blocks_done >= len(blocks):
@@ -38,5 +38,5 @@ class GridPolicy:
             predicted_cost_s=cost,
             reason=f"grid block {ctx.blocks_done + 1} of {len(blocks)}",
             phase="grid",
-            hold_mode=f"fixed {ctx.settings.fixed_hold_s:g} s",
+            hold_mode=f"fixed {ctx.fixed_hold_s:g} s",
         )

@@ -29,9 +29,8 @@ from core.policies.base import (
     make_block,
     reachable_mask,
 )
+from core.profile import InstrumentProfile
 
-FAST_HOLD_S = 5.0
-SLOW_HOLD_S = 80.0
 G_MIN, G_MAX = 2, 5
 DRIFT_WINDOW = 12  # drift readings whose median the bias-aware hold trusts
 PROGRAM_SUBSET = 300  # sub-grid candidates considered when a program is planned ahead
@@ -68,13 +67,16 @@ class PlannerFeatures:
 
 
 def choose_hold(
-    last_drift_rate_nm_s: float | None, threshold_pct: float = AREA_ERROR_THRESHOLD_PCT
+    last_drift_rate_nm_s: float | None,
+    profile: InstrumentProfile,
+    threshold_pct: float = AREA_ERROR_THRESHOLD_PCT,
 ) -> tuple[float, float | None]:
-    """SPEC §6.6: fast 5 s hold when the last drift rate's area error is below 2 %, else 80 s."""
+    """SPEC §6.6: the profile's fast hold (5 s) when the last drift rate's area error is below 2 %, else
+    its default hold (80 s)."""
     if last_drift_rate_nm_s is None:
-        return SLOW_HOLD_S, None
+        return profile.default_hold_s, None
     err = area_error_pct(last_drift_rate_nm_s)
-    return (FAST_HOLD_S if err < threshold_pct else SLOW_HOLD_S), err
+    return (profile.fast_hold_s if err < threshold_pct else profile.default_hold_s), err
 
 
 @dataclass
@@ -128,24 +130,25 @@ class BayesPlanner:
             rate = ctx.last_drift_rate_nm_s
             if f.bias_aware_hold and ctx.recent_drift_rates_nm_s:
                 rate = _robust_rate(ctx.recent_drift_rates_nm_s)
-            hold, err = choose_hold(rate)
-            mode = f"adaptive: {'fast' if hold == FAST_HOLD_S else 'slow'} {hold:g} s"
-            if f.bias_aware_hold and hold == FAST_HOLD_S and err is not None and map_rel_err is None:
+            fast, slow = ctx.profile.fast_hold_s, ctx.profile.default_hold_s
+            hold, err = choose_hold(rate, ctx.profile)
+            mode = f"adaptive: {'fast' if hold == fast else 'slow'} {hold:g} s"
+            if f.bias_aware_hold and hold == fast and err is not None and map_rel_err is None:
                 # the precision to aim at is not known until the seeds have shaped a model
-                hold = SLOW_HOLD_S
-                mode = "bias-aware: slow 80 s until a model sets the precision to aim at"
-            elif f.bias_aware_hold and hold == FAST_HOLD_S and err is not None and map_rel_err is not None:
+                hold = slow
+                mode = f"bias-aware: slow {slow:g} s until a model sets the precision to aim at"
+            elif f.bias_aware_hold and hold == fast and err is not None and map_rel_err is not None:
                 # a fast hold leaves the drift in the hardness (bias ≈ the area error) and bias does not
                 # average out: worth it only where it stays well below the precision the map aims at
                 if err / 100.0 > f.bias_fraction * map_rel_err:
-                    hold = SLOW_HOLD_S
-                    mode = f"bias-aware: slow 80 s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
+                    hold = slow
+                    mode = f"bias-aware: slow {slow:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
                 else:
-                    mode = f"bias-aware: fast 5 s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
-            if f.drift_correction and hold < SLOW_HOLD_S:
+                    mode = f"bias-aware: fast {fast:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
+            if f.drift_correction and hold < slow:
                 mode += "; drift-corrected"
             return hold, err, mode
-        hold = ctx.settings.fixed_hold_s
+        hold = ctx.fixed_hold_s
         return hold, None, f"fixed {hold:g} s"
 
     def _aim_rel_error(self, ctx: PlanContext) -> float | None:
@@ -201,8 +204,9 @@ class BayesPlanner:
             return None
         pick = int(idx[rng.integers(len(idx))])
         x, y = ctx.lattice.xy_um[pick]
-        block = make_block(ctx, x, y, f.seed_g, SLOW_HOLD_S, "global")
-        cost = float(block_costs_s(ctx, ctx.lattice.xy_um[[pick]], f.seed_g, SLOW_HOLD_S, "global")[0])
+        hold = ctx.profile.default_hold_s
+        block = make_block(ctx, x, y, f.seed_g, hold, "global")
+        cost = float(block_costs_s(ctx, ctx.lattice.xy_um[[pick]], f.seed_g, hold, "global")[0])
         return Decision(
             block=block,
             policy=self.name,
@@ -211,7 +215,7 @@ class BayesPlanner:
             predicted_cost_s=cost,
             reason=f"seed grid {ctx.blocks_done + 1} of {f.n_seed_blocks} at a random centre",
             phase="seed",
-            hold_mode=f"fixed {SLOW_HOLD_S:g} s",
+            hold_mode=f"fixed {hold:g} s",
         )
 
     # -- scoring: σ-based (the paper) ----------------------------------------------------------

@@ -8,7 +8,7 @@ planner's predicted cost and the executed cost agree. With a speed factor the dr
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from typing import TYPE_CHECKING
 
 from core.cost import comeback_step, indent_steps
@@ -81,14 +81,14 @@ class SimulatedDriver:
             self._physics_s += step.seconds
         return step
 
-    def recover(self, block_id: int) -> Iterator[DriverEvent]:
+    def recover(self, block_id: int) -> Iterator[StepRecord]:
         """After a crash the tip state is unknown: lift, re-engage and settle drift before continuing."""
         p = self.profile
         for seconds in (p.lift_s, p.engage_s, p.drift_settle_s):
             yield self._advance(StepRecord("recovery", seconds, block_id, -1))
         self._open = True
 
-    def execute_block(self, block: Block, start_index: int = 0) -> Iterator[DriverEvent]:
+    def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         if self._abort.is_set():
             raise DriverAborted("driver was aborted")
         if block.kind == "local" and not self._open and start_index == 0:
@@ -122,7 +122,7 @@ class SimulatedDriver:
                 yield from self.end_program()
                 raise DriverAborted(f"aborted after indent {i} of block {block.block_id}")
 
-    def end_program(self) -> Iterator[DriverEvent]:
+    def end_program(self) -> Iterator[StepRecord]:
         if self._open:
             yield self._advance(comeback_step(self.profile))
             self._open = False

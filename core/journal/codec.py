@@ -1,0 +1,210 @@
+"""Plain data in and out of the journal: frozen records go in as JSON or columns, come back the same.
+
+Planner settings go through ``core.settings`` (the one codec the run file uses too).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import io
+import json
+import math
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.plan import Alternative, Block, Decision, IndentResult, IndentSpec, StepRecord
+from core.runview import MapFields
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if isinstance(obj, Path):
+        return str(obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclasses.asdict(obj)
+    if isinstance(obj, set | frozenset):
+        return sorted(obj)
+    raise TypeError(f"cannot store {type(obj).__name__} in the journal")
+
+
+def to_json(obj: Any) -> str:
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        obj = dataclasses.asdict(obj)
+    return json.dumps(obj, default=_default, separators=(",", ":"))
+
+
+def block_from_dict(d: dict[str, Any]) -> Block:
+    return Block(
+        block_id=int(d["block_id"]),
+        kind=d["kind"],
+        center_x_um=float(d["center_x_um"]),
+        center_y_um=float(d["center_y_um"]),
+        grid_g=int(d["grid_g"]),
+        pitch_um=float(d["pitch_um"]),
+        hold_s=float(d["hold_s"]),
+        indents=tuple(
+            IndentSpec(float(s["x_um"]), float(s["y_um"]), float(s["hold_s"])) for s in d["indents"]
+        ),
+    )
+
+
+def decision_from_dict(d: dict[str, Any]) -> Decision:
+    kw = dict(d)
+    kw["block"] = block_from_dict(d["block"])
+    kw["alternatives"] = tuple(Alternative(**a) for a in d.get("alternatives", ()))
+    known = {f.name for f in dataclasses.fields(Decision)}
+    return Decision(**{k: v for k, v in kw.items() if k in known})
+
+
+def map_fields_to_bytes(fields: MapFields) -> bytes:
+    buf = io.BytesIO()
+    nxt = np.asarray(fields.next_candidate_um if fields.next_candidate_um is not None else [], dtype=float)
+    np.savez_compressed(
+        buf,
+        x_um=fields.x_um,
+        y_um=fields.y_um,
+        mean_gpa=fields.mean_gpa,
+        epistemic_sd_gpa=fields.epistemic_sd_gpa,
+        noise_sd_gpa=fields.noise_sd_gpa,
+        total_sd_gpa=fields.total_sd_gpa,
+        next_candidate_um=nxt,
+    )
+    return buf.getvalue()
+
+
+def map_fields_from_bytes(snapshot_id: int, blob: bytes) -> MapFields:
+    with np.load(io.BytesIO(blob)) as z:
+        nxt = z["next_candidate_um"]
+        return MapFields(
+            snapshot_id=snapshot_id,
+            x_um=z["x_um"],
+            y_um=z["y_um"],
+            mean_gpa=z["mean_gpa"],
+            epistemic_sd_gpa=z["epistemic_sd_gpa"],
+            noise_sd_gpa=z["noise_sd_gpa"],
+            total_sd_gpa=z["total_sd_gpa"],
+            next_candidate_um=(float(nxt[0]), float(nxt[1])) if nxt.size == 2 else None,
+        )
+
+
+def utc_now() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+@dataclass(frozen=True)
+class StoredCommand:
+    """A command row as the engine sees it (``kind`` stays a string: a bad row must be rejected, not crash)."""
+
+    command_id: int
+    kind: str
+    author: str
+    uid: int
+    payload: dict[str, Any]
+    shown_scores: dict[str, Any]
+    wall_utc: str
+
+
+@dataclass(frozen=True)
+class StoredDecision:
+    decision_id: int
+    decision: Decision
+    status: str
+    needs_approval_reason: str
+    t_s: float
+
+
+@dataclass(frozen=True)
+class DriverState:
+    clock_s: float
+    physics_clock_s: float | None
+    position_um: tuple[float, float]
+    program_open: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class BlockRecord:
+    """One planned block with what became of it: the unit the replay walks."""
+
+    block: Block
+    status: str  # planned | running | executed | observed | aborted
+    decision: Decision | None
+    results: tuple[IndentResult, ...]
+    steps: tuple[StepRecord, ...]
+    snapshot_id: int | None
+    fit_summary: dict[str, Any]
+    planned_t_s: float
+    finished_t_s: float | None
+
+    @property
+    def median_gpa(self) -> float | None:
+        values = [r.hardness_gpa for r in self.results if r.measured]
+        return statistics.median(values) if values else None
+
+    @property
+    def seconds(self) -> float:
+        return float(sum(s.seconds for s in self.steps))
+
+
+def _value(x: Any) -> float:
+    """A stored value; NULL (what a failed or not-run indent stores) comes back as NaN."""
+    return math.nan if x is None else float(x)
+
+
+def _stored(x: float) -> float | None:
+    return None if math.isnan(x) else x
+
+
+def result_from_row(r: Sequence[Any]) -> IndentResult:
+    return IndentResult(
+        block_id=int(r[0]),
+        indent_index=int(r[1]),
+        commanded_x_um=r[2],
+        commanded_y_um=r[3],
+        actual_x_um=_value(r[4]),
+        actual_y_um=_value(r[5]),
+        hold_s=r[6],
+        hardness_gpa=_value(r[7]),
+        modulus_gpa=_value(r[8]),
+        drift_rate_nm_s=_value(r[9]),
+        t_s=r[10],
+        status=r[11],
+        note=r[12],
+    )
+
+
+def result_to_row(r: IndentResult) -> tuple[Any, ...]:
+    """The INDENT_COLS values of one result: what was not measured is stored as NULL, never as a number."""
+    return (
+        r.block_id,
+        r.indent_index,
+        r.commanded_x_um,
+        r.commanded_y_um,
+        _stored(r.actual_x_um),
+        _stored(r.actual_y_um),
+        r.hold_s,
+        _stored(r.hardness_gpa),
+        _stored(r.modulus_gpa),
+        _stored(r.drift_rate_nm_s),
+        r.t_s,
+        r.status,
+        r.note,
+    )
+
+
+INDENT_COLS = (
+    "block_id, indent_index, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, hold_s, "
+    "hardness_gpa, modulus_gpa, drift_rate_nm_s, t_s, status, note"
+)

@@ -1,0 +1,215 @@
+"""The journal file itself: its tables, its version, how it is opened, checked and locked.
+
+One SQLite file per run. The engine holds ``<journal>.lock`` for its life (one writer); readers open the
+file read-only. A file that is missing, truncated, corrupt or of another schema version is refused
+before anything opens it for writing.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import pwd
+import sqlite3
+from datetime import UTC, datetime
+from pathlib import Path
+
+from core.errors import InputError
+from core.runview import EngineState
+
+# 2: indents carry a status (measured / failed / not_run) and NULL values when not measured
+SCHEMA_VERSION = 2
+SQLITE_MAGIC = b"SQLite format 3\x00"
+LOG_TAIL = 200
+BUSY_TIMEOUT_MS = 10_000
+TERMINAL_STATES = (EngineState.STOPPED, EngineState.FAILED)
+
+SCHEMA_SQL = """
+CREATE TABLE schema_version (version INTEGER NOT NULL);
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE sessions (
+    session_id INTEGER PRIMARY KEY, kind TEXT NOT NULL, pid INTEGER NOT NULL, host TEXT NOT NULL,
+    os_user TEXT NOT NULL, started_utc TEXT NOT NULL, started_unix REAL NOT NULL,
+    ended_utc TEXT, ended_unix REAL, end_state TEXT);
+CREATE TABLE engine_state (
+    id INTEGER PRIMARY KEY CHECK (id = 1), state TEXT NOT NULL, supervision TEXT NOT NULL,
+    session_id INTEGER, pid INTEGER, updated_utc TEXT NOT NULL, completed INTEGER NOT NULL DEFAULT 0,
+    stop_reason TEXT NOT NULL DEFAULT '');
+CREATE TABLE blocks (
+    block_id INTEGER PRIMARY KEY, decision_id INTEGER, kind TEXT NOT NULL,
+    center_x_um REAL NOT NULL, center_y_um REAL NOT NULL, grid_g INTEGER NOT NULL, pitch_um REAL NOT NULL,
+    hold_s REAL NOT NULL, n_indents INTEGER NOT NULL, block_json TEXT NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('planned', 'running', 'executed', 'observed', 'aborted')),
+    planned_utc TEXT NOT NULL, planned_t_s REAL NOT NULL, finished_t_s REAL, observed_utc TEXT);
+CREATE TABLE indents (
+    block_id INTEGER NOT NULL, indent_index INTEGER NOT NULL,
+    commanded_x_um REAL NOT NULL, commanded_y_um REAL NOT NULL, actual_x_um REAL,
+    actual_y_um REAL, hold_s REAL NOT NULL, hardness_gpa REAL, modulus_gpa REAL,
+    drift_rate_nm_s REAL, t_s REAL NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('measured', 'failed', 'not_run')), note TEXT NOT NULL, wall_utc TEXT NOT NULL, session_id INTEGER,
+    last_step_id INTEGER, PRIMARY KEY (block_id, indent_index));
+CREATE TABLE steps (
+    step_id INTEGER PRIMARY KEY, block_id INTEGER NOT NULL, indent_index INTEGER NOT NULL,
+    category TEXT NOT NULL, seconds REAL NOT NULL, t_end_s REAL NOT NULL, wall_utc TEXT NOT NULL,
+    session_id INTEGER);
+CREATE INDEX steps_block ON steps (block_id);
+CREATE TABLE driver_states (
+    id INTEGER PRIMARY KEY, wall_utc TEXT NOT NULL, clock_s REAL NOT NULL, physics_clock_s REAL,
+    x_um REAL NOT NULL, y_um REAL NOT NULL, program_open INTEGER NOT NULL, reason TEXT NOT NULL);
+CREATE TABLE decisions (
+    decision_id INTEGER PRIMARY KEY, block_id INTEGER NOT NULL, wall_utc TEXT NOT NULL, t_s REAL NOT NULL,
+    policy TEXT NOT NULL, phase TEXT NOT NULL, kind TEXT NOT NULL, center_x_um REAL NOT NULL,
+    center_y_um REAL NOT NULL, score REAL, acquisition REAL, predicted_cost_s REAL,
+    decision_json TEXT NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('pending', 'approved', 'auto', 'vetoed', 'dropped')),
+    needs_approval_reason TEXT NOT NULL DEFAULT '', resolved_by TEXT, resolved_utc TEXT, command_id INTEGER);
+CREATE TABLE commands (
+    command_id INTEGER PRIMARY KEY, kind TEXT NOT NULL, author TEXT NOT NULL, uid INTEGER NOT NULL,
+    payload_json TEXT NOT NULL, shown_scores_json TEXT NOT NULL, wall_utc TEXT NOT NULL,
+    processed INTEGER NOT NULL DEFAULT 0, outcome TEXT, reason TEXT, processed_utc TEXT,
+    processed_t_s REAL, state_before TEXT);
+CREATE INDEX commands_open ON commands (processed);
+CREATE TABLE gp_snapshots (
+    snapshot_id INTEGER PRIMARY KEY, block_id INTEGER NOT NULL, wall_utc TEXT NOT NULL, t_s REAL NOT NULL,
+    hyper_json TEXT NOT NULL, summary_json TEXT NOT NULL, fields_npz BLOB);
+CREATE TABLE campaign_states (
+    id INTEGER PRIMARY KEY, block_id INTEGER NOT NULL, point TEXT NOT NULL, wall_utc TEXT NOT NULL,
+    state_json TEXT NOT NULL, settings_json TEXT NOT NULL);
+CREATE TABLE events (
+    event_id INTEGER PRIMARY KEY, wall_utc TEXT NOT NULL, t_s REAL NOT NULL, level TEXT NOT NULL,
+    category TEXT NOT NULL, block_id INTEGER, text TEXT NOT NULL, detail TEXT);
+"""
+
+TABLES = (
+    "schema_version",
+    "meta",
+    "sessions",
+    "engine_state",
+    "blocks",
+    "indents",
+    "steps",
+    "driver_states",
+    "decisions",
+    "commands",
+    "gp_snapshots",
+    "campaign_states",
+    "events",
+)
+
+
+def utc_now() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def default_journal_path(name: str, runs_dir: str | Path = "runs") -> Path:
+    """``./runs/<UTC time>-<name>.sqlite``; the name is reduced to file-safe characters."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "-" for c in name).strip("-.") or "run"
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    return Path(runs_dir) / f"{stamp}-{safe}.sqlite"
+
+
+def user_name(uid: int) -> str:
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return str(uid)
+
+
+def lock_path_for(path: str | Path) -> Path:
+    p = Path(path)
+    return p.with_name(p.name + ".lock")
+
+
+def engine_running(path: str | Path) -> bool:
+    """Whether an engine holds the journal's lock right now (probed without blocking it for long)."""
+    lp = lock_path_for(path)
+    try:
+        fd = os.open(lp, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return False
+    finally:
+        os.close(fd)
+
+
+# --------------------------------------------------------------------------------------------------
+# opening and validating
+
+
+def check_journal_file(path: str | Path) -> None:
+    """Refuse a file that is missing, not SQLite, truncated, corrupt or of an unknown schema version.
+
+    Opens read-only: a journal that cannot be read is never modified.
+    """
+    p = Path(path)
+    src = str(p)
+    if not p.is_file():
+        raise InputError(src, "no such journal file")
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(100)
+    except OSError as exc:
+        raise InputError(src, f"cannot read journal ({exc.strerror})") from None
+    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
+        raise InputError(src, "not a journal: the file is not an SQLite database (truncated or another file)")
+    page_size = int.from_bytes(head[16:18], "big")
+    page_size = 65536 if page_size == 1 else page_size
+    n_pages = int.from_bytes(head[28:32], "big")
+    size = p.stat().st_size
+    if page_size and n_pages and size < page_size * n_pages:
+        raise InputError(
+            src,
+            f"journal is truncated: {size} bytes on disk but the header says {n_pages} pages of {page_size} "
+            "bytes; nothing was changed",
+        )
+    # a WAL-mode file without its -wal has nothing pending: read it immutable, so checking creates no sidecars
+    immutable = head[18] == 2 and not Path(str(p) + "-wal").exists()
+    conn = connect_ro(p, immutable=immutable)
+    try:
+        try:
+            rows = conn.execute("PRAGMA quick_check").fetchall()
+        except sqlite3.DatabaseError as exc:
+            raise InputError(src, f"journal is corrupt ({exc}); nothing was changed") from None
+        if [r[0] for r in rows] != ["ok"]:
+            first = "; ".join(str(r[0]) for r in rows[:3])
+            raise InputError(src, f"journal is corrupt ({first}); nothing was changed")
+        _check_schema(conn, src)
+    finally:
+        conn.close()
+
+
+def connect_ro(path: Path, immutable: bool = False) -> sqlite3.Connection:
+    uri = f"file:{path.resolve()}?mode=ro" + ("&immutable=1" if immutable else "")
+    try:
+        conn = sqlite3.connect(uri, uri=True, timeout=BUSY_TIMEOUT_MS / 1000, check_same_thread=False)
+    except sqlite3.Error as exc:
+        raise InputError(str(path), f"cannot open journal read-only ({exc})") from None
+    conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+    return conn
+
+
+def _check_schema(conn: sqlite3.Connection, src: str) -> None:
+    try:
+        names = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if "schema_version" not in names:
+            raise InputError(src, "not an AE-NI journal (no schema_version table)")
+        row = conn.execute("SELECT version FROM schema_version").fetchone()
+    except sqlite3.DatabaseError as exc:
+        raise InputError(src, f"journal is corrupt ({exc}); nothing was changed") from None
+    if row is None:
+        raise InputError(src, "journal has no schema version (it was never fully created)")
+    if int(row[0]) != SCHEMA_VERSION:
+        raise InputError(
+            src,
+            f"journal schema version {row[0]} is not supported (this program reads version {SCHEMA_VERSION}; "
+            "journals written before indents had a status cannot be loaded, see docs/journal.md)",
+        )
+    missing = [t for t in TABLES if t not in names]
+    if missing:
+        raise InputError(src, f"journal is missing tables {', '.join(missing)}")

@@ -1,0 +1,142 @@
+"""One home for the planner settings' rules: the run file, `aeni send adjust`, the engine and the codec
+agree on every field, and the allowed holds are the instrument profile's."""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aeni_console.cli import main as cli_main
+from core.campaign import Campaign
+from core.errors import InputError
+from core.journal import Journal
+from core.plan import PlannerSettings
+from core.profile import load_profile
+from core.runconfig import make_campaign_config, parse_run_config
+from core.settings import (
+    ADJUSTABLE,
+    RULES,
+    adjust_settings,
+    check_adjust,
+    coerce_setting,
+    settings_from_dict,
+    settings_to_dict,
+)
+
+HOLDS = load_profile("kla-imicro").allowed_holds_s  # 0, 5, 80 s
+
+# (field, a bad value, what the message says is allowed): the same words wherever the value comes from
+BAD: list[tuple[str, Any, str]] = [
+    ("target_sem_gpa", 0, "a number > 0 (GPa)"),
+    ("beta", -1, "a number ≥ 0"),
+    ("hold_policy", "sometimes", "fixed or adaptive"),
+    ("local_center_limit", 21, "a whole number from 0 to 20"),
+    ("local_center_limit", 2.5, "a whole number from 0 to 20"),
+    ("edge_penalty", 0.96, "a number from 0 to 0.95"),
+    ("budget_s", -5, "a number > 0 (s) or empty"),
+    ("indent_budget", 0, "a whole number ≥ 1 or empty"),
+    ("mape_target_pct", "x", "a number > 0 (%) or empty"),
+    ("beta", math.inf, "a number ≥ 0"),
+    ("beta", True, "a number ≥ 0"),
+]
+
+
+def test_every_planner_setting_has_exactly_one_rule() -> None:
+    fields = set(PlannerSettings.__dataclass_fields__) - {"avoid_centers_um"}
+    assert set(ADJUSTABLE) == fields and len(RULES) == len(fields)
+
+
+@pytest.mark.parametrize(("name", "value", "allowed"), BAD)
+def test_the_run_file_and_an_adjust_reject_a_value_with_the_same_words(
+    name: str, value: Any, allowed: str
+) -> None:
+    with pytest.raises(InputError) as adjust:
+        check_adjust({name: value}, HOLDS)
+    assert str(adjust.value) == f"{name}: {value!r} is not allowed: expected {allowed}"
+    with pytest.raises(InputError) as runfile:
+        parse_run_config({"planner": {name: value}}, "run.toml")
+    assert f"field planner.{name} = {value!r} is not allowed: expected {allowed}" in str(runfile.value)
+
+
+def test_holds_are_the_profiles_wherever_the_profile_is_known() -> None:
+    assert coerce_setting("fixed_hold_s", "5", HOLDS) == 5.0  # text from the form or a flag
+    with pytest.raises(InputError, match=r"fixed_hold_s: 7 is not allowed: expected one of 0, 5, 80 s"):
+        check_adjust({"fixed_hold_s": 7}, HOLDS)
+    # the run file does not know the profile yet (it may come from the scenario): the campaign checks
+    config = make_campaign_config(lattice_n=8, settings={"fixed_hold_s": 7})
+    assert config.settings.fixed_hold_s == 7.0
+    with pytest.raises(
+        InputError, match=r"^planner\.fixed_hold_s: 7\.0 is not allowed: expected one of 0, 5, 80"
+    ):
+        Campaign(config)
+
+
+def test_the_default_hold_is_the_profiles() -> None:
+    assert PlannerSettings().fixed_hold_s is None
+    campaign = Campaign(make_campaign_config(lattice_n=8))
+    assert campaign.settings.fixed_hold_s == campaign.profile.default_hold_s == 80.0
+    assert campaign.profile.fast_hold_s == 5.0
+
+
+def test_adjust_accepts_supervision_and_clean_values() -> None:
+    clean = check_adjust({"beta": "2.5", "indent_budget": 40.0, "budget_s": "", "supervision": "step"}, HOLDS)
+    assert clean == {"beta": 2.5, "indent_budget": 40, "budget_s": None, "supervision": "step"}
+    with pytest.raises(InputError, match=r"^supervision: 'lazy' is not allowed"):
+        check_adjust({"supervision": "lazy"}, HOLDS)
+    with pytest.raises(InputError, match="nothing to adjust"):
+        check_adjust({}, HOLDS)
+    with pytest.raises(InputError, match=r"^avoid_centers_um: is not an adjustable setting"):
+        adjust_settings(PlannerSettings(), {"avoid_centers_um": []}, HOLDS)
+
+
+values = st.fixed_dictionaries(
+    {},
+    optional={
+        "target_sem_gpa": st.floats(1e-4, 10),
+        "beta": st.floats(0, 100),
+        "hold_policy": st.sampled_from(["fixed", "adaptive"]),
+        "fixed_hold_s": st.sampled_from(HOLDS),
+        "local_center_limit": st.integers(0, 20),
+        "edge_penalty": st.floats(0, 0.95),
+        "budget_s": st.none() | st.floats(1, 1e7),
+        "indent_budget": st.none() | st.integers(1, 10_000),
+        "avoid_centers_um": st.lists(st.tuples(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4)), max_size=3),
+    },
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=values)
+def test_the_codec_round_trips_what_the_run_file_accepts(data: dict[str, Any]) -> None:
+    """What a run file holds, the journal writes and reads back unchanged (one codec for both)."""
+    from_file = parse_run_config({"planner": data}).campaign.settings
+    assert settings_from_dict(data) == from_file
+    assert settings_from_dict(settings_to_dict(from_file)) == from_file
+
+
+def test_the_codec_names_an_unknown_field() -> None:
+    with pytest.raises(InputError, match=r"^betta: is not a planner setting \(allowed: target_sem_gpa"):
+        settings_from_dict({"betta": 1})
+
+
+def test_send_adjust_checks_before_queueing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "run.sqlite"
+    Journal.create(path, {"name": "t"}, load_profile("kla-imicro"), name="t").close()
+    assert cli_main(["send", str(path), "adjust", "edge_penalty=2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert (
+        err.endswith("edge_penalty: 2 is not allowed: expected a number from 0 to 0.95") and "\n" not in err
+    )
+    assert cli_main(["send", str(path), "adjust", "fixed_hold_s=7"]) == 2
+    assert "expected one of 0, 5, 80 s" in capsys.readouterr().err
+    # a good value passes the rules and only then meets the next check (no engine runs this journal)
+    assert cli_main(["send", str(path), "adjust", "edge_penalty=0.2"]) == 2
+    assert "no engine is running" in capsys.readouterr().err
+    with sqlite3.connect(path) as conn:
+        assert conn.execute("SELECT COUNT(*) FROM commands").fetchone()[0] == 0

@@ -22,7 +22,7 @@ from core.errors import InputError
 from core.journal import DriverState, Journal, user_name
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.runview import CommandKind, EngineState, MapFields
-from core.settings import SUPERVISION_MODES, coerce_supervision
+from core.settings import coerce_supervision
 
 if TYPE_CHECKING:
     from core.surrogate import FitReport  # the refit's report (torch stays out of the engine's import)
@@ -85,10 +85,7 @@ class Engine:
         watch_s: float | None = 0.2,
         map_display_n: int = 50,
     ) -> None:
-        if supervision not in SUPERVISION_MODES:
-            raise InputError(
-                "supervision", f"{supervision!r} is not allowed: expected {', '.join(SUPERVISION_MODES)}"
-            )
+        coerce_supervision(supervision)
         if not 0 < poll_s <= 5:
             raise InputError("poll_s", f"{poll_s!r} is not allowed: expected 0 < poll_s ≤ 5 s")
         self.journal = journal

@@ -22,7 +22,13 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from core.errors import InputError
-from core.settings import ADJUSTABLE, SUPERVISION_MODES, coerce_setting, settings_from_dict
+from core.settings import (
+    ADJUSTABLE,
+    SUPERVISION_MODES,
+    coerce_setting,
+    coerce_supervision,
+    settings_from_dict,
+)
 
 if TYPE_CHECKING:
     from core.campaign import CampaignConfig
@@ -99,10 +105,18 @@ class PlannerSection(_Strict):
 
 class RunSection(_Strict):
     driver: Literal["sim"] = "sim"
-    supervision: Literal["auto", "supervised", "step"] = "auto"
+    supervision: str = "auto"
     journal: str | None = None
     speed: float | None = Field(default=None, gt=0)
     runs_dir: str = "runs"
+
+    @field_validator("supervision")
+    @classmethod
+    def _supervision(cls, v: str) -> str:
+        try:
+            return coerce_supervision(v)
+        except InputError as exc:
+            raise ValueError(exc.problem.partition(" is not allowed: ")[2]) from None
 
 
 class RunFile(_Strict):

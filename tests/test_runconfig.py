@@ -127,7 +127,7 @@ def test_command_line_overrides_win_and_are_validated(tmp_path: Path) -> None:
             "-5",
             "one of the instrument profile's holds",
         ),
-        ('[run]\nsupervision = "lazy"', "run.supervision", "'lazy'", "'auto', 'supervised' or 'step'"),
+        ('[run]\nsupervision = "lazy"', "run.supervision", "'lazy'", "expected auto, supervised, step"),
         ("[run]\nspeed = 0", "run.speed", "0", "greater than 0"),
         ('[run]\ndriver = "kla"', "run.driver", "'kla'", "'sim'"),
     ],

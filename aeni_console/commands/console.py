@@ -13,8 +13,8 @@ from typing import Any
 
 from aeni_console.commands.common import positive_float, seed_arg
 from core.errors import InputError
+from core.settings import SUPERVISION_MODES
 
-SUPERVISION_CHOICES = ("auto", "supervised", "step")
 DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min) passes in about 6 s
 
 
@@ -105,7 +105,7 @@ def register(subparsers: Any) -> None:
     demo.add_argument("--scenario", default="ternary", help="emulator scenario (default ternary)")
     demo.add_argument(
         "--supervision",
-        choices=SUPERVISION_CHOICES,
+        choices=SUPERVISION_MODES,
         default="supervised",
         help="auto | supervised (default: global jumps wait) | step (every block waits)",
     )

@@ -21,6 +21,7 @@ from typing import Any
 
 from aeni_console.commands.common import positive_float
 from core.errors import InputError
+from core.settings import SUPERVISION_MODES
 
 ENGINE_MODULE = "aeni_console.cli"
 _REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -567,7 +568,7 @@ def register(subparsers: Any) -> None:
     res = subparsers.add_parser("resume", help="continue a run whose engine stopped or died")
     res.add_argument("run", metavar="RUN", help="journal path or part of a run name")
     res.add_argument("--speed", type=positive_float("--speed"), help="simulated instrument speed-up")
-    res.add_argument("--supervision", choices=("auto", "supervised", "step"))
+    res.add_argument("--supervision", choices=SUPERVISION_MODES)
     res.add_argument("--detach", action="store_true", help="resume in the background")
     res.add_argument("--quiet", action="store_true")
     res.set_defaults(func=_cmd_resume)

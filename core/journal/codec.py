@@ -100,6 +100,7 @@ def map_fields_from_bytes(snapshot_id: int, blob: bytes) -> MapFields:
 
 
 def utc_now() -> str:
+    """Wall-clock time as the journal stores it (ISO 8601, milliseconds, Z)."""
     return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 

@@ -97,10 +97,6 @@ TABLES = (
 )
 
 
-def utc_now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
 def default_journal_path(name: str, runs_dir: str | Path = "runs") -> Path:
     """``./runs/<UTC time>-<name>.sqlite``; the name is reduced to file-safe characters."""
     safe = "".join(c if c.isalnum() or c in "-_." else "-" for c in name).strip("-.") or "run"

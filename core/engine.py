@@ -545,9 +545,11 @@ class Engine:
             self._last_collapse = (sid, report.collapse_reason)
         hyper = report.hyper if report is not None else None
         t = self._clock()
+        unmeasured = sum(not r.measured for r in results)
         line = (
             f"block {block.block_id:>4}  {block.kind:<6}  g={block.grid_g}  hold {block.hold_s:>4g} s  "
             f"t={t:>10,.0f} s  indents {len(results)}"
+            + (f" ({unmeasured} not measured)" if unmeasured else "")
             + (f"  MAPE {mape:.2f} %" if mape is not None else "")
             + ("  COLLAPSE ALARM" if summary.get("collapse_alarm") else "")
         )

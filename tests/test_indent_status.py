@@ -115,6 +115,11 @@ def test_failed_and_not_run_indents_are_journaled_as_such(tmp_path: Path) -> Non
     # a block that measured nothing has no centre value and is not a tested centre on the map
     assert [b.median_gpa is None for b in blocks] == [False, True, False]
     assert [t.block_id for t in snap.tested] == [0, 2]
+    assert [e.text.split("indents ")[1].split("  ")[0] for e in snap.log if e.text.startswith("block ")] == [
+        "4 (1 not measured)",
+        "4 (4 not measured)",
+        "4 (1 not measured)",
+    ]
     # the campaign saw the statuses (the real Campaign skips what was not measured; see below)
     assert [r.status for r in camp.observed[1][1]] == ["failed"] * 4
 

@@ -18,7 +18,7 @@ from core.errors import InputError
 from core.journal import Journal
 from core.plan import PlannerSettings
 from core.profile import load_profile
-from core.runconfig import make_campaign_config, parse_run_config
+from core.runconfig import PlannerSection, make_campaign_config, parse_run_config
 from core.settings import (
     ADJUSTABLE,
     RULES,
@@ -50,6 +50,8 @@ BAD: list[tuple[str, Any, str]] = [
 def test_every_planner_setting_has_exactly_one_rule() -> None:
     fields = set(PlannerSettings.__dataclass_fields__) - {"avoid_centers_um"}
     assert set(ADJUSTABLE) == fields and len(RULES) == len(fields)
+    # the run file's [planner] table names the same fields (its values go through the same rules)
+    assert set(PlannerSection.model_fields) == fields | {"avoid_centers_um"}
 
 
 @pytest.mark.parametrize(("name", "value", "allowed"), BAD)

@@ -213,7 +213,7 @@ class ConsoleApp(App[None]):
         self._show_status()
 
     def apply_snapshot(self, snap: RunSnapshot) -> None:
-        if not self.status_bar.is_mounted:
+        if not self.status_bar.is_mounted or not self.screen_stack:
             return  # leaving: the panels are gone
         old = self.snapshot
         self.snapshot = snap
@@ -400,7 +400,15 @@ class ConsoleApp(App[None]):
             elif changes is not None:
                 self.notify("Nothing changed.", title="Adjust")
 
-        self.push_screen(AdjustScreen(snap.settings, snap.supervision, cursor_blink=self.cursor_blink), done)
+        self.push_screen(
+            AdjustScreen(
+                snap.settings,
+                snap.supervision,
+                cursor_blink=self.cursor_blink,
+                allowed_holds_s=snap.allowed_holds_s or None,
+            ),
+            done,
+        )
 
     def action_abort(self) -> None:
         def done(yes: bool | None) -> None:

@@ -1,7 +1,7 @@
 """Where the console's data comes from, and the thread that brings it without blocking the UI.
 
 The console only knows the small ``RunSource`` protocol: a live journal, a finished journal (replay)
-and the in-memory fake used by tests all look the same. A ``Feed`` thread polls the source, loads the
+and a canned snapshot (rendering tests) all look the same. A ``Feed`` thread polls the source, loads the
 map fields when the GP refits, and posts *replaceable* messages at a capped rate (the memray/Toolong
 pattern): if the UI is busy, a newer snapshot replaces the queued one instead of piling up.
 """

@@ -1,7 +1,7 @@
 """Console responsiveness: keypress-to-screen latency during a running demo, and heatmap redraw cost.
 
     python benchmarks/console_latency.py              # a real engine process (auto, ×200) + headless console
-    python benchmarks/console_latency.py --fake       # the in-memory fake run, ticking in a thread
+    python benchmarks/console_latency.py --in-process # the test harness's engine, one indent every 50 ms
 
 Prints one table (medians and 90th percentiles over the presses). Latencies are measured from the key
 event to the moment the frame that shows its effect has been composed, on a 100×30 headless console
@@ -150,7 +150,9 @@ async def measure_keys(app: ConsoleApp, presses: int, size: tuple[int, int]) -> 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
-        "--fake", action="store_true", help="use the in-memory fake run instead of an engine process"
+        "--in-process",
+        action="store_true",
+        help="the console tests' engine in this process (one indent every 50 ms) instead of an engine process",
     )
     ap.add_argument("--speed", type=float, default=200.0, help="engine speed factor (default 200)")
     ap.add_argument("--presses", type=int, default=25)
@@ -162,19 +164,20 @@ def main() -> int:
     proc = None
     stop = threading.Event()
     with tempfile.TemporaryDirectory() as tmp:
-        if args.fake:
-            from aeni_console.fake import FakeRun
+        if args.in_process:
+            from aeni_console.testing import LiveRun
 
-            run = FakeRun(supervision="auto", seed=0)
-            source = run
+            run = LiveRun(tmp, supervision="auto", name="bench")
+            run.start()
+            source = run.source()
 
             def tick() -> None:
-                while not stop.is_set():
-                    run.advance()
+                while not stop.is_set() and not run.ended:
+                    run.advance(1)
                     time.sleep(0.05)
 
             threading.Thread(target=tick, daemon=True).start()
-            where = "fake run ticking every 50 ms"
+            where = "in-process engine, one indent every 50 ms"
         else:
             from aeni_console.commands.run import start_engine_process
             from aeni_console.journal_source import JournalSource
@@ -185,11 +188,13 @@ def main() -> int:
             source = JournalSource(journal)
             where = f"engine process, auto, speed ×{args.speed:g}"
         try:
-            app = ConsoleApp(source)  # type: ignore[arg-type]
+            app = ConsoleApp(source)
             rows.update(asyncio.run(measure_keys(app, args.presses, (100, 30))))
             posted = app.feed.posted if app.feed is not None else 0
         finally:
             stop.set()
+            if args.in_process:
+                run.close()
             if proc is not None and not isinstance(proc, int):
                 proc.terminate()
                 proc.wait(timeout=30)

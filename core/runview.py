@@ -128,6 +128,7 @@ class RunSnapshot:
     stage_bounds_um: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max of the calibrated area
     reverse_x: bool
     finished: bool  # the engine process has ended (stopped, failed, or done)
+    allowed_holds_s: tuple[float, ...] = ()  # the instrument profile's holds (the adjust form checks them)
 
 
 @dataclass(frozen=True)

@@ -23,3 +23,21 @@ def kla_dir() -> Path:
     if not KLA_DIR.is_dir():
         pytest.skip(f"real KLA export files not found at {KLA_DIR} (../shared is absent in a user's clone)")
     return KLA_DIR
+
+
+@pytest.fixture
+def live_run(tmp_path: Path):  # type: ignore[no-untyped-def]
+    """Start real test runs (``aeni_console.testing.LiveRun``); each is stopped when the test ends."""
+    from aeni_console.testing import LiveRun
+
+    runs: list[LiveRun] = []
+
+    def start(**kwargs: object) -> LiveRun:
+        run = LiveRun(tmp_path, name=f"run{len(runs)}", **kwargs)  # type: ignore[arg-type]
+        runs.append(run)
+        run.start()
+        return run
+
+    yield start
+    for run in runs:
+        run.close()

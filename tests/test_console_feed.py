@@ -1,17 +1,27 @@
-"""The feed: posts only what changed, loads map fields once per fit, survives bad reads, caps its rate."""
+"""The feed: posts only what changed, loads map fields once per fit, survives bad reads, caps its rate.
+
+The source is the console's real one (``JournalSource``) on a run of the real engine (``LiveRun``).
+"""
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
+import pytest
 from textual.message import Message
 
-from aeni_console.fake import FakeRun, check_adjust
 from aeni_console.feed import Feed, FeedProblem, MapArrived, ReplaySource, RunSource, SnapshotArrived
+from aeni_console.journal_source import JournalSource
+from aeni_console.testing import LiveRun
 from aeni_console.widgets.adjust import FIELDS, parse_adjust, parse_field
 from core.errors import InputError
 from core.plan import PlannerSettings
+from core.runview import RunSnapshot
+from core.settings import adjust_settings
+
+LiveRunFactory = Callable[..., LiveRun]
 
 
 class Collector:
@@ -28,71 +38,80 @@ class Collector:
             return [m for m in self.messages if isinstance(m, kind)]
 
 
-def test_fake_satisfies_both_protocols() -> None:
-    run = FakeRun()
-    assert isinstance(run, RunSource) and isinstance(run, ReplaySource)
+def test_journal_sources_satisfy_the_protocols(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    source, replay = run.source(), run.replay()
+    assert isinstance(source, RunSource) and not isinstance(source, ReplaySource)
+    assert isinstance(replay, ReplaySource)
+    source.close()
+    replay.close()
 
 
-def test_poll_posts_changes_and_map_once_per_fit() -> None:
-    run = FakeRun(supervision="auto")
+def test_poll_posts_changes_and_map_once_per_fit(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
     got = Collector()
-    feed = Feed(run, got)
+    feed = Feed(run.source(), got)
     feed.poll_once()
     feed.poll_once()  # nothing changed: nothing new posted
     assert len(got.of(SnapshotArrived)) == 1 and got.of(MapArrived) == []  # no fit yet
-    run.advance(2)  # one block done → first fit
+    run.finish_block()
+    run.finish_block()  # two centres: the first fit
     feed.poll_once()
     feed.poll_once()
     maps = got.of(MapArrived)
     assert len(got.of(SnapshotArrived)) == 2 and len(maps) == 1
-    assert maps[0].fields.snapshot_id == 1  # type: ignore[attr-defined]
-    run.advance(2)
+    first = maps[0].fields.snapshot_id  # type: ignore[attr-defined]
+    assert first == run.snapshot().gp.snapshot_id
+    run.finish_block()
     feed.poll_once()
-    assert [m.fields.snapshot_id for m in got.of(MapArrived)] == [1, 2]  # type: ignore[attr-defined]
+    assert [m.fields.snapshot_id for m in got.of(MapArrived)] == [first, first + 1]  # type: ignore[attr-defined]
 
 
-def test_snapshot_messages_replace_each_other() -> None:
-    run = FakeRun()
-    a, b = SnapshotArrived(run.snapshot()), SnapshotArrived(run.snapshot())
+def test_snapshot_messages_replace_each_other(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
+    run.finish_block()
+    run.finish_block()
+    source = run.source()
+    snap = source.snapshot()
+    fields = source.map_fields(snap.gp.snapshot_id or 0)
+    assert fields is not None
+    a, b = SnapshotArrived(snap), SnapshotArrived(snap)
     assert b.can_replace(a)
-    assert not b.can_replace(MapArrived(run.map_fields(0) or _fields(run)))
+    assert not b.can_replace(MapArrived(fields))
     assert FeedProblem("x").can_replace(FeedProblem("y"))
+    source.close()
 
 
-def _fields(run: FakeRun):  # type: ignore[no-untyped-def]
-    run.advance(2)
-    return run.map_fields(1)
-
-
-def test_a_failing_source_is_reported_and_polling_continues() -> None:
-    class Flaky(FakeRun):
+def test_a_failing_source_is_reported_and_polling_continues(live_run: LiveRunFactory) -> None:
+    class Flaky(JournalSource):
         fail = True
 
-        def snapshot(self):  # type: ignore[no-untyped-def]
+        def snapshot(self) -> RunSnapshot:
             if self.fail:
                 raise OSError("database is locked")
             return super().snapshot()
 
-    run = Flaky()
+    run = live_run()
+    source = Flaky(run.path)
     got = Collector()
-    feed = Feed(run, got)
+    feed = Feed(source, got)
     feed.poll_once()
     assert "database is locked" in got.of(FeedProblem)[0].text  # type: ignore[attr-defined]
-    run.fail = False
+    source.fail = False
     feed.poll_once()
     assert len(got.of(SnapshotArrived)) == 1
+    source.close()
 
 
-def test_thread_caps_its_rate_and_stops() -> None:
-    run = FakeRun(supervision="auto")
+def test_thread_caps_its_rate_and_stops(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
     got = Collector()
-    feed = Feed(run, got, poll_s=0.001, max_rate_hz=20.0)
+    feed = Feed(run.source(), got, poll_s=0.001, max_rate_hz=20.0)
     ticker_stop = threading.Event()
 
-    def tick() -> None:  # the "engine" changes the run far faster than the cap
+    def tick() -> None:  # the engine changes the run far faster than the cap
         while not ticker_stop.is_set():
-            run.advance()
-            time.sleep(0.001)
+            run.advance(1)
 
     ticker = threading.Thread(target=tick, daemon=True)
     ticker.start()
@@ -101,22 +120,22 @@ def test_thread_caps_its_rate_and_stops() -> None:
     feed.stop()
     ticker_stop.set()
     feed.join(timeout=2)
-    ticker.join(timeout=2)
+    ticker.join(timeout=10)
     assert not feed.is_alive()
-    # at most 20 posts a second (+1 for the first), however fast the run changes
+    # at most 20 polls a second (+1 for the first), however fast the run changes
     assert 2 <= feed.polls <= 12
     assert len(got.of(SnapshotArrived)) <= feed.polls
 
 
-def test_poke_wakes_the_feed_early() -> None:
-    run = FakeRun(supervision="auto")
+def test_poke_wakes_the_feed_early(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
     got = Collector()
-    feed = Feed(run, got, poll_s=30.0, max_rate_hz=100.0)
+    feed = Feed(run.source(), got, poll_s=30.0, max_rate_hz=100.0)
     feed.start()
-    deadline = time.monotonic() + 2
+    deadline = time.monotonic() + 5
     while feed.polls < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
-    run.advance()
+    run.advance(1)
     feed.poke()
     while feed.polls < 2 and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -131,12 +150,15 @@ def test_adjust_form_parsing() -> None:
     )  # as a run shows it: the campaign fills in the profile default
     spec = {f.name: f for f in FIELDS}
     assert parse_field(spec["target_sem_gpa"], "0.02") == (0.02, None)
-    assert parse_field(spec["target_sem_gpa"], "0")[1] == "target SEM (GPa): must be > 0"
-    assert parse_field(spec["local_center_limit"], "2.5")[1] == "local centres: '2.5' is not a whole number"
-    assert parse_field(spec["edge_penalty"], "1.5")[1] == "edge penalty: must be ≤ 1"
+    assert parse_field(spec["target_sem_gpa"], "0")[1] == (
+        "target SEM (GPa): 0.0 is not allowed: expected a number > 0 (GPa)"
+    )
+    assert parse_field(spec["local_center_limit"], "3") == (3, None)
+    assert "whole number" in str(parse_field(spec["local_center_limit"], "2.5")[1])
     assert parse_field(spec["budget_s"], "  ") == (None, None)
     assert parse_field(spec["beta"], "")[1] == "UCB β: a value is required"
     assert parse_field(spec["beta"], "nan")[1] is not None
+    assert parse_field(spec["beta"], "abc")[1] == "UCB β: 'abc' is not allowed: expected a number ≥ 0"
     values = {"target_sem_gpa": "0.05", "beta": "2", "budget_s": "36000"}
     changes, errors = parse_adjust(values, "adaptive", current, "step", "supervised")
     assert errors == []
@@ -145,12 +167,28 @@ def test_adjust_form_parsing() -> None:
     assert len(errors) == 2
 
 
-def test_fake_adjust_validation_matches_the_engine_contract() -> None:
-    s = check_adjust({"target_sem_gpa": 0.02, "hold_policy": "adaptive"}, PlannerSettings())
-    assert s.target_sem_gpa == 0.02 and s.hold_policy == "adaptive"
-    for bad in ({"target_sem_gpa": -1.0}, {"nope": 1}, {"local_center_limit": 2.5}, {"hold_policy": "x"}):
-        try:
-            check_adjust(bad, PlannerSettings())
-        except InputError:
-            continue
-        raise AssertionError(f"accepted {bad}")
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [
+        ("edge_penalty", "0.95"),
+        ("edge_penalty", "0.99"),  # the old form allowed up to 1
+        ("local_center_limit", "20"),
+        ("local_center_limit", "21"),  # the old form allowed up to 50
+        ("fixed_hold_s", "5"),
+        ("fixed_hold_s", "60"),  # not one of the profile's holds; the old form allowed 0 to 600
+        ("fixed_hold_s", "120"),
+        ("target_sem_gpa", "-0.1"),
+        ("indent_budget", "0"),
+        ("mape_target_pct", "150"),
+    ],
+)
+def test_the_form_refuses_exactly_what_the_engine_refuses(name: str, text: str) -> None:
+    holds = (0.0, 5.0, 120.0)  # a profile with its own holds: the form must use the run's, not a default
+    spec = next(f for f in FIELDS if f.name == name)
+    value, error = parse_field(spec, text, holds)
+    try:
+        engine = adjust_settings(PlannerSettings(), {name: float(text)}, holds)
+    except InputError:
+        assert error is not None and value is None
+    else:
+        assert error is None and value == getattr(engine, name)

@@ -1,38 +1,52 @@
-"""Operator flows through the real console (Pilot, headless) against the in-memory fake run."""
+"""Operator flows through the console (Pilot, headless) against the real engine.
+
+Each test starts ``aeni_console.testing.LiveRun``: the real engine, campaign and journal, with the
+simulated instrument run an indent at a time by the test. The console reads the run through the same
+``JournalSource`` as ``aeni console``, and its keys reach the engine through the journal's command table.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import json
+from collections.abc import AsyncIterator, Callable
+from dataclasses import replace
+from typing import Any
+
 import pytest
+from textual.pilot import Pilot
 
 from aeni_console.app import ConsoleApp
-from aeni_console.fake import FakeRun, run_fake
-from aeni_console.testing import settle, wait_until, widget_text
+from aeni_console.feed import RunSource
+from aeni_console.journal_source import JournalSource
+from aeni_console.testing import CannedSource, LiveRun, settle, wait_until, widget_text
 from aeni_console.widgets.adjust import AdjustScreen
 from aeni_console.widgets.confirm import ConfirmScreen
 from aeni_console.widgets.help import HelpScreen
 from aeni_console.widgets.mapview import HeatmapView, MapPanel
-from core.runview import Command, CommandKind, EngineState
+from core.runview import Command, CommandKind, EngineState, RunSnapshot
 
 SIZES = [(100, 30), (80, 24)]
+LiveRunFactory = Callable[..., LiveRun]
 
 
-def make_app(run: FakeRun, **kw: object) -> ConsoleApp:
+def make_app(source: RunSource, **kw: Any) -> ConsoleApp:
     return ConsoleApp(
-        run, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="tester", cursor_blink=False, **kw
-    )  # type: ignore[arg-type]
+        source, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="tester", cursor_blink=False, **kw
+    )
 
 
-def awaiting(run: FakeRun) -> FakeRun:
-    """Advance a supervised fake until it waits for the operator."""
-    for _ in range(200):
-        if run.state is EngineState.AWAITING_APPROVAL:
-            return run
-        run.advance()
-    raise AssertionError("the fake never asked for approval")
-
-
-def approve(run: FakeRun) -> None:
-    run.send(Command(CommandKind.APPROVE, "script"))
+@contextlib.asynccontextmanager
+async def attached(source: RunSource, size: tuple[int, int]) -> AsyncIterator[tuple[ConsoleApp, Pilot[None]]]:
+    """A console on ``source``, settled on what the run shows now; the source is closed on the way out."""
+    app = make_app(source)
+    try:
+        async with app.run_test(size=size) as pilot:
+            await settle(pilot)
+            yield app, pilot
+    finally:
+        if isinstance(source, JournalSource):
+            source.close()
 
 
 def footer_keys(app: ConsoleApp) -> set[str]:
@@ -40,263 +54,270 @@ def footer_keys(app: ConsoleApp) -> set[str]:
     return {b.binding.action for b in app.screen.active_bindings.values() if b.binding.show}
 
 
+def shown(app: ConsoleApp) -> RunSnapshot:
+    assert app.snapshot is not None
+    return app.snapshot
+
+
+def commands(run: LiveRun) -> list[dict[str, Any]]:
+    """The operator commands the engine received, with what it made of them."""
+    return [
+        dict(c, payload=json.loads(c["payload_json"]), scores=json.loads(c["shown_scores_json"]))
+        for c in run.commands()
+    ]
+
+
+def past_the_seeds(run: LiveRun) -> RunSnapshot:
+    """Approve the two seed grids; return the first planned global jump waiting for the operator."""
+    while True:
+        snap = run.until_awaiting()
+        if snap.pending is not None and snap.pending.phase != "seed":
+            return snap
+        run.send(Command(CommandKind.APPROVE, "script"))
+        run.finish_block()
+
+
+def running_block(run: LiveRun) -> RunSnapshot:
+    """Auto supervision, a block under way (a few of its indents done)."""
+    run.advance(3)
+    snap = run.snapshot()
+    assert snap.state is EngineState.RUNNING and snap.current_block is not None
+    return snap
+
+
 @pytest.mark.parametrize("size", SIZES)
-async def test_approve_runs_the_proposed_block(size: tuple[int, int]) -> None:
-    run = awaiting(FakeRun(seed=1))
-    proposed = run.pending
-    assert proposed is not None
-    app = make_app(run)
-    async with app.run_test(size=size) as pilot:
-        await settle(pilot)
-        assert app.snapshot is not None and app.snapshot.state is EngineState.AWAITING_APPROVAL
+async def test_approve_runs_the_proposed_block(live_run: LiveRunFactory, size: tuple[int, int]) -> None:
+    run = live_run()
+    proposed = run.snapshot().pending
+    assert proposed is not None and proposed.is_global_jump
+    async with attached(run.source(), size) as (app, pilot):
+        assert shown(app).state is EngineState.AWAITING_APPROVAL
         assert {"approve", "veto", "pause"} <= footer_keys(app)
         assert "resume" not in footer_keys(app)
         await pilot.press("a")
-        await wait_until(pilot, lambda: len(run.commands) == 1, what="approve reaches the run")
-        cmd = run.commands[0]
-        assert cmd.kind is CommandKind.APPROVE and cmd.author == "tester"
-        assert cmd.payload["block_id"] == proposed.block.block_id
-        assert cmd.shown_scores["score"] == pytest.approx(proposed.score)
+        await wait_until(pilot, lambda: shown(app).state is EngineState.RUNNING, what="block approved")
+        [cmd] = commands(run)
+        assert cmd["kind"] == "approve" and cmd["author"] == "tester" and cmd["outcome"] == "accepted"
+        assert cmd["payload"]["block_id"] == proposed.block.block_id
+        assert cmd["scores"]["predicted_cost_s"] == pytest.approx(proposed.predicted_cost_s)
         await settle(pilot)
-        assert app.snapshot.state is EngineState.RUNNING
-        assert app.snapshot.current_block == proposed.block
+        assert shown(app).current_block == proposed.block
         assert "approve" not in footer_keys(app)
-        run.advance(1)
+        assert run.finish_block() == proposed.block.n_indents
         await settle(pilot)
-        first = app.snapshot.tested[0]
+        first = shown(app).tested[0]
         assert (first.x_um, first.y_um) == (proposed.block.center_x_um, proposed.block.center_y_um)
+        assert shown(app).n_indents == proposed.block.n_indents
+        assert shown(app).ledger["indent"] > 0
 
 
-async def test_veto_offers_the_next_best() -> None:
-    run = awaiting(FakeRun(seed=2))
-    first = run.pending
-    assert first is not None
-    expected_next = first.alternatives[0]
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_veto_offers_the_next_best(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    first = past_the_seeds(run).pending
+    assert first is not None and first.alternatives
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         await pilot.press("v")
-        await wait_until(
-            pilot, lambda: run.commands and run.commands[-1].kind is CommandKind.VETO, what="veto sent"
-        )
+        await wait_until(pilot, lambda: commands(run)[-1]["processed"] == 1, what="veto processed")
         await settle(pilot)
-        new = app.snapshot.pending
-        assert new is not None and new != first
-        assert (new.block.center_x_um, new.block.center_y_um) == (
-            expected_next.center_x_um,
-            expected_next.center_y_um,
-        )
-        assert app.snapshot.state is EngineState.AWAITING_APPROVAL
-        # the decision panel and the map's "next" marker follow the new proposal
+        veto = commands(run)[-1]
+        assert veto["kind"] == "veto" and veto["outcome"] == "accepted"
+        assert veto["payload"]["center_um"] == [first.block.center_x_um, first.block.center_y_um]
+        # the planner offers its next best for the same block: a jump to wait for, or a stay that runs
+        snap = shown(app)
+        new = snap.pending if snap.pending is not None else snap.last_decision
+        assert new is not None and new.block.block_id == first.block.block_id
+        centre = (new.block.center_x_um, new.block.center_y_um)
+        assert centre != (first.block.center_x_um, first.block.center_y_um)
+        # the decision panel follows the new proposal
         text = widget_text(app.query_one("#decision"))
-        assert f"({new.block.center_x_um:.0f}, {new.block.center_y_um:.0f})" in text
-        assert run.commands[-1].payload["center_um"] == [first.block.center_x_um, first.block.center_y_um]
+        assert f"({centre[0]:.0f}, {centre[1]:.0f})" in text
 
 
-async def test_adjust_target_sem_makes_later_grids_larger() -> None:
-    run = awaiting(FakeRun(seed=0))
-    assert run.pending is not None and run.pending.block.grid_g == 2
-    app = make_app(run)
-    async with app.run_test(size=(80, 24)) as pilot:
-        await settle(pilot)
+async def test_adjust_validates_like_the_engine_and_changes_later_blocks(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    waiting = past_the_seeds(run).pending
+    assert waiting is not None and waiting.block.hold_s == 80.0
+    async with attached(run.source(), (80, 24)) as (app, pilot):
         await pilot.press("e")
         await wait_until(pilot, lambda: isinstance(app.screen, AdjustScreen), what="adjust form")
         form = app.screen
-        sem = form.query_one("#f-target_sem_gpa")
-        sem.value = "-1"  # invalid: refused with a message, nothing sent
+        error = form.query_one("#adjust-error")
+        edge = form.query_one("#f-edge_penalty")
+        hold = form.query_one("#f-fixed_hold_s")
+        edge.value = "0.99"  # the engine allows 0 to 0.95: refused here, nothing sent
         await pilot.press("enter")
         await pilot.pause()
         assert isinstance(app.screen, AdjustScreen)
-        assert "target SEM" in widget_text(form.query_one("#adjust-error"))
-        sem.value = "0.015"
+        assert "edge penalty" in widget_text(error) and "0.95" in widget_text(error)
+        edge.value = "0.3"
+        hold.value = "60"  # not one of the profile's holds
+        await pilot.pause()
+        assert "fixed hold" in widget_text(error) and "0, 5, 80" in " ".join(widget_text(error).split())
+        hold.value = "5"
         await pilot.press("enter")
         await wait_until(pilot, lambda: not isinstance(app.screen, AdjustScreen), what="form closes")
         await wait_until(
-            pilot, lambda: any(c.kind is CommandKind.ADJUST for c in run.commands), what="adjust sent"
+            pilot, lambda: shown(app).settings.fixed_hold_s == 5.0, what="the engine took the adjust"
         )
-        adjust = next(c for c in run.commands if c.kind is CommandKind.ADJUST)
-        assert adjust.payload == {"target_sem_gpa": 0.015}
+        adjust = commands(run)[-1]
+        assert adjust["kind"] == "adjust" and adjust["outcome"] == "accepted"
+        assert adjust["payload"] == {"edge_penalty": 0.3, "fixed_hold_s": 5.0}
         await settle(pilot)
-        assert app.snapshot.settings.target_sem_gpa == 0.015
-        # like the engine, the proposal already made keeps its grid; the change applies from the next one
-        assert app.snapshot.pending is not None and app.snapshot.pending.block.grid_g == 2
+        # the proposal already made keeps its hold; the change applies from the next decision
+        assert shown(app).pending == waiting
         await pilot.press("a")
-        await wait_until(pilot, lambda: run.commands[-1].kind is CommandKind.APPROVE, what="approve sent")
-        for _ in range(40):
-            run.advance()
-            if run.state is EngineState.AWAITING_APPROVAL:
-                approve(run)
+        await wait_until(pilot, lambda: shown(app).state is EngineState.RUNNING, what="approved")
+        run.finish_block()
         await settle(pilot)
-        assert len(app.snapshot.tested) >= 4
-        later = [c.kind for c in run.commands]
-        assert later.count(CommandKind.APPROVE) >= 2
-        grids = [q.grid_g for q in app.snapshot.queue] + [app.snapshot.last_decision.block.grid_g]
-        assert min(grids) >= 3  # σ_noise / 0.015 GPa ≥ 3 everywhere on the ternary library
-        queue_text = widget_text(app.query_one("#queue"))
-        assert f"  {grids[0]}  " in queue_text
+        snap = shown(app)
+        later = snap.pending if snap.pending is not None else snap.last_decision
+        assert later is not None and later.block.block_id == waiting.block.block_id + 1
+        assert later.block.hold_s == 5.0
+        assert " 5 s hold" in widget_text(app.query_one("#decision"))
 
 
-async def test_pause_and_resume() -> None:
-    run = FakeRun(supervision="auto", seed=3)
-    run.advance(3)
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_pause_and_resume(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
+    running_block(run)
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         assert "pause" in footer_keys(app) and "resume" not in footer_keys(app)
         await pilot.press("space")
-        await wait_until(
-            pilot, lambda: run.state in (EngineState.PAUSING, EngineState.PAUSED), what="pause applied"
-        )
-        run.advance(5)  # the running block finishes, then the engine holds
+        await wait_until(pilot, lambda: len(run.commands()) == 1, what="pause queued")
+        held = run.advance(1)  # the engine sees the pause after the indent under way
+        assert held == 1
+        await wait_until(pilot, lambda: shown(app).state is EngineState.PAUSED, what="paused")
         await settle(pilot)
-        assert app.snapshot.state is EngineState.PAUSED
         assert "resume" in footer_keys(app) and "pause" not in footer_keys(app)
         assert "PAUSED" in widget_text(app.query_one("#status"))
-        held = app.snapshot.n_indents
-        run.advance(5)
+        n = shown(app).n_indents
+        assert run.advance(5) == 0  # nothing runs while paused
         await settle(pilot)
-        assert app.snapshot.n_indents == held  # nothing runs while paused
+        assert shown(app).n_indents == n
         await pilot.press("space")
-        await wait_until(pilot, lambda: run.state is EngineState.RUNNING, what="resume applied")
-        run.advance(5)
+        await wait_until(pilot, lambda: shown(app).state is EngineState.RUNNING, what="resumed")
+        assert run.advance(5) == 5
         await settle(pilot)
-        assert app.snapshot.n_indents > held
+        assert shown(app).n_indents == n + 5
+        assert [c["kind"] for c in commands(run)] == ["pause", "resume"]
 
 
-async def test_step_mode_runs_one_block_at_a_time() -> None:
-    run = awaiting(FakeRun(supervision="supervised", seed=4))
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_step_mode_runs_one_block_at_a_time(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         assert "step" in footer_keys(app)
-        blocks_before = len(run.tested)
         await pilot.press("s")
         await wait_until(
-            pilot, lambda: run.supervision == "step" and run.state is EngineState.RUNNING, what="step"
+            pilot,
+            lambda: shown(app).supervision == "step" and shown(app).state is EngineState.RUNNING,
+            what="step",
         )
-        kinds = [c.kind for c in run.commands]
-        assert kinds == [CommandKind.ADJUST, CommandKind.STEP]
-        assert run.commands[0].payload == {"supervision": "step"}
-        run.advance(20)  # however long we wait, exactly one block runs
+        sent = commands(run)
+        assert [c["kind"] for c in sent] == ["adjust", "step"]
+        assert sent[0]["payload"] == {"supervision": "step"}
+        assert all(c["outcome"] == "accepted" for c in sent)
+        run.advance(200)  # however many indents it may run, exactly one block runs
         await settle(pilot)
-        assert len(run.tested) == blocks_before + 1
-        assert app.snapshot.state is EngineState.AWAITING_APPROVAL and app.snapshot.supervision == "step"
+        assert shown(app).n_blocks == 1
+        assert shown(app).state is EngineState.AWAITING_APPROVAL and shown(app).supervision == "step"
         await pilot.press("s")
-        await wait_until(pilot, lambda: run.state is EngineState.RUNNING, what="second step")
-        assert run.commands[-1].kind is CommandKind.STEP and len(run.commands) == 3  # no second adjust
-        run.advance(20)
+        await wait_until(pilot, lambda: shown(app).state is EngineState.RUNNING, what="second step")
+        assert [c["kind"] for c in commands(run)] == ["adjust", "step", "step"]  # no second adjust
+        run.advance(200)
         await settle(pilot)
-        assert len(run.tested) == blocks_before + 2
+        assert shown(app).n_blocks == 2 and shown(app).state is EngineState.AWAITING_APPROVAL
 
 
-async def test_collapse_alarm_waits_for_the_operator() -> None:
-    run = FakeRun(supervision="supervised", seed=5, collapse_at_block=1)
-    for _ in range(100):  # approve global jumps until the alarm fires
-        awaiting(run)
-        if run.collapse:
-            break
-        approve(run)
-    assert run.collapse and run.state is EngineState.AWAITING_APPROVAL
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
-        assert "COLLAPSE" in widget_text(app.query_one("#status"))
-        decision = app.query_one("#decision")
-        assert decision.has_class("-alarm")
-        assert "length-scale collapse" in widget_text(decision)
-        n = len(run.tested)
-        run.advance(10)  # the engine does not go on by itself
-        assert len(run.tested) == n
-        await pilot.press("a")
-        await wait_until(pilot, lambda: not run.collapse, what="alarm acknowledged")
-        run.advance(3)
-        await settle(pilot)
-        assert not app.snapshot.gp.collapse_alarm
-        assert "COLLAPSE" not in widget_text(app.query_one("#status"))
-        assert not decision.has_class("-alarm")
-
-
-async def test_abort_asks_first_and_stop_after_block() -> None:
-    run = FakeRun(supervision="auto", seed=6)
-    run.advance(1)  # a block is running
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_stop_after_block(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
+    block = running_block(run).current_block
+    assert block is not None
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         await pilot.press("x")
         await wait_until(pilot, lambda: isinstance(app.screen, ConfirmScreen), what="confirm")
-        await pilot.press("n")
+        await pilot.press("n")  # abort asks first; "no" sends nothing
         await pilot.pause()
-        assert not isinstance(app.screen, ConfirmScreen) and run.commands == []
+        assert not isinstance(app.screen, ConfirmScreen) and run.commands() == []
         await pilot.press("b")
-        await wait_until(pilot, lambda: run.state is EngineState.STOPPING, what="stop after block")
+        await wait_until(pilot, lambda: len(run.commands()) == 1, what="stop-after-block queued")
+        run.advance(1)
         await settle(pilot)
-        assert "STOPPING" in widget_text(app.query_one("#status"))
-        run.advance(5)
+        assert commands(run)[0]["reason"] == "stopping after the current block"
+        run.advance(200)  # the running block finishes; no other starts
+        await wait_until(pilot, lambda: shown(app).finished, what="the run stops")
         await settle(pilot)
-        assert len(run.tested) == 1  # the running block finished, no other started
-        assert app.snapshot.finished and app.snapshot.state is EngineState.STOPPED
+        assert shown(app).state is EngineState.STOPPED and shown(app).n_blocks == 1
+        assert shown(app).n_indents == block.n_indents
+        assert "STOPPED" in widget_text(app.query_one("#status"))
         assert not (
             footer_keys(app) & {"pause", "approve", "veto", "adjust", "abort", "step", "stop_after_block"}
         )
 
 
-async def test_abort_confirmed() -> None:
-    run = FakeRun(supervision="auto", seed=6)
-    run.advance(2)
-    app = make_app(run)
-    async with app.run_test(size=(80, 24)) as pilot:
-        await settle(pilot)
+async def test_abort_confirmed_stops_after_the_indent(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
+    done = running_block(run).n_indents
+    async with attached(run.source(), (80, 24)) as (app, pilot):
         await pilot.press("x")
         await wait_until(pilot, lambda: isinstance(app.screen, ConfirmScreen), what="confirm")
         await pilot.press("y")
-        await wait_until(pilot, lambda: run.finished, what="abort applied")
-        assert [c.kind for c in run.commands] == [CommandKind.ABORT]
-
-
-async def test_leaving_does_not_stop_the_run() -> None:
-    run = FakeRun(supervision="auto", seed=7)
-    run.advance(2)
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
+        await wait_until(pilot, lambda: len(run.commands()) == 1, what="abort queued")
+        assert run.advance(5) == 1  # the indent under way finishes, then the tip lifts and the run stops
+        await wait_until(pilot, lambda: shown(app).finished, what="the run stops")
         await settle(pilot)
+        assert shown(app).state is EngineState.STOPPED and shown(app).n_indents == done + 1
+        [abort] = commands(run)
+        assert abort["kind"] == "abort" and abort["outcome"] == "accepted"
+        assert any("aborted by tester" in e.text for e in shown(app).log)
+
+
+async def test_detach_and_reattach(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    proposed = run.snapshot().pending
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         await pilot.press("q")
         await pilot.pause()
-    assert run.commands == [] and run.state is EngineState.RUNNING
     assert app.feed is not None and app.feed.stopped
+    # leaving did not stop the run: it still waits for the operator, with nothing sent
+    assert run.commands() == [] and not run.ended
+    assert run.snapshot().state is EngineState.AWAITING_APPROVAL and run.snapshot().pending == proposed
+    async with attached(run.source(), (100, 30)) as (again, pilot):
+        assert shown(again).pending == proposed and shown(again).can_command
+        await pilot.press("a")
+        await wait_until(pilot, lambda: shown(again).state is EngineState.RUNNING, what="approved")
+    assert [c["author"] for c in commands(run)] == ["tester"]
 
 
-async def test_read_only_viewer_gets_no_command_keys() -> None:
-    run = awaiting(FakeRun(seed=8, can_command=False))
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_read_only_viewer_gets_no_command_keys(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    viewer = run.source(reader_user=2_000_000_000)  # a uid that does not own the journal
+    async with attached(viewer, (100, 30)) as (app, pilot):
         keys = footer_keys(app)
         assert not keys & {"approve", "veto", "pause", "adjust", "abort"}
         assert {"cycle_map", "help", "leave"} <= keys
         assert "read-only" in widget_text(app.query_one("#status"))
         await pilot.press("a")
         await pilot.pause()
-        assert run.commands == []
+        assert run.commands() == []
 
 
-async def test_a_refused_command_is_shown_not_fatal() -> None:
-    run = awaiting(FakeRun(seed=9))
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
-        run.can_command = False  # ownership changed behind the console's back
+async def test_a_refused_command_is_shown_not_fatal(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    async with attached(run.source(), (100, 30)) as (app, pilot):
+        assert app.feed is not None
+        app.feed.stop()  # the view goes stale (a slow link) while the run ends behind it
+        run.close()
         await pilot.press("a")
-        await wait_until(pilot, lambda: app.inflight is None and app.sent, what="refusal handled")
+        await wait_until(pilot, lambda: app.inflight is None and bool(app.sent), what="refusal handled")
         await pilot.pause(0.05)
         log_text = " ".join(" ".join(str(line.text) for line in app.query_one("#log").lines).split())
-        assert "approve refused" in log_text and "does not own" in log_text
+        assert "approve refused" in log_text and "no engine is running" in log_text
 
 
-async def test_map_cycles_fields_and_redraws_off_the_ui_thread() -> None:
-    run = run_fake(6, seed=10)
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_map_cycles_fields_and_redraws_off_the_ui_thread(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
+    for _ in range(3):
+        run.finish_block()
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         panel = app.query_one(MapPanel)
         assert "mean hardness" in str(panel.border_title)
         first = app.query_one(HeatmapView).image
@@ -305,7 +326,9 @@ async def test_map_cycles_fields_and_redraws_off_the_ui_thread() -> None:
         for _ in range(4):
             await pilot.press("m")
             await settle(pilot)
-            seen.append(app.query_one(HeatmapView).image.field_key)
+            image = app.query_one(HeatmapView).image
+            assert image is not None
+            seen.append(image.field_key)
         assert seen == ["epistemic", "noise", "total", "mean"]
         assert "mean hardness" in str(panel.border_title)
         assert panel.builds >= 5
@@ -314,65 +337,84 @@ async def test_map_cycles_fields_and_redraws_off_the_ui_thread() -> None:
         assert plain.count("◉") == 1
 
 
-async def test_command_palette_lists_only_valid_commands() -> None:
-    run = awaiting(FakeRun(seed=11))
-    app = make_app(run)
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+async def test_command_palette_lists_only_valid_commands(live_run: LiveRunFactory) -> None:
+    run = live_run()
+    async with attached(run.source(), (100, 30)) as (app, pilot):
         titles = [c.title for c in app.get_system_commands(app.screen)]
         assert "Approve the proposal" in titles and "Veto the proposal" in titles
         assert "Resume the run" not in titles and "Replay: next block" not in titles
-
-
-async def test_help_screen_opens_and_closes() -> None:
-    run = run_fake(2, seed=12)
-    app = make_app(run)
-    async with app.run_test(size=(80, 24)) as pilot:
-        await settle(pilot)
         await pilot.press("question_mark")
         await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
         await pilot.press("escape")
         await wait_until(pilot, lambda: not isinstance(app.screen, HelpScreen), what="help closed")
 
 
-async def test_replay_steps_forward_and_back() -> None:
-    run = run_fake(5, seed=13)
-    assert run.n_blocks() == 5
-    app = make_app(run, replay=True)
+async def test_replay_steps_forward_and_back(live_run: LiveRunFactory) -> None:
+    run = live_run(supervision="auto")
+    for _ in range(4):
+        run.finish_block()
+    run.close()  # the run ends; replay reads the finished journal
+    replay = run.replay()
+    app = make_app(replay, replay=True)
     async with app.run_test(size=(100, 30)) as pilot:
-        await wait_until(
-            pilot, lambda: app.replay_count == 5 and app.snapshot is not None, what="replay loaded"
-        )
+        await wait_until(pilot, lambda: app.replay_count == 4 and app.snapshot is not None, what="replay")
         await settle(pilot)
-        assert app.replay_index == 4 and app.snapshot.n_blocks == 5
+        assert app.replay_index == 3 and shown(app).n_blocks == 4
         assert "replay_next" not in footer_keys(app) and "replay_prev" in footer_keys(app)
         assert not footer_keys(app) & {"approve", "pause", "adjust"}
         await pilot.press("left")
         await pilot.press("left")
-        await wait_until(pilot, lambda: app.snapshot.n_blocks == 3, what="two blocks back")
+        await wait_until(pilot, lambda: shown(app).n_blocks == 2, what="two blocks back")
         await settle(pilot)
-        assert app.replay_index == 2
-        assert len(app.snapshot.tested) == 3
-        assert app.query_one(MapPanel).fields.snapshot_id == 3
-        assert "REPLAY 3/5" in widget_text(app.query_one("#status"))
+        assert app.replay_index == 1 and len(shown(app).tested) == 2
+        fields = app.query_one(MapPanel).fields
+        assert fields is not None and fields.snapshot_id == shown(app).gp.snapshot_id
+        assert "REPLAY 2/4" in widget_text(app.query_one("#status"))
         await pilot.press("home")
-        await wait_until(pilot, lambda: app.snapshot.n_blocks == 1, what="first block")
+        await wait_until(pilot, lambda: shown(app).n_blocks == 1, what="first block")
         assert "replay_prev" not in footer_keys(app)
         await pilot.press("right")
-        await wait_until(pilot, lambda: app.snapshot.n_blocks == 2, what="one forward")
+        await wait_until(pilot, lambda: shown(app).n_blocks == 2, what="one forward")
         await pilot.press("end")
-        await wait_until(pilot, lambda: app.snapshot.n_blocks == 5, what="last block")
-        assert run.commands == []
+        await wait_until(pilot, lambda: shown(app).n_blocks == 4, what="last block")
+        assert run.commands() == []
+    replay.close()
 
 
-async def test_no_color_map_stays_legible(monkeypatch: pytest.MonkeyPatch) -> None:
+async def test_no_color_map_stays_legible(live_run: LiveRunFactory, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("NO_COLOR", "1")
-    run = run_fake(4, seed=14)
-    app = make_app(run)
-    assert app.no_color
-    async with app.run_test(size=(100, 30)) as pilot:
-        await settle(pilot)
+    run = live_run(supervision="auto")
+    for _ in range(3):
+        run.finish_block()
+    async with attached(run.source(), (100, 30)) as (app, _):
+        assert app.no_color
         plain = app.query_one(HeatmapView)._text.plain
         # shading characters carry the levels, letters carry the markers
         assert sum(plain.count(c) for c in "░▒▓") > 50
         assert "@" in plain and "█" in plain
+
+
+async def test_collapse_alarm_is_shown_until_acknowledged(live_run: LiveRunFactory) -> None:
+    """Rendering only: a run of the real engine, its snapshot given a length-scale collapse alarm."""
+    run = live_run(supervision="auto")
+    for _ in range(3):
+        run.finish_block()
+    source = run.source()
+    real = source.snapshot()
+    assert real.gp.snapshot_id is not None and real.last_decision is not None
+    alarm = replace(
+        real,
+        state=EngineState.AWAITING_APPROVAL,
+        pending=real.last_decision,
+        gp=replace(real.gp, collapse_alarm=True, collapse_reason="ℓx 12 µm < floor 20 µm"),
+    )
+    canned = CannedSource(alarm, source.map_fields(real.gp.snapshot_id))
+    source.close()
+    async with attached(canned, (100, 30)) as (app, pilot):
+        assert "COLLAPSE" in widget_text(app.query_one("#status"))
+        decision = app.query_one("#decision")
+        assert decision.has_class("-alarm")
+        assert "length-scale collapse" in widget_text(decision) and "12 µm" in widget_text(decision)
+        await pilot.press("a")
+        await wait_until(pilot, lambda: bool(canned.sent), what="approve sent")
+        assert canned.sent[0].kind is CommandKind.APPROVE

@@ -1,21 +1,26 @@
-"""SVG snapshots of the main screens (pytest-textual-snapshot), from fixed fake data and a fixed clock.
+"""SVG snapshots of the main screens (pytest-textual-snapshot), from the real engine and a fixed clock.
 
-Update after an intended change of the look: pytest tests/test_console_snapshots.py --snapshot-update
+Each run is ``aeni_console.testing.LiveRun`` (the real engine, a seeded emulator, the journal's wall
+clock tied to the instrument clock), so the screens repeat exactly. Update after an intended change of
+the look: pytest tests/test_console_snapshots.py --snapshot-update
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 
 from aeni_console.app import ConsoleApp
-from aeni_console.fake import FakeRun, run_fake
-from aeni_console.testing import settle, wait_until
+from aeni_console.feed import RunSource
+from aeni_console.testing import LiveRun, settle, wait_until
 from aeni_console.widgets.adjust import AdjustScreen
 from aeni_console.widgets.help import HelpScreen
-from core.runview import Command, CommandKind, EngineState
+from core.runview import Command, CommandKind
+
+LiveRunFactory = Callable[..., LiveRun]
 
 
 @pytest.fixture(autouse=True)
@@ -28,23 +33,25 @@ def utc(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     time.tzset()
 
 
-def waiting_run() -> FakeRun:
-    """Supervised fake: seven blocks done, a global jump waiting for approval."""
-    run = FakeRun(seed=0)
-    for _ in range(400):
-        if run.state is EngineState.AWAITING_APPROVAL:
-            if len(run.tested) >= 7:
-                break
-            run.send(Command(CommandKind.APPROVE, "operator"))
-        run.advance()
-    assert run.state is EngineState.AWAITING_APPROVAL
+def waiting_run(live_run: LiveRunFactory) -> LiveRun:
+    """Supervised: the operator approved every jump until seven blocks were done; a global jump waits."""
+    run = live_run()
+    while run.until_awaiting().n_blocks < 7:
+        run.send(Command(CommandKind.APPROVE, "operator"))
     return run
 
 
-def console(run: FakeRun, **kw: object) -> ConsoleApp:
+def auto_run(live_run: LiveRunFactory, blocks: int) -> LiveRun:
+    run = live_run(supervision="auto")
+    for _ in range(blocks):
+        run.finish_block()
+    return run
+
+
+def console(source: RunSource, **kw: Any) -> ConsoleApp:
     return ConsoleApp(
-        run, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="operator", cursor_blink=False, **kw
-    )  # type: ignore[arg-type]
+        source, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="operator", cursor_blink=False, **kw
+    )
 
 
 async def ready(pilot) -> None:  # type: ignore[no-untyped-def]
@@ -58,27 +65,29 @@ async def ready(pilot) -> None:  # type: ignore[no-untyped-def]
     await pilot.pause()
 
 
-def test_awaiting_approval_100x30(snap_compare) -> None:  # type: ignore[no-untyped-def]
-    assert snap_compare(console(waiting_run()), terminal_size=(100, 30), run_before=ready)
+def test_awaiting_approval_100x30(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
+    source = waiting_run(live_run).source()
+    assert snap_compare(console(source), terminal_size=(100, 30), run_before=ready)
 
 
-def test_awaiting_approval_80x24(snap_compare) -> None:  # type: ignore[no-untyped-def]
-    assert snap_compare(console(waiting_run()), terminal_size=(80, 24), run_before=ready)
+def test_awaiting_approval_80x24(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
+    source = waiting_run(live_run).source()
+    assert snap_compare(console(source), terminal_size=(80, 24), run_before=ready)
 
 
-def test_running_epistemic_map(snap_compare) -> None:  # type: ignore[no-untyped-def]
-    run = run_fake(9, seed=1)
-    run.advance(1)  # the next block is under way
+def test_running_epistemic_map(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
+    run = auto_run(live_run, 9)
+    run.advance(7)  # the next block is under way
 
     async def before(pilot) -> None:  # type: ignore[no-untyped-def]
         await ready(pilot)
         await pilot.press("m")
         await settle(pilot)
 
-    assert snap_compare(console(run), terminal_size=(100, 30), run_before=before)
+    assert snap_compare(console(run.source()), terminal_size=(100, 30), run_before=before)
 
 
-def test_adjust_form(snap_compare) -> None:  # type: ignore[no-untyped-def]
+def test_adjust_form(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
     async def before(pilot) -> None:  # type: ignore[no-untyped-def]
         await ready(pilot)
         await pilot.press("e")
@@ -87,21 +96,24 @@ def test_adjust_form(snap_compare) -> None:  # type: ignore[no-untyped-def]
         pilot.app.screen.validate_form()
         await pilot.pause()
 
-    assert snap_compare(console(waiting_run()), terminal_size=(100, 30), run_before=before)
+    source = waiting_run(live_run).source()
+    assert snap_compare(console(source), terminal_size=(100, 30), run_before=before)
 
 
-def test_help(snap_compare) -> None:  # type: ignore[no-untyped-def]
+def test_help(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
     async def before(pilot) -> None:  # type: ignore[no-untyped-def]
         await ready(pilot)
         await pilot.press("question_mark")
         await wait_until(pilot, lambda: isinstance(pilot.app.screen, HelpScreen), what="help")
         await pilot.pause()
 
-    assert snap_compare(console(waiting_run()), terminal_size=(100, 30), run_before=before)
+    source = waiting_run(live_run).source()
+    assert snap_compare(console(source), terminal_size=(100, 30), run_before=before)
 
 
-def test_replay(snap_compare) -> None:  # type: ignore[no-untyped-def]
-    run = run_fake(6, seed=2)
+def test_replay(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
+    run = auto_run(live_run, 6)
+    run.close()  # the run has ended; replay reads its journal
 
     async def before(pilot) -> None:  # type: ignore[no-untyped-def]
         await ready(pilot)
@@ -109,4 +121,4 @@ def test_replay(snap_compare) -> None:  # type: ignore[no-untyped-def]
         await wait_until(pilot, lambda: pilot.app.snapshot.n_blocks == 5, what="one block back")
         await settle(pilot)
 
-    assert snap_compare(console(run, replay=True), terminal_size=(100, 30), run_before=before)
+    assert snap_compare(console(run.replay(), replay=True), terminal_size=(100, 30), run_before=before)

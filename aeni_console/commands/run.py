@@ -132,6 +132,26 @@ def _print(line: str) -> None:
     print(line, flush=True)
 
 
+def create_run_journal(
+    path: Path, config: Any, campaign: Any, supervision: str, driver: str = "sim", speed: float | None = None
+) -> Any:
+    """A new journal for ``campaign``'s run (the engine process, and the console tests' engine)."""
+    from core.journal import Journal
+
+    return Journal.create(
+        path,
+        config,
+        campaign.profile,
+        campaign.calibration.to_dict(),
+        supervision=supervision,
+        driver=driver,
+        speed=speed,
+        grid_baseline_s=campaign.grid_baseline_s,
+        stage_bounds_um=campaign.stage_bounds_um,
+        name=config.name,
+    )
+
+
 def run_engine(
     journal_path: str | Path,
     *,
@@ -151,17 +171,8 @@ def run_engine(
     if create is not None:
         config, options = create
         campaign = Campaign(config)
-        journal = Journal.create(
-            path,
-            config,
-            campaign.profile,
-            campaign.calibration.to_dict(),
-            supervision=options.supervision,
-            driver=options.driver,
-            speed=options.speed,
-            grid_baseline_s=campaign.grid_baseline_s,
-            stage_bounds_um=campaign.stage_bounds_um,
-            name=config.name,
+        journal = create_run_journal(
+            path, config, campaign, options.supervision, options.driver, options.speed
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
     else:

@@ -1,8 +1,13 @@
-"""The adjust form: edit the planner's settings with validation before anything reaches the engine."""
+"""The adjust form: edit the planner's settings, checked by the engine's own validator before anything is sent.
+
+Every field goes through ``core.settings.coerce_setting`` with the run's instrument holds, so the form
+refuses exactly what the engine would refuse (one rule set, in ``core/settings.py``).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import contextlib
+from collections.abc import Sequence
 from typing import ClassVar
 
 from textual.app import ComposeResult
@@ -11,33 +16,20 @@ from textual.containers import Grid, Horizontal, Vertical
 from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Label, Select, Static
 
+from core.errors import InputError
 from core.plan import PlannerSettings
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    name: str
-    label: str
-    kind: type  # float or int
-    lo: float | None
-    hi: float | None
-    optional: bool = False  # blank means "none" (budgets and targets)
-    lo_open: bool = False  # the lower bound itself is not allowed
-
-
-FIELDS: tuple[FieldSpec, ...] = (
-    FieldSpec("target_sem_gpa", "target SEM (GPa)", float, 0.0, 10.0, lo_open=True),
-    FieldSpec("beta", "UCB β", float, 0.0, 100.0),
-    FieldSpec("fixed_hold_s", "fixed hold (s)", float, 0.0, 600.0),
-    FieldSpec("local_center_limit", "local centres", int, 0, 50),
-    FieldSpec("edge_penalty", "edge penalty", float, 0.0, 1.0),
-    FieldSpec("budget_s", "time budget (s)", float, 0.0, None, optional=True, lo_open=True),
-    FieldSpec("indent_budget", "indent budget", int, 1, None, optional=True),
-    FieldSpec("sigma_target_gpa", "σ target (GPa)", float, 0.0, None, optional=True, lo_open=True),
-    FieldSpec("mape_target_pct", "MAPE target (%)", float, 0.0, 100.0, optional=True, lo_open=True),
+from core.settings import (
+    HOLD_POLICIES,
+    RULE_BY_NAME,
+    RULES,
+    SUPERVISION_MODES,
+    SettingRule,
+    coerce_setting,
+    coerce_supervision,
 )
-HOLD_POLICIES = ("fixed", "adaptive")
-SUPERVISION_MODES = ("auto", "supervised", "step")
+
+# the text inputs, with core's labels, in core's order; the hold policy (a choice) is a Select
+FIELDS: tuple[SettingRule, ...] = tuple(r for r in RULES if r.kind != "choice")
 
 
 def _fmt(value: object) -> str:
@@ -48,25 +40,32 @@ def _fmt(value: object) -> str:
     return str(value)
 
 
-def parse_field(spec: FieldSpec, raw: str) -> tuple[object, str | None]:
-    """(value, error): the text of one input parsed and range-checked."""
-    text = raw.strip()
-    if not text:
-        if spec.optional:
-            return None, None
-        return None, f"{spec.label}: a value is required"
+def _problem(rule: SettingRule, name: str, value: object, holds: Sequence[float] | None) -> str | None:
+    """core's verdict on one value, as the form's message (the label, then what is wrong); None if allowed."""
     try:
-        value: float | int = int(text) if spec.kind is int else float(text)
-    except ValueError:
-        what = "a whole number" if spec.kind is int else "a number"
-        return None, f"{spec.label}: {text!r} is not {what}"
-    if value != value or value in (float("inf"), float("-inf")):
-        return None, f"{spec.label}: {text!r} is not finite"
-    if spec.lo is not None and (value < spec.lo or (spec.lo_open and value == spec.lo)):
-        return None, f"{spec.label}: must be {'>' if spec.lo_open else '≥'} {spec.lo:g}"
-    if spec.hi is not None and value > spec.hi:
-        return None, f"{spec.label}: must be ≤ {spec.hi:g}"
-    return value, None
+        coerce_setting(name, value, holds)
+    except InputError as exc:
+        return f"{rule.label}: {exc.problem}"
+    return None
+
+
+def parse_field(
+    rule: SettingRule, raw: str, allowed_holds_s: Sequence[float] | None = None
+) -> tuple[object, str | None]:
+    """(value, error): the text of one input, checked by the engine's rule for that setting.
+
+    ``allowed_holds_s`` is the run's instrument profile's list (None: not known, any hold ≥ 0).
+    """
+    text = raw.strip()
+    if not text and not rule.optional:
+        return None, f"{rule.label}: a value is required"
+    value: object = text or None
+    with contextlib.suppress(ValueError):
+        value = float(text)  # the message then shows the number as typed, not a quoted string
+    error = _problem(rule, rule.name, value, allowed_holds_s)
+    if error is not None:
+        return None, error
+    return coerce_setting(rule.name, value, allowed_holds_s), None
 
 
 def parse_adjust(
@@ -75,26 +74,32 @@ def parse_adjust(
     current: PlannerSettings,
     supervision: str | None = None,
     current_supervision: str | None = None,
+    allowed_holds_s: Sequence[float] | None = None,
 ) -> tuple[dict[str, object], list[str]]:
     """The changed settings and the errors, from the form's raw texts. Unchanged fields are left out."""
     changes: dict[str, object] = {}
     errors: list[str] = []
-    for spec in FIELDS:
-        value, error = parse_field(spec, values.get(spec.name, _fmt(getattr(current, spec.name))))
+    for rule in FIELDS:
+        raw = values.get(rule.name, _fmt(getattr(current, rule.name)))
+        value, error = parse_field(rule, raw, allowed_holds_s)
         if error:
             errors.append(error)
             continue
-        if value != getattr(current, spec.name):
-            changes[spec.name] = value
-    if hold_policy not in HOLD_POLICIES:
-        errors.append(f"hold policy: {hold_policy!r} is not one of {', '.join(HOLD_POLICIES)}")
+        if value != getattr(current, rule.name):
+            changes[rule.name] = value
+    hold_error = _problem(RULE_BY_NAME["hold_policy"], "hold_policy", hold_policy, allowed_holds_s)
+    if hold_error is not None:
+        errors.append(hold_error)
     elif hold_policy != current.hold_policy:
         changes["hold_policy"] = hold_policy
     if supervision is not None:
-        if supervision not in SUPERVISION_MODES:
-            errors.append(f"supervision: {supervision!r} is not one of {', '.join(SUPERVISION_MODES)}")
-        elif supervision != current_supervision:
-            changes["supervision"] = supervision
+        try:
+            coerce_supervision(supervision)
+        except InputError as exc:
+            errors.append(str(exc))
+        else:
+            if supervision != current_supervision:
+                changes["supervision"] = supervision
     return changes, errors
 
 
@@ -107,24 +112,29 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
     ]
 
     def __init__(
-        self, settings: PlannerSettings, supervision: str = "supervised", cursor_blink: bool = True
+        self,
+        settings: PlannerSettings,
+        supervision: str = "supervised",
+        cursor_blink: bool = True,
+        allowed_holds_s: Sequence[float] | None = None,
     ) -> None:
         super().__init__()
         self.settings = settings
         self.supervision = supervision
         self.cursor_blink = cursor_blink
+        self.allowed_holds_s = allowed_holds_s  # the run's instrument holds (None: not known)
 
     def compose(self) -> ComposeResult:
         with Vertical(id="adjust-dialog"):
             yield Static("Adjust the planner (applies from the next decision)", id="adjust-title")
             with Grid(id="adjust-grid"):
-                for spec in FIELDS:
-                    yield Label(spec.label)
+                for rule in FIELDS:
+                    yield Label(rule.label)
                     yield Input(
-                        _fmt(getattr(self.settings, spec.name)),
-                        id=f"f-{spec.name}",
+                        _fmt(getattr(self.settings, rule.name)),
+                        id=f"f-{rule.name}",
                         compact=True,
-                        placeholder="none" if spec.optional else "",
+                        placeholder="none" if rule.optional else "",
                     )
                 yield Label("hold policy")
                 yield Select(
@@ -153,17 +163,19 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
         self.query_one(f"#f-{FIELDS[0].name}", Input).focus()
 
     def _values(self) -> tuple[dict[str, str], str, str]:
-        values = {spec.name: self.query_one(f"#f-{spec.name}", Input).value for spec in FIELDS}
+        values = {rule.name: self.query_one(f"#f-{rule.name}", Input).value for rule in FIELDS}
         hold = self.query_one("#f-hold_policy", Select).value
         sup = self.query_one("#f-supervision", Select).value
         return values, str(hold), str(sup)
 
     def validate_form(self) -> tuple[dict[str, object], list[str]]:
         values, hold, sup = self._values()
-        changes, errors = parse_adjust(values, hold, self.settings, sup, self.supervision)
+        changes, errors = parse_adjust(
+            values, hold, self.settings, sup, self.supervision, self.allowed_holds_s
+        )
         bad = {e.split(":", 1)[0] for e in errors}
-        for spec in FIELDS:
-            self.query_one(f"#f-{spec.name}", Input).set_class(spec.label in bad, "-invalid")
+        for rule in FIELDS:
+            self.query_one(f"#f-{rule.name}", Input).set_class(rule.label in bad, "-invalid")
         self.query_one("#adjust-error", Static).update(errors[0] if errors else "")
         return changes, errors
 

@@ -163,7 +163,10 @@ class MapPanel(Vertical):
         """Ask for a new picture if anything it depends on changed."""
         if self.snap is None or not self.is_mounted:
             return
-        view = self.query_one(HeatmapView)
+        views = self.query(HeatmapView)
+        if not views:
+            return  # leaving: the view is already unmounted
+        view = views.first()
         width, height = view.size.width, view.size.height
         if width < 8 or height < 5:
             return

@@ -475,4 +475,5 @@ class JournalReader:
             stage_bounds_um=(float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])),
             reverse_x=self.profile.reverse_x,
             finished=finished,
+            allowed_holds_s=self.profile.allowed_holds_s,
         )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import threading
 from collections.abc import AsyncIterator, Callable
 from dataclasses import replace
 from typing import Any
@@ -20,6 +21,7 @@ from aeni_console.app import ConsoleApp
 from aeni_console.feed import RunSource
 from aeni_console.journal_source import JournalSource
 from aeni_console.testing import CannedSource, LiveRun, settle, wait_until, widget_text
+from aeni_console.widgets import mapview
 from aeni_console.widgets.adjust import AdjustScreen
 from aeni_console.widgets.confirm import ConfirmScreen
 from aeni_console.widgets.help import HelpScreen
@@ -313,7 +315,17 @@ async def test_a_refused_command_is_shown_not_fatal(live_run: LiveRunFactory) ->
         assert "approve refused" in log_text and "no engine is running" in log_text
 
 
-async def test_map_cycles_fields_and_redraws_off_the_ui_thread(live_run: LiveRunFactory) -> None:
+async def test_map_cycles_fields_and_redraws_off_the_ui_thread(
+    live_run: LiveRunFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    builders: list[threading.Thread] = []
+    render = mapview.render_heatmap
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        builders.append(threading.current_thread())
+        return render(*args, **kwargs)
+
+    monkeypatch.setattr(mapview, "render_heatmap", spy)
     run = live_run(supervision="auto")
     for _ in range(3):
         run.finish_block()
@@ -335,6 +347,8 @@ async def test_map_cycles_fields_and_redraws_off_the_ui_thread(live_run: LiveRun
         # every tested centre is drawn, the newest with its own marker
         plain = app.query_one(HeatmapView)._text.plain
         assert plain.count("◉") == 1
+    # every picture was built in a worker thread, never on the UI (main) thread
+    assert len(builders) >= 5 and threading.main_thread() not in builders
 
 
 async def test_command_palette_lists_only_valid_commands(live_run: LiveRunFactory) -> None:

@@ -33,7 +33,10 @@ WALL_PER_INSTRUMENT_S = 0.01  # the journal's wall clock runs at a hundredth of 
 
 
 class ManualWallClock:
-    """The journal's wall clock during a test run: it moves with the instrument clock, never by itself."""
+    """The journal's wall clock during a test run: it moves with the instrument clock, never by itself.
+
+    The journal module has one clock at a time: the run started last owns it until it closes.
+    """
 
     def __init__(self, start_unix: float = FIXED_WALL_UNIX) -> None:
         self.start_unix = start_unix

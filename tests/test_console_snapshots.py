@@ -33,12 +33,16 @@ def utc(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     time.tzset()
 
 
-def waiting_run(live_run: LiveRunFactory) -> LiveRun:
-    """Supervised: the operator approved every jump until seven blocks were done; a global jump waits."""
-    run = live_run()
-    while run.until_awaiting().n_blocks < 7:
-        run.send(Command(CommandKind.APPROVE, "operator"))
-    return run
+@pytest.fixture(scope="module")
+def waiting(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveRun]:
+    """Supervised: the operator approved every jump until seven blocks were done; a global jump waits.
+
+    One run for the screens that only look at it (they send no command), so it is built once.
+    """
+    with LiveRun(tmp_path_factory.mktemp("waiting"), name="run0") as run:
+        while run.until_awaiting().n_blocks < 7:
+            run.send(Command(CommandKind.APPROVE, "operator"))
+        yield run
 
 
 def auto_run(live_run: LiveRunFactory, blocks: int) -> LiveRun:
@@ -65,13 +69,13 @@ async def ready(pilot) -> None:  # type: ignore[no-untyped-def]
     await pilot.pause()
 
 
-def test_awaiting_approval_100x30(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
-    source = waiting_run(live_run).source()
+def test_awaiting_approval_100x30(snap_compare, waiting) -> None:  # type: ignore[no-untyped-def]
+    source = waiting.source()
     assert snap_compare(console(source), terminal_size=(100, 30), run_before=ready)
 
 
-def test_awaiting_approval_80x24(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
-    source = waiting_run(live_run).source()
+def test_awaiting_approval_80x24(snap_compare, waiting) -> None:  # type: ignore[no-untyped-def]
+    source = waiting.source()
     assert snap_compare(console(source), terminal_size=(80, 24), run_before=ready)
 
 
@@ -87,7 +91,7 @@ def test_running_epistemic_map(snap_compare, live_run) -> None:  # type: ignore[
     assert snap_compare(console(run.source()), terminal_size=(100, 30), run_before=before)
 
 
-def test_adjust_form(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
+def test_adjust_form(snap_compare, waiting) -> None:  # type: ignore[no-untyped-def]
     async def before(pilot) -> None:  # type: ignore[no-untyped-def]
         await ready(pilot)
         await pilot.press("e")
@@ -96,19 +100,17 @@ def test_adjust_form(snap_compare, live_run) -> None:  # type: ignore[no-untyped
         pilot.app.screen.validate_form()
         await pilot.pause()
 
-    source = waiting_run(live_run).source()
-    assert snap_compare(console(source), terminal_size=(100, 30), run_before=before)
+    assert snap_compare(console(waiting.source()), terminal_size=(100, 30), run_before=before)
 
 
-def test_help(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
+def test_help(snap_compare, waiting) -> None:  # type: ignore[no-untyped-def]
     async def before(pilot) -> None:  # type: ignore[no-untyped-def]
         await ready(pilot)
         await pilot.press("question_mark")
         await wait_until(pilot, lambda: isinstance(pilot.app.screen, HelpScreen), what="help")
         await pilot.pause()
 
-    source = waiting_run(live_run).source()
-    assert snap_compare(console(source), terminal_size=(100, 30), run_before=before)
+    assert snap_compare(console(waiting.source()), terminal_size=(100, 30), run_before=before)
 
 
 def test_replay(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]

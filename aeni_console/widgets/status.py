@@ -77,7 +77,15 @@ class StatusBar(Static):
     StatusBar { height: 1; dock: top; background: $panel; }
     """
 
+    _shown: tuple[RunSnapshot | None, float, tuple[int, int] | None, str] | None = None
+
     def show(
         self, snap: RunSnapshot | None, now_s: float, replay: tuple[int, int] | None = None, note: str = ""
     ) -> None:
+        self._shown = (snap, now_s, replay, note)
         self.update(status_text(snap, now_s, self.size.width or 100, replay, note))
+
+    def on_resize(self) -> None:
+        """The items that fit depend on the width: lay the line out again once it is known or changes."""
+        if self._shown is not None:
+            self.show(*self._shown)

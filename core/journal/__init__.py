@@ -22,7 +22,7 @@ from core.journal.codec import (
     to_json,
     utc_now,
 )
-from core.journal.reader import JournalReader, Queries
+from core.journal.reader import JournalReader, Queries, ReplayView
 from core.journal.schema import (
     SCHEMA_VERSION,
     TERMINAL_STATES,
@@ -44,6 +44,7 @@ __all__ = [
     "JournalReader",
     "NotOwnerError",
     "Queries",
+    "ReplayView",
     "StoredCommand",
     "StoredDecision",
     "block_from_dict",

@@ -10,6 +10,8 @@ import sqlite3
 import statistics
 import time
 from collections.abc import Iterator, Sequence
+from dataclasses import replace
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -165,6 +167,29 @@ class Queries:
             "SELECT MAX(m) FROM (SELECT MAX(block_id) AS m FROM blocks UNION ALL SELECT MAX(block_id) FROM decisions)"
         ).fetchone()
         return -1 if row[0] is None else int(row[0])
+
+
+def drift_status(
+    rate_nm_s: float | None, last: Decision | None, events: tuple[tuple[float, float], ...]
+) -> DriftStatus:
+    """The drift panel's view: the last measured rate, the hold the last decision chose, the events."""
+    hold_mode = "fixed"
+    err = None if rate_nm_s is None else area_error_pct(rate_nm_s)
+    if last is not None:
+        hold_mode = (
+            last.hold_mode
+            if f"{last.block.hold_s:g} s" in last.hold_mode
+            else f"{last.hold_mode} {last.block.hold_s:g} s"
+        )
+        if last.area_error_pct is not None:
+            err = last.area_error_pct
+    return DriftStatus(
+        last_rate_nm_s=rate_nm_s,
+        hold_mode=hold_mode,
+        area_error_pct=err,
+        threshold_pct=AREA_ERROR_THRESHOLD_PCT,
+        events=events[-100:],
+    )
 
 
 class JournalReader:
@@ -355,23 +380,7 @@ class JournalReader:
             "SELECT drift_rate_nm_s FROM indents WHERE drift_rate_nm_s IS NOT NULL ORDER BY rowid DESC LIMIT 1"
         ).fetchone()
         rate = None if row is None else float(row[0])
-        hold_mode = "fixed"
-        err = None if rate is None else area_error_pct(rate)
-        if last is not None:
-            hold_mode = (
-                last.hold_mode
-                if f"{last.block.hold_s:g} s" in last.hold_mode
-                else f"{last.hold_mode} {last.block.hold_s:g} s"
-            )
-            if last.area_error_pct is not None:
-                err = last.area_error_pct
-        return DriftStatus(
-            last_rate_nm_s=rate,
-            hold_mode=hold_mode,
-            area_error_pct=err,
-            threshold_pct=AREA_ERROR_THRESHOLD_PCT,
-            events=tuple(self._drift_events[-100:]),
-        )
+        return drift_status(rate, last, tuple(self._drift_events))
 
     def _queue(
         self, current: Block | None, done: int, nxt: Block | None, pos: tuple[float, float], is_open: bool
@@ -476,4 +485,86 @@ class JournalReader:
             reverse_x=self.profile.reverse_x,
             finished=finished,
             allowed_holds_s=self.profile.allowed_holds_s,
+        )
+
+
+def _wall_seconds(a: str, b: str) -> float:
+    try:
+        start = datetime.fromisoformat(a.replace("Z", "+00:00"))
+        end = datetime.fromisoformat(b.replace("Z", "+00:00"))
+    except ValueError:
+        return 0.0
+    return max((end - start).total_seconds(), 0.0)
+
+
+class ReplayView:
+    """A finished (or running) run as the console showed it just after each observed block: replay.
+
+    Built from one read of the journal's block records, events and final snapshot; ``snapshot_at(i)``
+    rebuilds the view after the i-th observed block with the same rules as :meth:`JournalReader.snapshot`.
+    """
+
+    def __init__(self, reader: JournalReader, reader_user: str | int | None = None) -> None:
+        self.reader = reader
+        self.final = reader.snapshot(reader_user)
+        self.records = reader.blocks()
+        self.events = reader.events()
+        self.observed = [r for r in self.records if r.status == "observed" and r.results]
+
+    def snapshot_at(self, block_index: int) -> RunSnapshot:
+        if not 0 <= block_index < len(self.observed):
+            raise IndexError(f"block index {block_index} is outside 0–{len(self.observed) - 1}")
+        rec = self.observed[block_index]
+        bid = rec.block.block_id
+        upto = [r for r in self.records if r.block.block_id <= bid]
+        ledger = dict.fromkeys(LEDGER_CATEGORIES, 0.0)
+        n_reconf = 0
+        for r in upto:
+            for s in r.steps:
+                ledger[s.category] = ledger.get(s.category, 0.0) + s.seconds
+                n_reconf += s.category == "reconfigure"
+        results = [res for r in upto for res in r.results]
+        t_end = (
+            rec.finished_t_s if rec.finished_t_s is not None else max((x.t_s for x in results), default=0.0)
+        )
+        tested = tuple(
+            TestedCenter(r.block.center_x_um, r.block.center_y_um, r.block.block_id, float(r.median_gpa))
+            for r in self.observed[: block_index + 1]
+            if r.median_gpa is not None  # a block whose indents all failed has no centre value
+        )
+        later = [r for r in self.records if r.block.block_id > bid]
+        nxt: Decision | None = later[0].decision if later else None
+        last_pos = (results[-1].commanded_x_um, results[-1].commanded_y_um) if results else (0.0, 0.0)
+        rates = [(x.t_s, x.drift_rate_nm_s) for x in results if x.measured]
+        events = tuple((t, rate) for t, rate in rates if area_error_pct(rate) >= AREA_ERROR_THRESHOLD_PCT)
+        fs: dict[str, Any] = rec.fit_summary
+        gp = GpStatus(
+            lengthscales_um=tuple(fs.get("lengthscales_um", ()) or ()),
+            noise_lengthscales_um=tuple(fs.get("noise_lengthscales_um", ()) or ()),
+            collapse_alarm=bool(fs.get("collapse_alarm", False)),
+            collapse_reason=str(fs.get("collapse_reason", "")),
+            refit_s=fs.get("refit_s"),
+            snapshot_id=rec.snapshot_id,
+        )
+        log = [e for e in self.events if e.t_s <= t_end + 1e-6]
+        wall_s = _wall_seconds(self.events[0].wall_utc, log[-1].wall_utc) if log else 0.0
+        return replace(
+            self.final,
+            can_command=False,
+            instrument_s=float(t_end),
+            wall_s=wall_s,
+            n_indents=len(results),
+            n_blocks=block_index + 1,
+            reconfigurations=n_reconf,
+            ledger={k: round(v, 6) for k, v in ledger.items()},
+            queue=self.reader._queue(None, 0, nxt.block if nxt else None, last_pos, True),
+            current_block=None,
+            pending=nxt,
+            last_decision=rec.decision,
+            drift=drift_status(rates[-1][1] if rates else None, rec.decision, events),
+            gp=gp,
+            mape_pct=fs.get("mape_pct"),
+            max_found_gpa=fs.get("max_found_gpa"),
+            tested=tested,
+            log=tuple(log[-LOG_TAIL:]),
         )

@@ -192,3 +192,22 @@ def test_the_form_refuses_exactly_what_the_engine_refuses(name: str, text: str) 
         assert error is not None and value is None
     else:
         assert error is None and value == getattr(engine, name)
+
+
+def test_replay_of_the_last_block_shows_what_the_live_console_showed(live_run: LiveRunFactory) -> None:
+    """Replay rebuilds each block's view with the live reader's rules (queue, drift, ledger, map, centres)."""
+    run = live_run(supervision="auto")
+    for _ in range(3):
+        run.finish_block()  # the engine has decided block 3 and waits before its first indent
+    live = run.snapshot()
+    replay = run.replay()
+    assert replay.n_blocks() == 3
+    then = replay.snapshot_at(2)
+    assert then.tested == live.tested and then.n_indents == live.n_indents
+    assert then.ledger == live.ledger and then.instrument_s == pytest.approx(live.instrument_s)
+    assert then.drift == live.drift and then.gp == live.gp
+    assert then.queue == live.queue  # the next block, costed from where the tip stood
+    assert not then.can_command
+    with pytest.raises(IndexError):
+        replay.snapshot_at(3)
+    replay.close()

@@ -176,11 +176,14 @@ class LiveRun:
             from aeni_console.commands.run import create_run_journal
             from core.campaign import Campaign
             from core.engine import Engine
+            from core.interlock import Interlock
+            from drivers.registry import sim_scenario
 
             torch.set_num_threads(1)  # as in the engine process: the same fits on every machine
-            campaign = Campaign(self.config)
+            scenario = sim_scenario(self.config.driver_options, self.config.seed)
+            campaign = Campaign(self.config, scenario.sample)
             journal = create_run_journal(self.path, self.config, campaign, self.supervision)
-            sim = campaign.make_sim_driver()
+            sim = scenario.make_driver(campaign.profile)
             self.driver = SteppedDriver(
                 sim.emulator, sim.profile, start_um=sim.position_um(), gate=self._gate
             )
@@ -194,6 +197,8 @@ class LiveRun:
                 sleep=self._gate.sleep,
                 watch_s=None,
                 map_display_n=self.display_n,
+                interlock=Interlock(campaign.sample, campaign.profile),
+                evaluator=scenario.evaluator(),
             )
         except BaseException as exc:
             self._error = exc

@@ -26,11 +26,13 @@ def main() -> int:
     args = ap.parse_args()
 
     from core.campaign import Campaign, CampaignConfig, run_headless
+    from drivers.sim.scenarios import make_scenario
 
     rows = []
     for seed in range(args.seeds):
-        campaign = Campaign(CampaignConfig(policy=args.policy, seed=seed))
-        driver = campaign.make_sim_driver()
+        scenario = make_scenario("ternary", seed)
+        campaign = Campaign(CampaignConfig(policy=args.policy, seed=seed), scenario.sample)
+        driver = scenario.make_driver(campaign.profile)
         block_walls: list[float] = []
         last = [time.perf_counter()]
 
@@ -40,9 +42,9 @@ def main() -> int:
             mark[0] = now
 
         t0 = time.perf_counter()
-        res = run_headless(campaign, driver, track_mape=False, on_block=on_block)
+        res = run_headless(campaign, driver, on_block=on_block)
         wall = time.perf_counter() - t0
-        mape, _ = campaign.metrics()
+        mape = scenario.evaluator().score(campaign).mape_pct
         rows.append(
             {
                 "seed": seed,

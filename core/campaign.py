@@ -1,8 +1,9 @@
 """The planner loop that an engine (or a headless simulation) drives block by block.
 
-A Campaign owns the model side of a run: scenario, calibration, candidate lattice, surrogate and
-policy. It proposes a block, is told what the instrument measured, refits, and proposes again.
-It never touches an instrument: the driver does that, and the engine moves data between them.
+A Campaign owns the model side of a run: the sample (calibration, exclusions, earlier indents),
+candidate lattice, surrogate and policy. It proposes a block, is told what the instrument measured,
+refits, and proposes again. It never touches an instrument (the driver does that, and the engine
+moves data between them) and never sees a ground truth: map errors are scored outside it.
 """
 
 from __future__ import annotations
@@ -16,18 +17,18 @@ from typing import Any
 
 import numpy as np
 
-from core.cost import CostLedger, grid_baseline_blocks, price_sequence
+from core.cost import CostLedger
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
-from core.emulator import Scenario, make_scenario, truth_on_lattice
 from core.errors import InputError
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency
 from core.geometry import CandidateLattice
-from core.metrics import mape_pct
+from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings
 from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext
 from core.policies.registry import make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
+from core.sample import Sample, grid_baseline_s, sample_from_dict
 from core.settings import adjust_settings, check_holds, settings_from_dict, settings_to_dict
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
@@ -37,29 +38,48 @@ UNGUARDED_FLOOR_UV = 0.001  # 1 µm on the 1000 µm square: a floor in name only
 
 @dataclass(frozen=True)
 class CampaignConfig:
-    """What defines a run; stored in the journal as JSON."""
+    """What defines a run (sample + policy + settings, and the driver's own options); stored in the journal.
+
+    ``sample`` None means "the driver's built-in sample" (a simulated scenario's); the run resolves it
+    before the journal is written, so a journal always holds the sample it ran on. ``driver_options`` are
+    for the driver alone (the simulated instrument's scenario, noise, drift, truth CSV); the campaign
+    never reads them.
+    """
 
     policy: str = "cost-aware"
-    scenario: str = "ternary"
-    noise: str | None = None
-    drift: str | None = None
-    truth_csv: str | None = None
     seed: int = 0
     profile: str | None = None
     lattice_n: int | None = None
     settings: PlannerSettings = field(default_factory=PlannerSettings)
     name: str = "run"
+    sample: Sample | None = None
+    driver_options: dict[str, Any] = field(default_factory=dict)
 
 
 def campaign_config_to_dict(cfg: CampaignConfig) -> dict[str, Any]:
     d = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
     d["settings"] = settings_to_dict(cfg.settings)
+    d["sample"] = None if cfg.sample is None else cfg.sample.to_dict()
+    d["driver_options"] = dict(cfg.driver_options)
     return d
 
 
 def campaign_config_from_dict(data: dict[str, Any]) -> CampaignConfig:
     d = dict(data)
+    if "scenario" in d and "driver_options" not in d:
+        raise InputError(
+            "journal",
+            "written before runs had a sample (campaign config with an emulator scenario); "
+            "this version cannot resume it: start the run again",
+        )
+    known = {f.name for f in dataclasses.fields(CampaignConfig)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InputError("campaign config", f"unknown field(s) {', '.join(unknown)}")
     d["settings"] = settings_from_dict(d.get("settings", {}))
+    if d.get("sample") is not None:
+        d["sample"] = sample_from_dict(d["sample"], "journal sample")
+    d["driver_options"] = dict(d.get("driver_options") or {})
     return CampaignConfig(**d)
 
 
@@ -85,17 +105,25 @@ class _Veto:
 
 
 class Campaign:
-    def __init__(self, config: CampaignConfig, scenario: Scenario | None = None) -> None:
+    def __init__(self, config: CampaignConfig, sample: Sample | None = None) -> None:
+        sample = sample or config.sample
+        if sample is None:
+            raise InputError(
+                "sample", "a campaign needs a sample (a sample file, or a scenario's built-in one)"
+            )
+        if config.sample is not sample:
+            config = dataclasses.replace(config, sample=sample)
         self.config = config
-        self.scenario = scenario or make_scenario(
-            config.scenario, config.seed, noise=config.noise, drift=config.drift, truth_csv=config.truth_csv
-        )
-        self.profile: InstrumentProfile = load_profile(config.profile or self.scenario.profile_name)
-        self.calibration = self.scenario.calibration
-        n = config.lattice_n or self.scenario.lattice_n
+        self.sample: Sample = sample
+        self.profile: InstrumentProfile = load_profile(config.profile or sample.profile)
+        self.calibration = sample.calibration
+        n = config.lattice_n or sample.lattice_n
         if n < 5:
             raise InputError("lattice_n", f"{n} is too small: expected at least 5 candidates per side")
         self.lattice = CandidateLattice.build(self.calibration, n, grid_halfwidth_um=2 * DEFAULT_PITCH_UM)
+        # where a sub-grid may go at all on this sample: off the edge band, the exclusions and the stage limits
+        self.placement_mask = sample.placement_mask(self.lattice.xy_um, 2 * DEFAULT_PITCH_UM)
+        self.placement_mask.flags.writeable = False
         self.policy = make_policy(config.policy)
         features = getattr(self.policy, "features", None)
         self._needs_covariance = getattr(features, "acquisition", None) == "ivr" or bool(
@@ -127,18 +155,13 @@ class Campaign:
         self.vetoes: list[_Veto] = []
         self.prediction: Prediction | None = None
         self._last_fit: FitReport | None = None
-        self._truth_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._max_found: float | None = None
+        self.last_score: MapScore | None = None
         self.last_stop_reason: str | None = None
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
     def grid_baseline_s(self) -> float:
-        x0, x1, y0, y1 = self.calibration.bounds_um
-        blocks = grid_baseline_blocks(
-            x1 - x0, y1 - y0, 9, 5, DEFAULT_PITCH_UM, self.profile.default_hold_s, origin_um=(x0, y0)
-        )
-        return price_sequence(self.profile, blocks).total_s
+        return grid_baseline_s(self.sample, self.profile, DEFAULT_PITCH_UM)
 
     @property
     def stage_bounds_um(self) -> tuple[float, float, float, float]:
@@ -148,12 +171,6 @@ class Campaign:
         """Where the stage starts: the calibrated area's centre under the lens."""
         x0, x1, y0, y1 = self.calibration.bounds_um
         return ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
-
-    def make_sim_driver(self, speed: float | None = None) -> Any:
-        from drivers.sim.driver import SimulatedDriver
-
-        emulator = dataclasses.replace(self.scenario, seed=self.config.seed).make_emulator()
-        return SimulatedDriver(emulator, self.profile, speed=speed, start_um=self.start_position_um())
 
     # -- planning --------------------------------------------------------------------------------
     def _gp_summary(self) -> GPSummary | None:
@@ -198,8 +215,8 @@ class Campaign:
             mean_sd = float(np.mean(self.prediction.epistemic_sd))
             if mean_sd < s.sigma_target_gpa:
                 return f"mean epistemic σ {mean_sd:.4f} GPa below target {s.sigma_target_gpa:g}"
-        if s.mape_target_pct is not None:
-            mape, _ = self.metrics()
+        if s.mape_target_pct is not None and self.last_score is not None:
+            mape = self.last_score.mape_pct
             if mape is not None and mape <= s.mape_target_pct:
                 return f"MAPE {mape:.2f} % reached target {s.mape_target_pct:g} %"
         return None
@@ -227,7 +244,9 @@ class Campaign:
             program_hold_s=hold,
             locals_in_program=locals_run,
             tested_xy_um=np.array([(c.x_um, c.y_um) for c in self.centres]).reshape(-1, 2),
-            indents_xy_um=np.array(self.indents_xy).reshape(-1, 2),
+            indents_xy_um=np.concatenate(
+                [self.sample.earlier_xy_um, np.array(self.indents_xy).reshape(-1, 2)]
+            ),
             best_observed_gpa=best,
             last_drift_rate_nm_s=self.drift_rates[-1] if self.drift_rates else None,
             avoid_xy_um=avoid + tuple(self.settings.avoid_centers_um),
@@ -235,6 +254,9 @@ class Campaign:
             recent_drift_rates_nm_s=tuple(self.drift_rates[-25:]),
             tested_noise_var_gpa2=self._tested_noise_var() if self._needs_covariance else None,
             gp=self._gp_summary() if self._needs_covariance else None,
+            dz_safe_um=self.sample.dz_safe_um,
+            r_excl_um=self.sample.r_excl_um,
+            placement_mask=self.placement_mask,
         )
 
     def propose(
@@ -301,9 +323,6 @@ class Campaign:
         self.blocks.append(block)
         self.indents_xy.extend(zip(xs.tolist(), ys.tolist(), strict=True))
         self.drift_rates.extend(r.drift_rate_nm_s for r in results)
-        truth = self.scenario.truth.hardness_gpa(xs, ys)
-        top = float(np.max(truth))
-        self._max_found = top if self._max_found is None else max(self._max_found, top)
 
     def observations(self) -> Observations:
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])
@@ -340,17 +359,21 @@ class Campaign:
         u, v = self.calibration.to_uv(x_um, y_um)
         return self.surrogate.predict(np.column_stack([u, v]))
 
-    def metrics(self) -> tuple[float | None, float | None]:
-        """(MAPE % of the GP mean on the 100×100 truth lattice, max true hardness among indented points)."""
-        if self.prediction is None:
-            return None, self._max_found
-        if self._truth_cache is None:
-            self._truth_cache = truth_on_lattice(self.scenario.truth, 100)
-        xs, ys, truth = self._truth_cache
-        gx, gy = np.meshgrid(xs, ys)
-        u, v = self.calibration.to_uv(gx.ravel(), gy.ravel())
-        uv = np.column_stack([u, v])
-        return mape_pct(self.surrogate.predict_mean(uv), truth.ravel()), self._max_found
+    def has_map(self) -> bool:
+        return self.prediction is not None
+
+    def predict_mean_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray:
+        """The map's mean at stage points (what an evaluator scores; cheaper than a full prediction)."""
+        u, v = self.calibration.to_uv(x_um, y_um)
+        return self.surrogate.predict_mean(np.column_stack([u, v]))
+
+    def indented_xy_um(self) -> np.ndarray:
+        """Every indent of this run so far, actual positions (n, 2)."""
+        return np.array(self.indents_xy, dtype=float).reshape(-1, 2)
+
+    def note_score(self, score: MapScore | None) -> None:
+        """Remember an outside evaluator's verdict (a simulated run's MAPE) for the MAPE-target stop rule."""
+        self.last_score = score
 
     def map_fields(
         self, snapshot_id: int, display_n: int = 50, next_candidate_um: tuple[float, float] | None = None
@@ -415,16 +438,21 @@ class HeadlessResult:
 def run_headless(
     campaign: Campaign,
     driver: Any,
-    track_mape: bool = True,
+    evaluator: MapEvaluator | None = None,
     on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None]
     | None = None,
     stop_when: Callable[[HeadlessResult], str | None] | None = None,
 ) -> HeadlessResult:
     """Run a campaign to its end with no operator (``aeni simulate``, the bench).
 
-    ``stop_when`` may end the run early (after any block) with a reason: the bench stops a run once its
-    question is answered.
+    Every block passes the safety interlock first; with no operator to veto, a refused block ends the
+    run with the interlock's reason. ``evaluator`` (a simulated instrument's) scores the map after each
+    refit into ``trajectory``. ``stop_when`` may end the run early (after any block) with a reason: the
+    bench stops a run once its question is answered.
     """
+    from core.interlock import Interlock
+
+    interlock = Interlock(campaign.sample, campaign.profile)
     result = HeadlessResult("", CostLedger(), [], 0.0, 0, 0, [])
     block_id = 0
     early: str | None = None
@@ -432,21 +460,27 @@ def run_headless(
         decision = campaign.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
         if decision is None:
             break
+        refusal = interlock.check(decision.block, driver.position_um(), driver.program_open())
+        if refusal is not None:
+            early = f"safety interlock refused block {decision.block.block_id}: {refusal}"
+            break
         results: list[IndentResult] = []
         for event in driver.execute_block(decision.block):
             if isinstance(event, IndentResult):
                 results.append(event)
             else:
                 result.ledger.add(event)
+        interlock.passed(decision.block, results)
         report = campaign.observe_block(decision.block, results)
         result.decisions.append(decision)
         result.blocks += 1
         result.indents += len(results)
         result.instrument_s = driver.clock_s()
-        if track_mape and campaign.prediction is not None:
-            mape, _ = campaign.metrics()
-            if mape is not None:
-                result.trajectory.append((driver.clock_s(), mape))
+        if evaluator is not None:
+            score = evaluator.score(campaign)
+            campaign.note_score(score)
+            if score.mape_pct is not None:
+                result.trajectory.append((driver.clock_s(), score.mape_pct))
         if on_block is not None:
             on_block(decision, results, report, result)
         block_id += 1

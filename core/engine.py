@@ -19,7 +19,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from core.driver import Driver, DriverAborted, PhysicsClock, Recoverable, Restorable
 from core.errors import InputError
+from core.interlock import Interlock
 from core.journal import DriverState, Journal, user_name
+from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.runview import CommandKind, EngineState, MapFields
 from core.settings import coerce_supervision
@@ -54,9 +56,16 @@ class CampaignLike(Protocol):
 
     def map_fields(self, snapshot_id: int, display_n: int = ...) -> MapFields: ...
 
-    def metrics(self) -> tuple[float | None, float | None]: ...
-
     def export_state(self) -> dict[str, Any]: ...
+
+    # scored from outside by a simulated run's evaluator (core.metrics.ScoredMap), told back the verdict
+    def has_map(self) -> bool: ...
+
+    def predict_mean_stage(self, x_um: Any, y_um: Any) -> Any: ...
+
+    def indented_xy_um(self) -> Any: ...
+
+    def note_score(self, score: MapScore | None) -> None: ...
 
     def restore(
         self, state: dict[str, Any], blocks: Sequence[tuple[Block, Sequence[IndentResult]]]
@@ -84,6 +93,8 @@ class Engine:
         owner_uid: int | None = None,
         watch_s: float | None = 0.2,
         map_display_n: int = 50,
+        interlock: Interlock | None = None,
+        evaluator: MapEvaluator | None = None,
     ) -> None:
         coerce_supervision(supervision)
         if not 0 < poll_s <= 5:
@@ -103,6 +114,9 @@ class Engine:
         self.owner_uid = os.stat(journal.path).st_uid if owner_uid is None else owner_uid
         self.watch_s = watch_s
         self.map_display_n = map_display_n
+        # every block passes the interlock before the driver sees it; a simulated run's evaluator scores the map
+        self.interlock = interlock
+        self.evaluator = evaluator
         self.state = EngineState.IDLE
         self.stop_reason = ""
         self.completed = False
@@ -256,7 +270,19 @@ class Engine:
         self._say(text)
 
     # -- deciding ----------------------------------------------------------------------------------
+    def _interlock_refusal(self, block: Block) -> str:
+        if self.interlock is None:
+            return ""
+        pos = self.driver.position_um()
+        refusal = self.interlock.check(
+            block, (float(pos[0]), float(pos[1])), bool(self.driver.program_open())
+        )
+        return "" if refusal is None else f"safety interlock refused block {block.block_id}: {refusal}"
+
     def _approval_reason(self, decision: Decision) -> str:
+        refusal = self._interlock_refusal(decision.block)
+        if refusal:
+            return refusal
         if self.supervision == "step":
             return "step mode: every block waits for the operator"
         if self.supervision == "supervised":
@@ -298,6 +324,8 @@ class Engine:
             text=("awaiting approval (" + why + "): " if why else "decided ") + self._describe(decision),
             plan=None if why else (self.campaign.export_state(), self.campaign.settings),
         )
+        if why.startswith("safety interlock"):
+            self.journal.log("warn", why, block_id=decision.block.block_id)
         if why:
             self._pending = (did, decision, why)
             self._settle_state()
@@ -395,6 +423,9 @@ class Engine:
         if stale:
             return "rejected", stale
         did, decision, why = self._pending
+        refusal = self._interlock_refusal(decision.block)
+        if refusal:
+            return "rejected", f"{refusal}; veto it to let the planner offer another block"
         if why.startswith("length-scale collapse") and self._last_collapse is not None:
             self._collapse_ack_snapshot = self._last_collapse[0]
         self._start_block(did, decision, ("approved", author, cid))
@@ -536,9 +567,15 @@ class Engine:
 
     def _observe(self, block: Block) -> None:
         results = self.journal.q.results(block.block_id)
+        if self.interlock is not None:
+            self.interlock.passed(block, results)
         report = self.campaign.observe_block(block, results)
         sid = self.journal.next_snapshot_id()
-        mape, max_found = self.campaign.metrics() if self.track_metrics else (None, None)
+        mape, max_found = None, None
+        if self.track_metrics and self.evaluator is not None:
+            score = self.evaluator.score(self.campaign)
+            self.campaign.note_score(score)
+            mape, max_found = score.mape_pct, score.max_found_gpa
         fields = self.campaign.map_fields(sid, self.map_display_n) if report is not None else None
         summary = self._fit_summary(report, mape, max_found)
         if report is not None and report.collapse:
@@ -606,6 +643,8 @@ class Engine:
         self.journal.note_clock(0.0)
         cs = q.latest_campaign_state()
         observed = q.observed_blocks()
+        if self.interlock is not None:
+            self.interlock.restore(observed)
         if cs is not None:
             self.campaign.restore(cs[0], observed)
         elif observed:

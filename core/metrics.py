@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -30,3 +32,27 @@ def speedup(baseline_s: float | None, policy_s: float | None) -> float | None:
     if baseline_s is None or policy_s is None or policy_s <= 0:
         return None
     return baseline_s / policy_s
+
+
+@dataclass(frozen=True)
+class MapScore:
+    """How good a map is against the truth (simulated runs only): None where it cannot be said yet."""
+
+    mape_pct: float | None
+    max_found_gpa: float | None
+
+
+class ScoredMap(Protocol):
+    """What an evaluator may ask a campaign: its map's mean and where it indented, nothing else."""
+
+    def has_map(self) -> bool: ...
+
+    def predict_mean_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray: ...
+
+    def indented_xy_um(self) -> np.ndarray: ...
+
+
+class MapEvaluator(Protocol):
+    """Scores a map against a truth the campaign never sees (the simulated instrument's evaluator)."""
+
+    def score(self, campaign: ScoredMap) -> MapScore: ...

@@ -64,6 +64,9 @@ class InstrumentProfile:
     reconfig_engage_s: float = 65.0
     reconfig_drift_s: float = 300.0
     reverse_x: bool = True
+    # steepest sample plane the stage can follow (µm of height per mm of travel): a sample file whose corner
+    # heights imply more is refused (mis-read z, or a sample not lying flat)
+    max_tilt_um_per_mm: float = 50.0
 
     @property
     def reconfiguration_s(self) -> float:
@@ -139,7 +142,7 @@ def _number(source: str, key: str, value: Any, *, positive: bool = False) -> flo
 
 
 def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> InstrumentProfile:
-    known = {"name", "description", "extends", "steps", "move", "reconfiguration", "display"}
+    known = {"name", "description", "extends", "steps", "move", "reconfiguration", "display", "stage"}
     for key in data:
         if key not in known:
             raise InputError(
@@ -196,6 +199,13 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
         if key != "reverse_x" or not isinstance(value, bool):
             raise InputError(source, f"field display.{key} is unknown or not true/false")
         updates["reverse_x"] = value
+    stage = data.get("stage", {})
+    if not isinstance(stage, dict):
+        raise InputError(source, "[stage] must be a table")
+    for key, value in stage.items():
+        if key != "max_tilt_um_per_mm":
+            raise InputError(source, f"unknown field stage.{key} (allowed: max_tilt_um_per_mm)")
+        updates[key] = _number(source, f"stage.{key}", value, positive=True)
     profile = replace(base, **updates)
     if profile.default_hold_s not in profile.allowed_holds_s:
         raise InputError(

@@ -3,7 +3,8 @@
 Layout (every section and field is optional)::
 
     name = "ternary-demo"
-    [campaign]   # policy, scenario, noise, drift, truth_csv, seed, profile, lattice_n
+    [sample]     # file: the sample.toml the run indents (default: the simulated scenario's built-in sample)
+    [campaign]   # policy, seed, profile, lattice_n; scenario, noise, drift, truth_csv for the sim driver
     [planner]    # the PlannerSettings knobs: target_sem_gpa, beta, hold_policy, budgets ...
     [run]        # driver, supervision, journal, speed, runs_dir
 
@@ -68,14 +69,9 @@ class CampaignSection(_Strict):
             raise ValueError(f"must be one of {', '.join(names)}")
         return v
 
-    @field_validator("scenario")
-    @classmethod
-    def _scenario(cls, v: str) -> str:
-        from core.emulator import SCENARIOS
 
-        if v not in SCENARIOS:
-            raise ValueError(f"must be one of {', '.join(SCENARIOS)}")
-        return v
+class SampleSection(_Strict):
+    file: str | None = None
 
 
 class PlannerSection(_Strict):
@@ -121,6 +117,7 @@ class RunSection(_Strict):
 
 class RunFile(_Strict):
     name: str = Field(default="run", min_length=1, max_length=80)
+    sample: SampleSection = Field(default_factory=SampleSection)
     campaign: CampaignSection = Field(default_factory=CampaignSection)
     planner: PlannerSection = Field(default_factory=PlannerSection)
     run: RunSection = Field(default_factory=RunSection)
@@ -206,17 +203,28 @@ def parse_run_config(
     truth_csv = c.truth_csv
     if truth_csv is not None and base_dir is not None and not Path(truth_csv).is_absolute():
         truth_csv = str((base_dir / truth_csv).resolve())  # relative to the config file
+    sample = None
+    if rf.sample.file is not None:
+        from core.sample import load_sample
+
+        file = Path(rf.sample.file)
+        if base_dir is not None and not file.is_absolute() and (overrides or {}).get("sample.file") is None:
+            file = base_dir / file  # relative to the config file (a --sample flag: to the working directory)
+        sample = load_sample(file)
+    # the simulated instrument's truth: which scenario (or CSV) it lays onto the sample
+    driver_options: dict[str, Any] = {"scenario": c.scenario}
+    for key, value in (("noise", c.noise), ("drift", c.drift), ("truth_csv", truth_csv)):
+        if value is not None:
+            driver_options[key] = value
     campaign = CampaignConfig(
         policy=c.policy,
-        scenario=c.scenario,
-        noise=c.noise,
-        drift=c.drift,
-        truth_csv=truth_csv,
         seed=c.seed,
         profile=c.profile,
         lattice_n=c.lattice_n,
         settings=settings,
         name=rf.name,
+        sample=sample,
+        driver_options=driver_options,
     )
     r = rf.run
     options = RunOptions(

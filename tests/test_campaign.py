@@ -17,17 +17,24 @@ from core.campaign import (
 from core.cost import block_costs_for
 from core.errors import InputError
 from core.plan import IndentResult, PlannerSettings, StepRecord
+from drivers.sim.driver import SimulatedDriver
+from drivers.sim.scenarios import make_scenario
 
 
 def _campaign(policy: str = "cost-aware", budget_s: float = 40_000.0, seed: int = 3) -> Campaign:
     return Campaign(
-        CampaignConfig(policy=policy, seed=seed, lattice_n=30, settings=PlannerSettings(budget_s=budget_s))
+        CampaignConfig(policy=policy, seed=seed, lattice_n=30, settings=PlannerSettings(budget_s=budget_s)),
+        make_scenario("ternary", seed).sample,
     )
+
+
+def _driver(c: Campaign) -> SimulatedDriver:
+    return make_scenario("ternary", c.config.seed).make_driver(c.profile)
 
 
 def test_executed_cost_equals_predicted_cost_and_stays_in_area() -> None:
     c = _campaign()
-    driver = c.make_sim_driver()
+    driver = _driver(c)
     block_id = 0
     while (
         d := c.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
@@ -51,7 +58,7 @@ def test_executed_cost_equals_predicted_cost_and_stays_in_area() -> None:
 def test_same_seed_same_run_and_other_seed_differs() -> None:
     def run(seed: int) -> list[tuple[float, float, float]]:
         c = _campaign(seed=seed, budget_s=25_000)
-        out = run_headless(c, c.make_sim_driver(), track_mape=False)
+        out = run_headless(c, _driver(c))
         return [(d.block.center_x_um, d.block.center_y_um, d.block.hold_s) for d in out.decisions]
 
     a, b = run(5), run(5)
@@ -61,7 +68,7 @@ def test_same_seed_same_run_and_other_seed_differs() -> None:
 
 def test_grid_policy_runs_the_baseline_blocks_in_order() -> None:
     c = _campaign("grid", budget_s=3 * 3600.0)
-    out = run_headless(c, c.make_sim_driver(), track_mape=False)
+    out = run_headless(c, _driver(c))
     centres = [(d.block.center_x_um, d.block.center_y_um) for d in out.decisions]
     assert centres[:3] == [(100.0, 100.0), (200.0, 200.0 - 100.0), (300.0, 100.0)]
     assert all(d.block.grid_g == 5 for d in out.decisions)
@@ -87,7 +94,7 @@ def test_adjust_validates_and_names_the_field() -> None:
 
 def test_veto_avoids_the_centre_for_a_while() -> None:
     c = _campaign(budget_s=60_000)
-    driver = c.make_sim_driver()
+    driver = _driver(c)
     for bid in range(3):
         d = c.propose(driver.clock_s(), driver.position_um(), driver.program_open(), bid)
         assert d is not None
@@ -111,11 +118,27 @@ def test_config_round_trip() -> None:
     cfg = CampaignConfig(policy="uncertainty", seed=9, settings=PlannerSettings(budget_s=1000.0, beta=2.0))
     assert campaign_config_from_dict(campaign_config_to_dict(cfg)) == cfg
     assert dataclasses.asdict(cfg)["settings"]["beta"] == 2.0
+    with_sample = dataclasses.replace(
+        cfg, sample=make_scenario("film", 0).sample, driver_options={"scenario": "film"}
+    )
+    back = campaign_config_from_dict(campaign_config_to_dict(with_sample))
+    assert back == with_sample
+
+
+def test_a_journal_from_before_samples_gets_a_clear_error() -> None:
+    old = {"policy": "cost-aware", "scenario": "ternary", "seed": 0, "settings": {}}
+    with pytest.raises(InputError, match="before runs had a sample"):
+        campaign_config_from_dict(old)
+
+
+def test_a_campaign_needs_a_sample() -> None:
+    with pytest.raises(InputError, match="needs a sample"):
+        Campaign(CampaignConfig())
 
 
 def test_restore_reproduces_the_next_decision() -> None:
     c = _campaign(budget_s=60_000)
-    driver = c.make_sim_driver()
+    driver = _driver(c)
     done = []
     for bid in range(4):
         d = c.propose(driver.clock_s(), driver.position_um(), driver.program_open(), bid)
@@ -138,14 +161,15 @@ def test_drift_correction_feeds_the_gp_and_leaves_the_measured_values_alone() ->
     keeps the instrument's median, and the results themselves (what the journal stores) are untouched."""
     from dataclasses import replace
 
-    from core.emulator import DriftModel
+    from drivers.sim.emulator import DriftModel
 
     def block_values(policy: str, hold_s: float, drift: str) -> tuple[float, float, list[float]]:
         c = _campaign(policy)
-        c.scenario = replace(c.scenario, drift=DriftModel(name=drift, events=((0.0, 0.1, 1e12),)))
+        scen = make_scenario("ternary", c.config.seed)
+        scen = replace(scen, drift=DriftModel(name=drift, events=((0.0, 0.1, 1e12),)))
         if drift == "none":
-            c.scenario = replace(c.scenario, drift=DriftModel())
-        driver = c.make_sim_driver()
+            scen = replace(scen, drift=DriftModel())
+        driver = scen.make_driver(c.profile)
         d = c.propose(driver.clock_s(), driver.position_um(), driver.program_open(), 0)
         assert d is not None
         block = replace(

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.emulator import (
-    SCENARIOS,
+from core.errors import InputError
+from drivers.sim.emulator import (
     CsvTruth,
     DriftModel,
     EdgeSpotField,
@@ -23,10 +23,9 @@ from core.emulator import (
     TruthField,
     area_error_pct,
     field_extrema,
-    make_scenario,
     truth_on_lattice,
 )
-from core.errors import InputError
+from drivers.sim.scenarios import SCENARIOS, make_scenario
 
 DATA = Path(__file__).parent / "data"
 

@@ -16,15 +16,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from core.emulator import make_scenario
 from core.engine import Engine
 from core.errors import InputError
 from core.journal import Journal, JournalReader, NotOwnerError, send_command
+from core.metrics import MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, local_grid
 from core.profile import load_profile
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import adjust_settings, settings_from_dict, settings_to_dict
 from drivers.sim.driver import SimulatedDriver
+from drivers.sim.scenarios import make_scenario
 
 CENTRES = [(200.0, 200.0), (260.0, 200.0), (260.0, 260.0), (700.0, 700.0), (760.0, 700.0), (300.0, 800.0)]
 
@@ -99,6 +100,9 @@ class FakeCampaign:
     def metrics(self) -> tuple[float | None, float | None]:
         return 10.0 / (1 + len(self.observed)), 7.0
 
+    def note_score(self, score: MapScore | None) -> None:
+        self.score = score
+
     def export_state(self) -> dict[str, Any]:
         return {"vetoed": [list(v) for v in self.vetoed], "settings": settings_to_dict(self.settings)}
 
@@ -106,6 +110,14 @@ class FakeCampaign:
         self.observed = [(b, list(r)) for b, r in blocks]
         self.vetoed = [(float(x), float(y)) for x, y in state["vetoed"]]
         self.settings = settings_from_dict(state["settings"])
+
+
+class FakeEvaluator:
+    """Reports the fake campaign's made-up map error, as a simulated run's evaluator would report its own."""
+
+    def score(self, campaign: Any) -> MapScore:
+        mape, top = campaign.metrics()
+        return MapScore(mape, top)
 
 
 def make_driver(seed: int = 1) -> SimulatedDriver:
@@ -164,7 +176,16 @@ def run_engine(
 ) -> tuple[Engine, Path]:
     j = new_journal(tmp_path, name, supervision)
     op = Operator(j.path, rules or [])
-    eng = Engine(j, campaign, driver or make_driver(), supervision, poll_s=0.01, sleep=op.sleep, watch_s=None)
+    eng = Engine(
+        j,
+        campaign,
+        driver or make_driver(),
+        supervision,
+        poll_s=0.01,
+        sleep=op.sleep,
+        watch_s=None,
+        evaluator=FakeEvaluator(),  # type: ignore[arg-type]
+    )
     op.engine = eng
     try:
         eng.run()

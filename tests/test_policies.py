@@ -16,10 +16,12 @@ from core.policies.base import PlanContext, grid_size_for_noise
 from core.policies.planner import BayesPlanner, PlannerFeatures
 from core.policies.registry import POLICY_DESCRIPTIONS, make_policy, policy_names
 from core.profile import load_profile
+from drivers.sim.scenarios import make_scenario
 
 # the adaptive hold's two choices come from the instrument profile (5 s and 80 s on the iMicro)
 FAST_HOLD_S = load_profile("kla-imicro").fast_hold_s
 SLOW_HOLD_S = load_profile("kla-imicro").default_hold_s
+_TERNARY = make_scenario("ternary", 0).sample
 
 
 @dataclass
@@ -40,16 +42,17 @@ def _run(
     lattice_n: int = 30,
     **settings: object,
 ) -> Run:
+    sc = make_scenario(scenario, seed)
     c = Campaign(
         CampaignConfig(
             policy=policy,
-            scenario=scenario,
             seed=seed,
             lattice_n=lattice_n,
             settings=PlannerSettings(budget_s=budget_s, **settings),  # type: ignore[arg-type]
-        )
+        ),
+        sc.sample,
     )
-    driver = c.make_sim_driver()
+    driver = sc.make_driver(c.profile)
     run = Run(c, [], [], [], [], [])
     block_id = 0
     while (
@@ -213,8 +216,11 @@ def _context_after(policy: str, blocks: int = 4) -> tuple[Campaign, PlanContext]
 def _context_and_history(
     policy: str, blocks: int
 ) -> tuple[Campaign, PlanContext, list[tuple[Block, list[IndentResult]]]]:
-    c = Campaign(CampaignConfig(policy=policy, seed=2, lattice_n=30, settings=PlannerSettings(budget_s=1e6)))
-    driver = c.make_sim_driver()
+    sc = make_scenario("ternary", 2)
+    c = Campaign(
+        CampaignConfig(policy=policy, seed=2, lattice_n=30, settings=PlannerSettings(budget_s=1e6)), sc.sample
+    )
+    driver = sc.make_driver(c.profile)
     history = []
     for block_id in range(blocks):
         d = c.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
@@ -365,7 +371,7 @@ def test_aeni_nugget_uses_huber_values_and_learns_the_site_scatter() -> None:
     run = _cached("aeni-nugget")
     c = run.campaign
     assert c.centre_estimator == "huber" and c.surrogate.nugget
-    assert not Campaign(CampaignConfig(policy="aeni-plus")).surrogate.nugget
+    assert not Campaign(CampaignConfig(policy="aeni-plus"), _TERNARY).surrogate.nugget
     assert all(rec.efficiency is not None and rec.efficiency < 1.2 for rec in c.centres)
     obs = c.observations()
     assert np.allclose(obs.efficiency, [rec.efficiency for rec in c.centres])
@@ -408,8 +414,8 @@ def test_aeni_nugget_learns_the_collapse_fields_site_scatter() -> None:
 
 def test_tight_and_unguarded_differ_only_in_the_guard() -> None:
     tight, loose = (
-        Campaign(CampaignConfig(policy="aeni-tight")),
-        Campaign(CampaignConfig(policy="aeni-unguarded")),
+        Campaign(CampaignConfig(policy="aeni-tight"), _TERNARY),
+        Campaign(CampaignConfig(policy="aeni-unguarded"), _TERNARY),
     )
     assert tight.surrogate.guard == "keep-last-good" and tight.surrogate.lengthscale_prior
     assert tight.surrogate.floor_uv >= 0.005

@@ -48,7 +48,11 @@ def write(tmp_path: Path, text: str) -> Path:
 
 def test_defaults_without_a_file() -> None:
     rc = load_run_config(None)
-    assert rc.campaign.policy == "cost-aware" and rc.campaign.scenario == "ternary" and rc.campaign.seed == 0
+    assert (
+        rc.campaign.policy == "cost-aware"
+        and rc.campaign.driver_options == {"scenario": "ternary"}
+        and rc.campaign.seed == 0
+    )
     assert rc.campaign.settings.budget_s is None and rc.campaign.name == "run"
     assert rc.options.supervision == "auto" and rc.options.driver == "sim" and rc.options.speed is None
 
@@ -56,15 +60,8 @@ def test_defaults_without_a_file() -> None:
 def test_full_file(tmp_path: Path) -> None:
     rc = load_run_config(write(tmp_path, FULL))
     c, s, o = rc.campaign, rc.campaign.settings, rc.options
-    assert (c.name, c.policy, c.scenario, c.noise, c.drift, c.seed, c.lattice_n) == (
-        "night-run",
-        "uncertainty",
-        "ternary-good-drift",
-        "homo",
-        "bad",
-        7,
-        30,
-    )
+    assert (c.name, c.policy, c.seed, c.lattice_n, c.sample) == ("night-run", "uncertainty", 7, 30, None)
+    assert c.driver_options == {"scenario": "ternary-good-drift", "noise": "homo", "drift": "bad"}
     assert (
         s.target_sem_gpa,
         s.beta,
@@ -101,7 +98,6 @@ def test_command_line_overrides_win_and_are_validated(tmp_path: Path) -> None:
     ("text", "field", "value", "allowed"),
     [
         ('[campaign]\npolicy = "magic"', "campaign.policy", "'magic'", "cost-aware"),
-        ('[campaign]\nscenario = "moon"', "campaign.scenario", "'moon'", "ternary"),
         ("[campaign]\nseed = -1", "campaign.seed", "-1", "greater than or equal to 0"),
         ("[campaign]\nlattice_n = 2", "campaign.lattice_n", "2", "greater than or equal to 5"),
         ('[campaign]\nnoise = "loud"', "campaign.noise", "'loud'", "'hetero', 'homo' or '10pct'"),
@@ -146,7 +142,9 @@ def test_each_bad_field_is_named_with_value_and_allowed(
 def test_unknown_fields_and_sections_list_what_is_allowed(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"unknown field planner\.betta \(allowed: target_sem_gpa, beta"):
         load_run_config(write(tmp_path, "[planner]\nbetta = 1"))
-    with pytest.raises(InputError, match=r"unknown field engine \(allowed: name, campaign, planner, run\)"):
+    with pytest.raises(
+        InputError, match=r"unknown field engine \(allowed: name, sample, campaign, planner, run\)"
+    ):
         load_run_config(write(tmp_path, "[engine]\nx = 1"))
 
 
@@ -168,4 +166,25 @@ def test_csv_scenario_needs_a_truth_file_relative_to_the_config(tmp_path: Path) 
     with pytest.raises(InputError, match=r"campaign\.truth_csv is missing"):
         parse_run_config({"campaign": {"scenario": "csv"}})
     rc = load_run_config(write(tmp_path, '[campaign]\nscenario = "csv"\ntruth_csv = "truth.csv"'))
-    assert rc.campaign.truth_csv == str((tmp_path / "truth.csv").resolve())
+    assert rc.campaign.driver_options["truth_csv"] == str((tmp_path / "truth.csv").resolve())
+
+
+def test_an_unknown_scenario_is_named_when_the_simulated_instrument_is_built() -> None:
+    from drivers.registry import default_sample
+
+    rc = load_run_config(None, {"campaign.scenario": "moon"})
+    with pytest.raises(InputError) as info:
+        default_sample("sim", rc.campaign.driver_options, 0)
+    msg = str(info.value)
+    assert msg.startswith("campaign.scenario: 'moon' is not allowed") and "ternary" in msg and "\n" not in msg
+
+
+def test_the_sample_file_is_relative_to_the_run_file(tmp_path: Path) -> None:
+    from core.sample import SAMPLE_TEMPLATE
+
+    (tmp_path / "films").mkdir()
+    (tmp_path / "films" / "s.toml").write_text(SAMPLE_TEMPLATE, encoding="utf-8")
+    rc = load_run_config(write(tmp_path, '[sample]\nfile = "films/s.toml"'))
+    assert rc.campaign.sample is not None and rc.campaign.sample.name == "NiTiCu-library-07"
+    with pytest.raises(InputError, match="no such sample file"):
+        load_run_config(write(tmp_path, '[sample]\nfile = "nope.toml"'))

@@ -14,6 +14,7 @@ from core.policies.registry import policy_names
 JSON_KEYS = {
     "policy",
     "scenario",
+    "sample",
     "seed",
     "profile",
     "instrument_s",

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from core.emulator import TernaryField
 from core.errors import InputError
 from core.surrogate import FitReport, HeteroskedasticGP, Observations
+from drivers.sim.emulator import TernaryField
 
 SIDE_UM = 1000.0
 PITCH_UV = 5.0 / SIDE_UM  # 5 µm indent pitch inside a local grid

@@ -36,7 +36,7 @@ MAP_DISPLAY_N = 50
 @dataclass(frozen=True)
 class BenchScenario:
     key: str  # label in tables and figures
-    scenario: str  # core.emulator scenario name
+    scenario: str  # drivers.sim.scenarios scenario name
     title: str
     policies: tuple[str, ...]
     group: str = "paper"  # "paper" (the paper's comparisons) or "robustness" (fields nothing was tuned on)
@@ -229,9 +229,10 @@ def run_one(spec: RunSpec) -> RunRecord:
     """One campaign under the bench protocol (a worker process runs many of these)."""
     _set_threads()
     from core.campaign import Campaign
-    from core.emulator import truth_on_lattice
+    from core.interlock import Interlock
     from core.plan import IndentResult
     from core.runconfig import make_campaign_config
+    from drivers.registry import sim_scenario
 
     start = time.monotonic()
     scen = spec.scenario
@@ -244,9 +245,12 @@ def run_one(spec: RunSpec) -> RunRecord:
         lattice_n=spec.lattice_n,
         settings={"budget_s": spec.budget_s},
     )
-    campaign = Campaign(cfg)
+    sim = sim_scenario(cfg.driver_options, spec.seed)
+    campaign = Campaign(cfg, sim.sample)
     budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
-    driver = campaign.make_sim_driver()
+    driver = sim.make_driver(campaign.profile)
+    evaluator = sim.evaluator()
+    interlock = Interlock(campaign.sample, campaign.profile)
     from core.cost import CostLedger
 
     ledger = CostLedger()
@@ -266,6 +270,10 @@ def run_one(spec: RunSpec) -> RunRecord:
         if decision is None:
             stop = campaign.stop_reason(driver.clock_s()) or "policy finished"
             break
+        refusal = interlock.check(decision.block, driver.position_um(), driver.program_open())
+        if refusal is not None:
+            stop = f"safety interlock refused block {decision.block.block_id}: {refusal}"
+            break
         results = []
         for event in driver.execute_block(decision.block):
             if isinstance(event, IndentResult):
@@ -279,17 +287,20 @@ def run_one(spec: RunSpec) -> RunRecord:
         fast += int(b.hold_s < campaign.profile.default_hold_s)
         local += int(b.kind == "local")
         refit = not is_grid or blocks % GRID_REFIT_EVERY == 0
+        interlock.passed(b, results)
         report = campaign.observe_block(b, results, refit=refit)
         alarms += int(report is not None and report.collapse)
         now = driver.clock_s()
         if results:
-            h_true = campaign.scenario.truth.hardness_gpa(
+            h_true = sim.truth.hardness_gpa(
                 np.array([r.actual_x_um for r in results]), np.array([r.actual_y_um for r in results])
             )
             top = float(np.max(h_true)) if top is None else max(top, float(np.max(h_true)))
             max_found.append((now, top))
         if refit and campaign.prediction is not None:
-            mape, _ = campaign.metrics()
+            score = evaluator.score(campaign)
+            campaign.note_score(score)
+            mape = score.mape_pct
             if mape is not None:
                 trajectory.append((now, mape))
                 if spec.target_mape_pct is not None:
@@ -312,13 +323,13 @@ def run_one(spec: RunSpec) -> RunRecord:
         and len(campaign.centres) >= 2
     ):
         campaign.surrogate.fit(campaign.observations())
-        mape, _ = campaign.metrics()
+        mape = evaluator.score(campaign).mape_pct
         if mape is not None:
             trajectory.append((driver.clock_s(), mape))
-    final, _ = campaign.metrics()
+    final = evaluator.score(campaign).mape_pct
     if is_grid and final is not None:
         t_hit = next(t for t, m in trajectory if m <= final)
-    _, _, h = truth_on_lattice(campaign.scenario.truth, 100)
+    h = evaluator.truth_gpa
     maps = _maps(campaign) if spec.keep_maps and campaign.prediction is not None else None
     return RunRecord(
         scenario=scen.key,
@@ -370,7 +381,7 @@ def _maps(campaign: Any) -> dict[str, Any]:
 
 def write_rough_truth(path: Path, seed: int = 11, n: int = 101) -> Path:
     """A rough real-looking map as a CSV lattice (what a user would load with ``--truth``)."""
-    from core.emulator import RoughField
+    from drivers.sim.emulator import RoughField
 
     field_ = RoughField(seed=seed)
     xs = np.linspace(0.0, field_.side_um, n)

@@ -69,7 +69,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     )
     journal = Path(args.journal) if args.journal else default_journal_path("demo", args.runs_dir)
     print(
-        f"starting an emulator run ({config.policy}, {config.scenario}, seed {config.seed}, "
+        f"starting an emulator run ({config.policy}, {args.scenario}, seed {config.seed}, "
         f"{args.supervision}, ×{args.speed:g}) → {journal}",
         flush=True,
     )

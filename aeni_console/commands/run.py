@@ -123,9 +123,21 @@ def _prepare_process() -> None:
 
 
 def _make_driver(kind: str, campaign: Any, speed: float | None) -> Any:
-    if kind == "sim":
-        return campaign.make_sim_driver(speed)
-    raise InputError("--driver", f"{kind!r} is not allowed: expected sim")
+    from drivers.registry import make_driver
+
+    c = campaign.config
+    return make_driver(kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed)
+
+
+def with_sample(config: Any, driver: str) -> Any:
+    """The config with its sample resolved (the driver's built-in one when none was given)."""
+    import dataclasses
+
+    from drivers.registry import default_sample
+
+    if config.sample is not None:
+        return config
+    return dataclasses.replace(config, sample=default_sample(driver, config.driver_options, config.seed))
 
 
 def _print(line: str) -> None:
@@ -136,11 +148,12 @@ def create_run_journal(
     path: Path, config: Any, campaign: Any, supervision: str, driver: str = "sim", speed: float | None = None
 ) -> Any:
     """A new journal for ``campaign``'s run (the engine process, and the console tests' engine)."""
+    from core.campaign import campaign_config_to_dict
     from core.journal import Journal
 
     return Journal.create(
         path,
-        config,
+        campaign_config_to_dict(campaign.config),  # with the sample the campaign runs on
         campaign.profile,
         campaign.calibration.to_dict(),
         supervision=supervision,
@@ -163,14 +176,16 @@ def run_engine(
     """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process."""
     from core.campaign import Campaign, campaign_config_from_dict
     from core.engine import Engine
+    from core.interlock import Interlock
     from core.journal import Journal, JournalReader
     from core.runview import EngineState
+    from drivers.registry import make_evaluator
 
     _prepare_process()
     path = Path(journal_path)
     if create is not None:
         config, options = create
-        campaign = Campaign(config)
+        campaign = Campaign(with_sample(config, options.driver))
         journal = create_run_journal(
             path, config, campaign, options.supervision, options.driver, options.speed
         )
@@ -191,7 +206,16 @@ def run_engine(
         spd = speed
     try:
         driver = _make_driver(driver_kind, campaign, spd)
-        engine = Engine(journal, campaign, driver, supervision or sup, progress=None if quiet else _print)
+        c = campaign.config
+        engine = Engine(
+            journal,
+            campaign,
+            driver,
+            supervision or sup,
+            progress=None if quiet else _print,
+            interlock=Interlock(campaign.sample, campaign.profile),
+            evaluator=make_evaluator(driver_kind, campaign.sample, c.driver_options, seed=c.seed),
+        )
     except BaseException:
         journal.close(compact=False)
         raise
@@ -247,6 +271,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "campaign.policy": args.policy,
         "campaign.seed": args.seed,
         "campaign.scenario": args.scenario,
+        "sample.file": args.sample,
         "campaign.lattice_n": args.lattice_n,
         "planner.budget_s": args.budget_s,
         "run.driver": args.driver,
@@ -561,6 +586,7 @@ def register(subparsers: Any) -> None:
         description="Run a campaign (TOML config, flags override it) as an engine process with a crash-safe journal.",
     )
     run.add_argument("config", nargs="?", metavar="CONFIG.toml", help="run configuration (optional)")
+    run.add_argument("--sample", help="sample file (sample.toml); default: the scenario's built-in sample")
     run.add_argument("--driver", help="instrument driver (sim)")
     run.add_argument("--policy", help="planning policy")
     run.add_argument("--seed", help="random seed")

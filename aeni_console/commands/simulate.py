@@ -34,24 +34,34 @@ def run_simulation(
     lattice_n: int | None = None,
     profile: str | None = None,
     progress: bool = False,
+    sample_file: str | None = None,
 ) -> dict[str, Any]:
-    """One campaign; the dict has the CLI's JSON keys (a contract)."""
+    """One campaign; the dict has the CLI's JSON keys (a contract).
+
+    The simulated instrument lays the scenario's truth onto the sample (its built-in one by default) and
+    its evaluator scores the map; the campaign sees only the sample.
+    """
     from core.campaign import Campaign, run_headless
     from core.runconfig import make_campaign_config
+    from core.sample import load_sample
+    from drivers.registry import sim_scenario
 
     config = make_campaign_config(
-        policy=policy,
         scenario="csv" if truth else scenario,
         noise=noise,
         drift=drift,
         truth_csv=truth,
+        policy=policy,
         seed=seed,
         profile=profile,
         lattice_n=lattice_n,
         settings={"budget_s": budget_s},
     )
-    campaign = Campaign(config)
-    driver = campaign.make_sim_driver()
+    sample = load_sample(sample_file) if sample_file is not None else None
+    scen = sim_scenario(config.driver_options, seed, sample)
+    campaign = Campaign(config, scen.sample)
+    driver = scen.make_driver(campaign.profile)
+    evaluator = scen.evaluator()
     start = time.monotonic()
     budget = campaign.settings.budget_s or campaign.grid_baseline_s
 
@@ -60,13 +70,14 @@ def run_simulation(
             mape = res.trajectory[-1][1] if res.trajectory else None
             _progress(res.instrument_s, budget, res.blocks, mape, start)
 
-    result = run_headless(campaign, driver, track_mape=True, on_block=on_block)
+    result = run_headless(campaign, driver, evaluator, on_block=on_block)
     if progress:
         sys.stderr.write("\n")
-    mape, max_found = campaign.metrics()
+    score = evaluator.score(campaign)
     return {
         "policy": policy,
-        "scenario": config.scenario,
+        "scenario": config.driver_options["scenario"],
+        "sample": scen.sample.name,
         "seed": seed,
         "profile": campaign.profile.name,
         "instrument_s": result.instrument_s,
@@ -74,23 +85,15 @@ def run_simulation(
         "blocks": result.blocks,
         "reconfigurations": result.ledger.reconfigurations,
         "ledger": result.ledger.as_dict(),
-        "final_mape_pct": mape,
-        "max_found_gpa": max_found,
-        "true_max_gpa": float(campaign.scenario.truth.hardness_gpa(*_argmax_truth(campaign))),
+        "final_mape_pct": score.mape_pct,
+        "max_found_gpa": score.max_found_gpa,
+        "true_max_gpa": float(evaluator.truth_gpa.max()),
         "grid_baseline_s": campaign.grid_baseline_s,
         "stop_reason": result.stop_reason,
         "wall_s": time.monotonic() - start,
         "trajectory": [{"t_s": t, "mape_pct": m} for t, m in result.trajectory],
         "_ledger_obj": result.ledger,
     }
-
-
-def _argmax_truth(campaign: Any) -> tuple[float, float]:
-    from core.emulator import truth_on_lattice
-
-    xs, ys, h = truth_on_lattice(campaign.scenario.truth, 100)
-    j, i = divmod(int(h.argmax()), h.shape[1])
-    return float(xs[i]), float(ys[j])
 
 
 def _handler(args: argparse.Namespace) -> int:
@@ -104,6 +107,7 @@ def _handler(args: argparse.Namespace) -> int:
         budget_s=args.budget_s,
         lattice_n=args.lattice_n,
         profile=args.profile,
+        sample_file=args.sample,
         progress=not args.json and sys.stderr.isatty(),
     )
     ledger = out.pop("_ledger_obj")
@@ -147,5 +151,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--lattice-n", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--profile", default=None, help="instrument profile name or TOML file")
+    p.add_argument(
+        "--sample", default=None, metavar="FILE", help="sample file to lay the scenario's truth onto"
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_handler)

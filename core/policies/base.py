@@ -67,6 +67,9 @@ class PlanContext:
     )
     gp: GPSummary | None = None  # the fitted kernel, for planners that need covariances (y-free)
     recent_drift_rates_nm_s: tuple[float, ...] = ()  # the last drift readings (up to 25), oldest first
+    placement_mask: np.ndarray | None = (
+        None  # (n²,) lattice centres the sample allows (edge band, exclusions)
+    )
 
     @property
     def fixed_hold_s(self) -> float:
@@ -158,7 +161,7 @@ def base_mask(ctx: PlanContext, g_max_halfwidth_um: float) -> np.ndarray:
     from core.geometry import exclusion_mask
 
     xy = ctx.lattice.xy_um
-    mask = np.ones(len(xy), dtype=bool)
+    mask = np.ones(len(xy), dtype=bool) if ctx.placement_mask is None else ctx.placement_mask.copy()
     if len(ctx.indents_xy_um):
         mask &= exclusion_mask(xy, ctx.indents_xy_um, ctx.r_excl_um, g_max_halfwidth_um)
     for ax, ay in ctx.avoid_xy_um:

@@ -17,7 +17,7 @@ from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
 
 if TYPE_CHECKING:
-    from core.emulator import Emulator
+    from drivers.sim.emulator import Emulator
 
 
 class SimulatedDriver:

@@ -1,4 +1,4 @@
-"""The emulated instrument: ground-truth hardness fields, vertical drift, and what an indent reports.
+"""The simulated instrument's physics: ground-truth hardness fields, vertical drift, and what an indent reports.
 
 The emulator stands in for the sample and the nanoindenter during planning studies (SPEC §4). A truth field
 gives the hardness and the per-indent scatter at any stage point; a drift model gives the vertical drift rate
@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,13 +22,9 @@ from numpy.typing import ArrayLike, NDArray
 from core.drift import area_error_pct
 from core.errors import InputError
 
-if TYPE_CHECKING:
-    from core.geometry import Calibration
-
 __all__ = [
     "DRIFT_SCENARIOS",
     "NOISE_MODES",
-    "SCENARIOS",
     "CsvTruth",
     "DriftModel",
     "EdgeSpotField",
@@ -39,12 +35,10 @@ __all__ = [
     "QuaternaryFilm",
     "RotatedQuaternaryField",
     "RoughField",
-    "Scenario",
     "TernaryField",
     "TruthField",
     "area_error_pct",
     "field_extrema",
-    "make_scenario",
     "truth_on_lattice",
 ]
 
@@ -791,140 +785,6 @@ class Emulator:
             modulus_gpa=max(e_true * (1.0 + rel), 1e-3) * shrink,
             drift_rate_nm_s=max(reading, 0.0),
         )
-
-
-# --------------------------------------------------------------------------------------------- scenarios
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """Everything needed to run a campaign on the emulator."""
-
-    name: str
-    truth: TruthField
-    drift: DriftModel
-    calibration: Calibration
-    profile_name: str
-    lattice_n: int
-    lateral_sd_um: float
-    description: str
-    seed: int = 0
-    site_texture: SiteTexture | None = None
-
-    def make_emulator(self) -> Emulator:
-        return Emulator(
-            self.truth,
-            self.drift,
-            self.seed,
-            lateral_sd_um=self.lateral_sd_um,
-            site_texture=self.site_texture,
-        )
-
-
-SCENARIOS: dict[str, str] = {
-    "ternary": "the paper's ternary library, 1000 µm square, heteroskedastic noise (~1.5 % of max H), no drift",
-    "ternary-good-drift": "ternary library with good drift: small events (~0.3 nm/s) that recover in minutes",
-    "ternary-bad-drift": "ternary library with bad drift: large events (~1 nm/s) that decay over about an hour",
-    "film": "Ta–Ti–Hf–Zr-like film, 5 × 3 mm at stage (10, 20) mm, noise up to 10 % of max H, good drift",
-    "phase-boundary": "two smooth phases split by a sharp curved boundary (~2 GPa over ~10 µm)",
-    "edge-spot": "ternary library plus a small hard spot (+2 GPa, ~60 µm radius) near the right edge",
-    "rotated-quaternary": "four-component spread with gradient axes rotated 30° from the stage axes",
-    "rough": "smooth trend plus seeded multi-scale correlated roughness (a real-looking map)",
-    "collapse": (
-        "ternary library with indent-scale heterogeneity (0.1 GPa over ~40 µm) that within-grid spreads"
-        " cannot see: provokes length-scale collapse"
-    ),
-    "csv": "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa])",
-}
-
-# surface tilt (µm of z per µm of stage): gentle on the 1000 µm square, steeper on the film so that a 5 µm
-# safe band is ~450 µm wide there
-_TILT_SQUARE = (0.005, 0.007)
-_TILT_FILM = (0.02, 0.01)
-_Z_MID_UM = 1500.0
-# the collapse provocation's site texture: larger than the median of a 5×5 grid can average (≈ 0.03 GPa),
-# shared by every indent of a 20 µm grid, independent between centres 100 µm apart
-_COLLAPSE_SITE_SD_GPA = 0.1
-_COLLAPSE_SITE_SCALE_UM = 40.0
-
-
-def _calibration_for(bounds: Bounds, tilt: tuple[float, float]) -> Calibration:
-    from core.geometry import Calibration
-
-    x_min, x_max, y_min, y_max = bounds
-    a, b = tilt
-    c = _Z_MID_UM - a * 0.5 * (x_min + x_max) - b * 0.5 * (y_min + y_max)
-    return Calibration.rectangle(x_min, y_min, x_max - x_min, y_max - y_min, z_plane=(a, b, c))
-
-
-def make_scenario(
-    name: str,
-    seed: int,
-    noise: str | None = None,
-    drift: str | None = None,
-    truth_csv: str | None = None,
-    lateral_sd_um: float | None = None,
-) -> Scenario:
-    """Build a named scenario; ``noise``, ``drift`` and ``lateral_sd_um`` override its defaults."""
-    if name not in SCENARIOS:
-        raise InputError("scenario", f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
-    seed = _check_seed(seed)
-    if noise is not None:
-        _check_noise_mode(noise)
-    if drift is not None and drift not in DRIFT_SCENARIOS:
-        raise InputError("drift", f"unknown drift scenario {drift!r} (known: {', '.join(DRIFT_SCENARIOS)})")
-    if lateral_sd_um is not None and not (math.isfinite(lateral_sd_um) and lateral_sd_um >= 0):
-        raise InputError("lateral_sd_um", f"must be a finite number ≥ 0, got {lateral_sd_um!r}")
-    if name == "csv" and not truth_csv:
-        raise InputError("truth_csv", "scenario 'csv' needs a truth CSV file")
-    if name != "csv" and truth_csv:
-        raise InputError("truth_csv", f"a truth CSV is only used by scenario 'csv', not {name!r}")
-
-    profile, lattice_n, default_drift, lateral, tilt = "kla-imicro", 100, "none", 0.0, _TILT_SQUARE
-    truth: TruthField
-    site_texture: SiteTexture | None = None
-    if name in ("ternary", "ternary-good-drift", "ternary-bad-drift", "collapse"):
-        truth = TernaryField(1000.0, noise or "hetero")
-        default_drift = {"ternary-good-drift": "good", "ternary-bad-drift": "bad"}.get(name, "none")
-        if name == "collapse":
-            site_texture = SiteTexture(_COLLAPSE_SITE_SD_GPA, _COLLAPSE_SITE_SCALE_UM, seed)
-    elif name == "edge-spot":
-        truth = EdgeSpotField(1000.0, noise or "hetero")
-    else:
-        if name == "film":
-            truth = QuaternaryFilm()
-            profile, lattice_n, default_drift, lateral, tilt = "kla-imicro-film", 50, "good", 1.0, _TILT_FILM
-        elif name == "phase-boundary":
-            truth = PhaseBoundaryField()
-        elif name == "rotated-quaternary":
-            truth = RotatedQuaternaryField()
-        elif name == "rough":
-            truth = RoughField(seed=seed)
-        else:
-            assert truth_csv is not None
-            truth = CsvTruth.from_file(truth_csv)
-            x_min, x_max, y_min, y_max = truth.bounds_um
-            span = max(x_max - x_min, y_max - y_min)
-            lattice_n = 100 if span <= 2000.0 else 50
-            tilt = (_TILT_SQUARE[0] * 1000.0 / span, _TILT_SQUARE[1] * 1000.0 / span)
-        if noise is not None and noise != "hetero":
-            truth = NoiseOverride(truth, noise)
-    drift_name = drift or default_drift
-    description = SCENARIOS[name]
-    if noise is not None or drift is not None:
-        description += f" [noise {noise or 'default'}, drift {drift_name}]"
-    return Scenario(
-        name=name,
-        truth=truth,
-        drift=DriftModel.scenario(drift_name, seed),
-        calibration=_calibration_for(truth.bounds_um, tilt),
-        profile_name=profile,
-        lattice_n=lattice_n,
-        lateral_sd_um=lateral if lateral_sd_um is None else float(lateral_sd_um),
-        description=description,
-        seed=seed,
-        site_texture=site_texture,
-    )
 
 
 def truth_on_lattice(truth: TruthField, n: int = 100) -> tuple[FloatArray, FloatArray, FloatArray]:

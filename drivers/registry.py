@@ -1,0 +1,96 @@
+"""Which driver runs a campaign: ``make_driver(kind, sample, profile, options)`` and its helpers.
+
+A run is a sample, a driver, a policy and settings. The simulated driver ('sim') lays an emulator
+scenario's truth (or a truth CSV) onto the run's sample and, having the truth, also supplies the
+evaluator that scores the map; a real instrument supplies neither truth nor evaluator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from core.driver import Driver
+from core.errors import InputError
+from core.metrics import MapEvaluator
+from core.profile import InstrumentProfile
+from core.sample import Sample
+
+DRIVER_KINDS: tuple[str, ...] = ("sim",)
+SIM_OPTIONS: tuple[str, ...] = ("scenario", "noise", "drift", "truth_csv", "lateral_sd_um")
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in DRIVER_KINDS:
+        raise InputError("--driver", f"{kind!r} is not allowed: expected {', '.join(DRIVER_KINDS)}")
+
+
+def sim_options(
+    scenario: str = "ternary",
+    noise: str | None = None,
+    drift: str | None = None,
+    truth_csv: str | None = None,
+) -> dict[str, Any]:
+    """The simulated instrument's options as a run stores them (``CampaignConfig.driver_options``)."""
+    out: dict[str, Any] = {"scenario": scenario}
+    for key, value in (("noise", noise), ("drift", drift), ("truth_csv", truth_csv)):
+        if value is not None:
+            out[key] = value
+    return out
+
+
+def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = None) -> Any:
+    """The emulator scenario named by ``options``, laid onto ``sample`` when one is given."""
+    from drivers.sim.scenarios import SCENARIOS, make_scenario
+
+    unknown = sorted(set(options) - set(SIM_OPTIONS))
+    if unknown:
+        raise InputError(
+            "driver options",
+            f"unknown sim option(s) {', '.join(unknown)} (allowed: {', '.join(SIM_OPTIONS)})",
+        )
+    name = str(options.get("scenario", "ternary"))
+    if name not in SCENARIOS:
+        raise InputError(
+            "campaign.scenario", f"{name!r} is not allowed: must be one of {', '.join(SCENARIOS)}"
+        )
+    scenario = make_scenario(
+        name,
+        seed,
+        noise=options.get("noise"),
+        drift=options.get("drift"),
+        truth_csv=options.get("truth_csv"),
+        lateral_sd_um=options.get("lateral_sd_um"),
+    )
+    return scenario if sample is None else scenario.on_sample(sample)
+
+
+def default_sample(kind: str, options: Mapping[str, Any], seed: int) -> Sample:
+    """The sample a run uses when none is given: the simulated scenario's built-in one."""
+    _check_kind(kind)
+    sample: Sample = sim_scenario(options, seed).sample
+    return sample
+
+
+def make_driver(
+    kind: str,
+    sample: Sample,
+    profile: InstrumentProfile,
+    options: Mapping[str, Any],
+    *,
+    seed: int = 0,
+    speed: float | None = None,
+) -> Driver:
+    """The instrument driver for a run on ``sample``."""
+    _check_kind(kind)
+    driver: Driver = sim_scenario(options, seed, sample).make_driver(profile, speed=speed)
+    return driver
+
+
+def make_evaluator(
+    kind: str, sample: Sample, options: Mapping[str, Any], *, seed: int = 0
+) -> MapEvaluator | None:
+    """The map-error scorer where the driver knows a truth (the simulated instrument), else None."""
+    _check_kind(kind)
+    evaluator: MapEvaluator = sim_scenario(options, seed, sample).evaluator()
+    return evaluator

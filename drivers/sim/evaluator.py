@@ -1,0 +1,54 @@
+"""The truth evaluator: scores a campaign's map against the simulated instrument's ground truth.
+
+The campaign never sees the truth. ``aeni simulate``, the demo and the bench hand one of these to
+whatever reports the map error (the engine, the headless loop), which asks it after each refit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.geometry import Calibration
+from core.metrics import MapScore, ScoredMap, mape_pct
+from drivers.sim.emulator import FloatArray, TruthField, truth_on_lattice
+
+
+@dataclass
+class TruthEvaluator:
+    """MAPE of the map's mean on a fixed lattice of truth points, and the hardest truth indented so far."""
+
+    truth: TruthField
+    xy_um: FloatArray  # (N, 2) where the map is scored
+    truth_gpa: FloatArray  # (N,) the truth there
+    _max_found: float | None = field(default=None, repr=False)
+    _seen: int = field(default=0, repr=False)
+
+    @classmethod
+    def for_truth(cls, truth: TruthField, calibration: Calibration, n: int = 100) -> TruthEvaluator:
+        """An n×n lattice of cell centres: over the field's own rectangle when the field is the sample's own,
+        else over the sample's (u, v) square (a field laid onto a sample)."""
+        from drivers.sim.scenarios import LaidTruth
+
+        if isinstance(truth, LaidTruth):
+            c = (np.arange(n) + 0.5) / n
+            gu, gv = np.meshgrid(c, c)
+            x, y = calibration.to_stage(gu.ravel(), gv.ravel())
+            xy = np.column_stack([x, y])
+            return cls(truth, xy, np.asarray(truth.hardness_gpa(xy[:, 0], xy[:, 1]), dtype=float))
+        xs, ys, h = truth_on_lattice(truth, n)
+        gx, gy = np.meshgrid(xs, ys)
+        return cls(truth, np.column_stack([gx.ravel(), gy.ravel()]), h.ravel())
+
+    def score(self, campaign: ScoredMap) -> MapScore:
+        indents = campaign.indented_xy_um()
+        if len(indents) > self._seen:
+            new = indents[self._seen :]
+            top = float(np.max(self.truth.hardness_gpa(new[:, 0], new[:, 1])))
+            self._max_found = top if self._max_found is None else max(self._max_found, top)
+            self._seen = len(indents)
+        if not campaign.has_map():
+            return MapScore(None, self._max_found)
+        pred = campaign.predict_mean_stage(self.xy_um[:, 0], self.xy_um[:, 1])
+        return MapScore(mape_pct(pred, self.truth_gpa), self._max_found)

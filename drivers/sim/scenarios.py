@@ -1,0 +1,240 @@
+"""Emulator scenarios: each is a built-in sample plus a truth field, a drift model and lateral scatter.
+
+``aeni simulate``, ``aeni demo`` and ``aeni bench`` run on these. A scenario's truth can be laid onto any
+sample (``Scenario.on_sample``), so the simulated instrument can stand in for a real sample file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from core.errors import InputError
+from core.geometry import Calibration
+from core.profile import InstrumentProfile
+from core.sample import Sample
+from drivers.sim.driver import SimulatedDriver
+from drivers.sim.emulator import (
+    DRIFT_SCENARIOS,
+    Bounds,
+    CsvTruth,
+    DriftModel,
+    EdgeSpotField,
+    Emulator,
+    FloatArray,
+    NoiseOverride,
+    PhaseBoundaryField,
+    QuaternaryFilm,
+    RotatedQuaternaryField,
+    RoughField,
+    SiteTexture,
+    TernaryField,
+    TruthField,
+    _check_noise_mode,
+    _check_seed,
+)
+from drivers.sim.evaluator import TruthEvaluator
+
+# scenario samples: the whole square is usable (no edge band, no exclusions), as in the paper's studies
+SCENARIO_EDGE_BAND_UM = 0.0
+
+
+def builtin_sample(name: str, calibration: Calibration, profile: str, lattice_n: int) -> Sample:
+    """The sample a scenario runs on: its calibrated rectangle, the SPEC's default safety distances."""
+    return Sample(
+        name=f"scenario:{name}",
+        profile=profile,
+        calibration=calibration,
+        lattice_n=lattice_n,
+        edge_band_um=SCENARIO_EDGE_BAND_UM,
+        source=f"built-in scenario {name}",
+    )
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A built-in sample plus a truth field: everything the simulated instrument needs for a study.
+
+    The campaign sees only ``sample``; ``truth``, ``drift`` and the rest stay in the simulated instrument.
+    """
+
+    name: str
+    truth: TruthField
+    drift: DriftModel
+    sample: Sample
+    lateral_sd_um: float
+    description: str
+    seed: int = 0
+    site_texture: SiteTexture | None = None
+
+    @property
+    def calibration(self) -> Calibration:
+        return self.sample.calibration
+
+    @property
+    def profile_name(self) -> str:
+        return self.sample.profile
+
+    @property
+    def lattice_n(self) -> int:
+        return self.sample.lattice_n
+
+    def make_emulator(self) -> Emulator:
+        return Emulator(
+            self.truth,
+            self.drift,
+            self.seed,
+            lateral_sd_um=self.lateral_sd_um,
+            site_texture=self.site_texture,
+        )
+
+    def on_sample(self, sample: Sample) -> Scenario:
+        """This scenario's truth laid onto another sample's geometry (its unit square onto the sample's)."""
+        if sample.calibration.corners == self.sample.calibration.corners:
+            return replace(self, sample=sample)
+        return replace(self, truth=LaidTruth(self.truth, sample.calibration), sample=sample)
+
+    def make_driver(
+        self,
+        profile: InstrumentProfile,
+        speed: float | None = None,
+        start_um: tuple[float, float] | None = None,
+    ) -> SimulatedDriver:
+        """The simulated instrument for this scenario, starting over the sample's centre."""
+        if start_um is None:
+            x0, x1, y0, y1 = self.sample.calibration.bounds_um
+            start_um = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+        return SimulatedDriver(self.make_emulator(), profile, speed=speed, start_um=start_um)
+
+    def evaluator(self, n: int = 100) -> TruthEvaluator:
+        """The map-error scorer for a campaign on this scenario (the truth never reaches the campaign)."""
+        return TruthEvaluator.for_truth(self.truth, self.sample.calibration, n)
+
+
+class LaidTruth:
+    """A truth field whose area is stretched onto a sample's (u, v) chart, so any field fits any sample."""
+
+    def __init__(self, base: TruthField, calibration: Calibration) -> None:
+        self.base = base
+        self.calibration = calibration
+        self.name = f"{base.name}@sample"
+        x0, x1, y0, y1 = calibration.bounds_um
+        self.bounds_um: Bounds = (x0, x1, y0, y1)
+
+    def _field_xy(self, x_um: ArrayLike, y_um: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        u, v = self.calibration.to_uv(x_um, y_um)
+        fx0, fx1, fy0, fy1 = self.base.bounds_um
+        u = np.clip(u, 0.0, 1.0)
+        v = np.clip(v, 0.0, 1.0)
+        return fx0 + u * (fx1 - fx0), fy0 + v * (fy1 - fy0)
+
+    def hardness_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return self.base.hardness_gpa(*self._field_xy(x_um, y_um))
+
+    def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return self.base.noise_sd_gpa(*self._field_xy(x_um, y_um))
+
+
+SCENARIOS: dict[str, str] = {
+    "ternary": "the paper's ternary library, 1000 µm square, heteroskedastic noise (~1.5 % of max H), no drift",
+    "ternary-good-drift": "ternary library with good drift: small events (~0.3 nm/s) that recover in minutes",
+    "ternary-bad-drift": "ternary library with bad drift: large events (~1 nm/s) that decay over about an hour",
+    "film": "Ta–Ti–Hf–Zr-like film, 5 × 3 mm at stage (10, 20) mm, noise up to 10 % of max H, good drift",
+    "phase-boundary": "two smooth phases split by a sharp curved boundary (~2 GPa over ~10 µm)",
+    "edge-spot": "ternary library plus a small hard spot (+2 GPa, ~60 µm radius) near the right edge",
+    "rotated-quaternary": "four-component spread with gradient axes rotated 30° from the stage axes",
+    "rough": "smooth trend plus seeded multi-scale correlated roughness (a real-looking map)",
+    "collapse": (
+        "ternary library with indent-scale heterogeneity (0.1 GPa over ~40 µm) that within-grid spreads"
+        " cannot see: provokes length-scale collapse"
+    ),
+    "csv": "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa])",
+}
+
+# surface tilt (µm of z per µm of stage): gentle on the 1000 µm square, steeper on the film so that a 5 µm
+# safe band is ~450 µm wide there
+_TILT_SQUARE = (0.005, 0.007)
+_TILT_FILM = (0.02, 0.01)
+_Z_MID_UM = 1500.0
+# the collapse provocation's site texture: larger than the median of a 5×5 grid can average (≈ 0.03 GPa),
+# shared by every indent of a 20 µm grid, independent between centres 100 µm apart
+_COLLAPSE_SITE_SD_GPA = 0.1
+_COLLAPSE_SITE_SCALE_UM = 40.0
+
+
+def _calibration_for(bounds: Bounds, tilt: tuple[float, float]) -> Calibration:
+    x_min, x_max, y_min, y_max = bounds
+    a, b = tilt
+    c = _Z_MID_UM - a * 0.5 * (x_min + x_max) - b * 0.5 * (y_min + y_max)
+    return Calibration.rectangle(x_min, y_min, x_max - x_min, y_max - y_min, z_plane=(a, b, c))
+
+
+def make_scenario(
+    name: str,
+    seed: int,
+    noise: str | None = None,
+    drift: str | None = None,
+    truth_csv: str | None = None,
+    lateral_sd_um: float | None = None,
+) -> Scenario:
+    """Build a named scenario; ``noise``, ``drift`` and ``lateral_sd_um`` override its defaults."""
+    if name not in SCENARIOS:
+        raise InputError("scenario", f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
+    seed = _check_seed(seed)
+    if noise is not None:
+        _check_noise_mode(noise)
+    if drift is not None and drift not in DRIFT_SCENARIOS:
+        raise InputError("drift", f"unknown drift scenario {drift!r} (known: {', '.join(DRIFT_SCENARIOS)})")
+    if lateral_sd_um is not None and not (math.isfinite(lateral_sd_um) and lateral_sd_um >= 0):
+        raise InputError("lateral_sd_um", f"must be a finite number ≥ 0, got {lateral_sd_um!r}")
+    if name == "csv" and not truth_csv:
+        raise InputError("truth_csv", "scenario 'csv' needs a truth CSV file")
+    if name != "csv" and truth_csv:
+        raise InputError("truth_csv", f"a truth CSV is only used by scenario 'csv', not {name!r}")
+
+    profile, lattice_n, default_drift, lateral, tilt = "kla-imicro", 100, "none", 0.0, _TILT_SQUARE
+    truth: TruthField
+    site_texture: SiteTexture | None = None
+    if name in ("ternary", "ternary-good-drift", "ternary-bad-drift", "collapse"):
+        truth = TernaryField(1000.0, noise or "hetero")
+        default_drift = {"ternary-good-drift": "good", "ternary-bad-drift": "bad"}.get(name, "none")
+        if name == "collapse":
+            site_texture = SiteTexture(_COLLAPSE_SITE_SD_GPA, _COLLAPSE_SITE_SCALE_UM, seed)
+    elif name == "edge-spot":
+        truth = EdgeSpotField(1000.0, noise or "hetero")
+    else:
+        if name == "film":
+            truth = QuaternaryFilm()
+            profile, lattice_n, default_drift, lateral, tilt = "kla-imicro-film", 50, "good", 1.0, _TILT_FILM
+        elif name == "phase-boundary":
+            truth = PhaseBoundaryField()
+        elif name == "rotated-quaternary":
+            truth = RotatedQuaternaryField()
+        elif name == "rough":
+            truth = RoughField(seed=seed)
+        else:
+            assert truth_csv is not None
+            truth = CsvTruth.from_file(truth_csv)
+            x_min, x_max, y_min, y_max = truth.bounds_um
+            span = max(x_max - x_min, y_max - y_min)
+            lattice_n = 100 if span <= 2000.0 else 50
+            tilt = (_TILT_SQUARE[0] * 1000.0 / span, _TILT_SQUARE[1] * 1000.0 / span)
+        if noise is not None and noise != "hetero":
+            truth = NoiseOverride(truth, noise)
+    drift_name = drift or default_drift
+    description = SCENARIOS[name]
+    if noise is not None or drift is not None:
+        description += f" [noise {noise or 'default'}, drift {drift_name}]"
+    return Scenario(
+        name=name,
+        truth=truth,
+        drift=DriftModel.scenario(drift_name, seed),
+        sample=builtin_sample(name, _calibration_for(truth.bounds_um, tilt), profile, lattice_n),
+        lateral_sd_um=lateral if lateral_sd_um is None else float(lateral_sd_um),
+        description=description,
+        seed=seed,
+        site_texture=site_texture,
+    )

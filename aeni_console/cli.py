@@ -20,6 +20,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "aeni_console.commands.run",
     "aeni_console.commands.console",
     "aeni_console.commands.bench",
+    "aeni_console.commands.sample",
 )
 
 

@@ -224,3 +224,8 @@ def test_a_run_on_a_real_looking_sample_keeps_off_exclusions_and_earlier_indents
 def test_sample_errors_are_input_errors_naming_the_source() -> None:
     with pytest.raises(InputError, match=r"^t: field name is missing"):
         parse_sample({k: v for k, v in template().items() if k != "name"}, "t")
+
+
+def test_the_readme_documents_the_example_sample_file() -> None:
+    readme = (EXAMPLE.parents[2] / "README.md").read_text(encoding="utf-8")
+    assert EXAMPLE.read_text(encoding="utf-8") in readme

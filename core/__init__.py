@@ -1,1 +1,4 @@
-"""AE-NI core: geometry, cost, emulator, surrogate, acquisition, policies. No UI, no instrument I/O."""
+"""AE-NI core: sample and geometry, cost, surrogate, acquisition, policies, the safety interlock, engine and journal.
+
+No UI, no instrument I/O, no ground truth (the emulator lives in drivers/sim/).
+"""

@@ -229,3 +229,17 @@ def test_sample_errors_are_input_errors_naming_the_source() -> None:
 def test_the_readme_documents_the_example_sample_file() -> None:
     readme = (EXAMPLE.parents[2] / "README.md").read_text(encoding="utf-8")
     assert EXAMPLE.read_text(encoding="utf-8") in readme
+
+
+def test_resuming_a_journal_from_before_samples_says_why_it_cannot(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from core.journal import Journal
+    from core.profile import load_profile
+
+    path = tmp_path / "old.sqlite"
+    old = {"name": "old", "policy": "cost-aware", "scenario": "ternary", "seed": 0, "settings": {}}
+    Journal.create(path, old, load_profile("kla-imicro"), {}, name="old").close()
+    assert main(["resume", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"aeni: error: {path}: written before runs had a sample") and err.count("\n") == 1

@@ -197,7 +197,11 @@ def run_engine(
         if row.get("completed"):
             _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
             return 0
-        campaign = Campaign(campaign_config_from_dict(meta["config"]))
+        try:
+            config = campaign_config_from_dict(meta["config"])
+        except InputError as exc:
+            raise InputError(str(path), exc.problem) from None
+        campaign = Campaign(config)
         journal = Journal.open_writer(path)
         driver_kind = str(meta.get("driver", "sim"))
         sup = supervision or str(row.get("supervision") or "auto")

@@ -415,3 +415,16 @@ def test_the_engine_holds_refused_blocks_for_the_operator_and_never_crashes(
     with JournalReader(path) as r:
         logged = [e for e in r.table("events")[1] if "safety interlock refused" in str(e)]
     assert len(logged) >= len(refusals)
+
+
+def test_a_polygon_traced_twice_or_crossing_itself_is_inside_for_planner_and_interlock() -> None:
+    tri = ((0.0, 0.0), (100.0, 0.0), (0.0, 100.0))
+    twice = PolygonExclusion(tri + tri)
+    bow = PolygonExclusion(((0.0, 0.0), (100.0, 100.0), (100.0, 0.0), (0.0, 100.0)))  # a bow tie
+    pts = np.array([[20.0, 10.0], [80.0, 50.0], [20.0, 50.0], [200.0, 200.0]])
+    assert (twice.clearance_um(pts[:, 0], pts[:, 1]) < 0).tolist() == [True, False, True, False]
+    assert (bow.clearance_um(pts[:, 0], pts[:, 1]) < 0).tolist() == [False, True, True, False]
+    from core.interlock import _in_or_on_polygon
+
+    assert _in_or_on_polygon(np.asarray(twice.vertices_um), pts).tolist() == [True, False, True, False]
+    assert _in_or_on_polygon(np.asarray(bow.vertices_um), pts).tolist() == [False, True, True, False]

@@ -48,7 +48,7 @@ class PolygonExclusion:
     vertices_um: tuple[tuple[float, float], ...]
 
     def clearance_um(self, x_um: FloatArray, y_um: FloatArray) -> FloatArray:
-        """Distance from each point to the polygon's boundary, negated inside (even-odd rule)."""
+        """Distance from each point to the polygon's boundary, negated inside (non-zero winding rule)."""
         v = np.asarray(self.vertices_um, dtype=float)
         p = np.column_stack([np.ravel(x_um), np.ravel(y_um)])
         a = v
@@ -59,11 +59,15 @@ class PolygonExclusion:
         t = np.clip(np.einsum("pki,ki->pk", ap, ab) / length2, 0.0, 1.0)
         nearest = a[None] + t[..., None] * ab[None]
         dist = np.hypot(*(p[:, None, :] - nearest).transpose(2, 0, 1)).min(axis=1)
-        ya, yb = a[:, 1], b[:, 1]
-        crosses = (ya[None] > p[:, 1:2]) != (yb[None] > p[:, 1:2])
+        ya, yb = a[None, :, 1], b[None, :, 1]
+        py = p[:, 1:2]
+        up = (ya <= py) & (yb > py)
+        down = (ya > py) & (yb <= py)
         with np.errstate(divide="ignore", invalid="ignore"):
-            x_at = a[None, :, 0] + (p[:, 1:2] - ya[None]) * ab[None, :, 0] / ab[None, :, 1]
-        inside = (np.sum(crosses & (p[:, 0:1] < x_at), axis=1) % 2) == 1
+            x_at = a[None, :, 0] + (py - ya) * ab[None, :, 0] / ab[None, :, 1]
+        right = p[:, 0:1] < x_at
+        # non-zero winding: a region traced twice, or a self-crossing outline, is all inside (the cautious reading)
+        inside = (np.sum(up & right, axis=1) - np.sum(down & right, axis=1)) != 0
         return np.asarray(np.where(inside, -dist, dist).reshape(np.shape(x_um)), dtype=float)
 
     def to_dict(self) -> dict[str, Any]:

@@ -60,9 +60,16 @@ class Interlock:
         """A block ran: its indents join the ones to keep away from; a global block opens a program."""
         if block.kind == "global":
             self._program_centre = (float(block.center_x_um), float(block.center_y_um))
-        if results:
-            xy = np.array([(r.actual_x_um, r.actual_y_um) for r in results], dtype=float)
-            self._earlier.append(xy)
+        # where the tip went down: the measured position, else (a failed indent) where it was sent
+        spots = [
+            (r.actual_x_um, r.actual_y_um)
+            if math.isfinite(r.actual_x_um) and math.isfinite(r.actual_y_um)
+            else (r.commanded_x_um, r.commanded_y_um)
+            for r in results
+            if r.status != "not_run"
+        ]
+        if spots:
+            self._earlier.append(np.array(spots, dtype=float))
 
     def restore(self, observed: Iterable[tuple[Block, Sequence[IndentResult]]]) -> None:
         """Rebuild after a crash from the journal's observed blocks, in order."""

@@ -125,8 +125,13 @@ def test_failed_and_not_run_indents_are_journaled_as_such(tmp_path: Path) -> Non
 
 
 def test_the_campaign_learns_only_from_measured_indents(tmp_path: Path) -> None:
-    campaign = Campaign(make_campaign_config(seed=4, lattice_n=12, settings={"budget_s": 1e6}))
-    driver = campaign.make_sim_driver()
+    from drivers.sim.scenarios import make_scenario
+
+    scenario = make_scenario("ternary", 4)
+    campaign = Campaign(
+        make_campaign_config(seed=4, lattice_n=12, settings={"budget_s": 1e6}), scenario.sample
+    )
+    driver = scenario.make_driver(campaign.profile)
 
     def run_block(block_id: int, bad: dict[int, IndentStatus]) -> list[IndentResult]:
         d = campaign.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)

@@ -319,6 +319,8 @@ class AdversarialCampaign:
         self.n_blocks = n_blocks
         self.observed: list[tuple[Block, list[IndentResult]]] = []
         self.offered = 0
+        self.calibration = sample.calibration
+        self.last_stop_reason: str | None = None
 
     def propose(
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int

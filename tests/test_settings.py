@@ -28,6 +28,7 @@ from core.settings import (
     settings_from_dict,
     settings_to_dict,
 )
+from drivers.sim.scenarios import make_scenario
 
 HOLDS = load_profile("kla-imicro").allowed_holds_s  # 0, 5, 80 s
 
@@ -76,12 +77,12 @@ def test_holds_are_the_profiles_wherever_the_profile_is_known() -> None:
     with pytest.raises(
         InputError, match=r"^planner\.fixed_hold_s: 7\.0 is not allowed: expected one of 0, 5, 80"
     ):
-        Campaign(config)
+        Campaign(config, make_scenario("ternary", 0).sample)
 
 
 def test_the_default_hold_is_the_profiles() -> None:
     assert PlannerSettings().fixed_hold_s is None
-    campaign = Campaign(make_campaign_config(lattice_n=8))
+    campaign = Campaign(make_campaign_config(lattice_n=8), make_scenario("ternary", 0).sample)
     assert campaign.settings.fixed_hold_s == campaign.profile.default_hold_s == 80.0
     assert campaign.profile.fast_hold_s == 5.0
 

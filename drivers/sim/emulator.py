@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.drift import area_error_pct
 from core.errors import InputError
+from core.profile import InstrumentProfile
 
 __all__ = [
     "DRIFT_SCENARIOS",
@@ -696,7 +697,8 @@ class Emulator:
     """Turns a commanded indent into what the instrument would report.
 
     Depth bias from vertical drift is DR(t)·t_measure·r(hold), r = max(0, 1 − hold/full_correction_hold_s):
-    the post-hold drift measurement corrects the depth fully after 80 s and barely after 5 s. The test runs
+    the post-hold drift measurement corrects the depth fully after the profile's longest hold (80 s on the
+    iMicro) and barely after 5 s. The test runs
     to its nominal depth as measured (drift included), so the true depth is shallower by the uncorrected
     bias: the instrument overestimates the contact area (∝ depth²) and hardness reads low. This is the
     convention of the paper's Eq. 7 (h_true = h_meas − DR·t), which the hold rule and the correction use.
@@ -710,7 +712,7 @@ class Emulator:
         lateral_sd_um: float = 0.0,
         nominal_depth_nm: float = 100.0,
         t_measure_s: float = 40.0,
-        full_correction_hold_s: float = 80.0,
+        full_correction_hold_s: float = max(InstrumentProfile.allowed_holds_s),
         site_texture: SiteTexture | None = None,
     ) -> None:
         self.truth = truth

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from core.errors import InputError
 from core.geometry import Calibration
-from core.profile import InstrumentProfile
+from core.profile import InstrumentProfile, load_profile
 from core.sample import Sample
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.emulator import (
@@ -82,12 +82,15 @@ class Scenario:
     def lattice_n(self) -> int:
         return self.sample.lattice_n
 
-    def make_emulator(self) -> Emulator:
+    def make_emulator(self, profile: InstrumentProfile | None = None) -> Emulator:
+        """The measurement physics; a full hold is the profile's longest (its drift segment corrects fully)."""
+        profile = profile or load_profile(self.profile_name)
         return Emulator(
             self.truth,
             self.drift,
             self.seed,
             lateral_sd_um=self.lateral_sd_um,
+            full_correction_hold_s=max(profile.allowed_holds_s),
             site_texture=self.site_texture,
         )
 
@@ -107,7 +110,7 @@ class Scenario:
         if start_um is None:
             x0, x1, y0, y1 = self.sample.calibration.bounds_um
             start_um = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
-        return SimulatedDriver(self.make_emulator(), profile, speed=speed, start_um=start_um)
+        return SimulatedDriver(self.make_emulator(profile), profile, speed=speed, start_um=start_um)
 
     def evaluator(self, n: int = 100) -> TruthEvaluator:
         """The map-error scorer for a campaign on this scenario (the truth never reaches the campaign)."""

@@ -263,13 +263,17 @@ def _expect_input_error(path: Path, problem: str) -> InputError:
     return info.value
 
 
-def test_refuses_a_csv_even_when_named_xlsx(tmp_path: Path) -> None:
-    csv = tmp_path / "results.csv"
-    csv.write_text("Test,X,Y,Hardness\n1,0,0,9\n")
-    _expect_input_error(csv, "not an Excel workbook")
+def test_content_decides_not_the_extension(tmp_path: Path) -> None:
+    # a CSV named .xlsx is read as text; binary junk and an HTML page are refused by what they are
     disguised = tmp_path / "results.xlsx"
     disguised.write_text("Test,X,Y,Hardness\n1,0,0,9\n")
-    _expect_input_error(disguised, "not an Excel workbook")
+    assert read_kla_export(disguised).indents[0].hardness_gpa == 9.0
+    junk = tmp_path / "junk.csv"
+    junk.write_bytes(b"\x00\x01\x02binary\x00")
+    _expect_input_error(junk, "not an Excel workbook (.xlsx or .xls) or a text (CSV) export")
+    html = tmp_path / "page.xls"
+    html.write_text("<html><body><table><tr><td>Test</td></tr></table></body></html>")
+    _expect_input_error(html, "an HTML/XML page")
 
 
 def test_refuses_empty_missing_and_corrupt_files(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -23,7 +24,7 @@ def register(subparsers: Any) -> None:
         help="read an export into indent records",
         description="Read a KLA export: a short table by default, --json for records, --csv to convert.",
     )
-    read.add_argument("file", metavar="FILE", help="InView .xlsx or NanoSuite .xls export")
+    read.add_argument("file", metavar="FILE", help="InView .xlsx/.xls or CSV export, NanoSuite .xls")
     read.add_argument("--json", action="store_true", help="print a JSON list of indent records")
     read.add_argument("--csv", metavar="OUT", type=Path, help="write the records to a CSV file")
     read.set_defaults(func=_read)
@@ -38,12 +39,27 @@ def _read(args: argparse.Namespace) -> int:
     for note in export.warnings:
         print(f"aeni: warning: {note}", file=sys.stderr)
     if args.json:
-        print(dumps(records(export)))
+        text = dumps(records(export))
     else:
-        print(format_table(export))
+        text = format_table(export)
         if args.csv is not None:
-            print(f"wrote {len(export.indents)} records to {args.csv}")
+            text += f"\nwrote {len(export.indents)} records to {args.csv}"
+    print_to_pipe(text)
     return 0
+
+
+def print_to_pipe(text: str) -> None:
+    """Print, and end quietly when the reader went away (``aeni kla read F --json | head``).
+
+    Python's own advice: on EPIPE point stdout at /dev/null so the flush at exit cannot raise again.
+    """
+    try:
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
 
 
 def write_csv_atomic(export: KlaExport, out: Path) -> None:
@@ -62,11 +78,12 @@ def format_table(export: KlaExport) -> str:
     lines = [
         f"{Path(export.path).name} ({export.software}): {len(export.indents)} tests, "
         f"hardness from {'/'.join(sources)}",
-        f"{'test':>6} {'x_um':>12} {'y_um':>12} {'H_GPa':>8} {'E_GPa':>8} {'drift_nm_s':>11}",
+        f"{'test':>6} {'x_um':>12} {'y_um':>12} {'H_GPa':>8} {'E_GPa':>8} {'drift_nm_s':>11}  failure",
     ]
     for i in export.indents:
         lines.append(
             f"{i.test_id:>6} {_num(i.x_um, 2):>12} {_num(i.y_um, 2):>12} {_num(i.hardness_gpa, 3):>8} "
             f"{_num(i.modulus_gpa, 2):>8} {_num(i.drift_rate_nm_s, 4):>11}"
+            + (f"  {i.failure}" if i.failure else "")
         )
     return "\n".join(lines)

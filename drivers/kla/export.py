@@ -24,6 +24,7 @@ drift hold is creep recovery, so neither is re-measured nor re-applied.
 
 from __future__ import annotations
 
+import csv
 import math
 import re
 import warnings
@@ -68,6 +69,13 @@ class KlaIndent:
     max_load_mn: float | None
     max_depth_nm: float | None
     source: str  # "results" or "curve"
+    # why this indent has no usable hardness (blank, "--", 1.797e308, zero/negative/impossible value);
+    # None for a measured indent. A failed indent never carries a hardness number.
+    failure: str | None = None
+
+    @property
+    def failed(self) -> bool:
+        return self.failure is not None
 
 
 @dataclass(frozen=True)
@@ -76,11 +84,13 @@ class KlaExport:
     software: str  # "InView" | "NanoSuite" | "unknown"
     indents: tuple[KlaIndent, ...]
     warnings: tuple[str, ...] = ()
+    # the depth range (nm) the hardness column says it was averaged over, e.g. "Avg Hardness [75-85 nm]"
+    hardness_range_nm: tuple[float, float] | None = None
 
     def to_frame(self) -> pd.DataFrame:
         columns = [f.name for f in fields(KlaIndent)]
         frame = pd.DataFrame([asdict(i) for i in self.indents], columns=columns)
-        numeric = [c for c in columns if c not in ("test_id", "source")]
+        numeric = [c for c in columns if c not in ("test_id", "source", "failure")]
         frame[numeric] = frame[numeric].astype(float)
         return frame
 
@@ -105,6 +115,12 @@ _RESULT_ALIASES: dict[str, tuple[str, ...]] = {
         "h it",
         "h average over defined range",
         "hardness average over defined range",
+        "avg hardness",
+        "average hardness",
+        "mean hardness",
+        "hardness avg",
+        "hardness average",
+        "hardness mean",
     ),
     "modulus_gpa": (
         "modulus",
@@ -113,6 +129,12 @@ _RESULT_ALIASES: dict[str, tuple[str, ...]] = {
         "e it",
         "e average over defined range",
         "modulus average over defined range",
+        "avg modulus",
+        "average modulus",
+        "mean modulus",
+        "modulus avg",
+        "modulus average",
+        "modulus mean",
     ),
     "drift_rate_nm_s": ("drift rate", "drift correction"),
     # "Maximum Displacement" and "Target Load" are the programmed limits, not measurements: not aliased.
@@ -165,8 +187,17 @@ _SUMMARY_LABELS = frozenset(
     }
 )
 _AREA_COEFF = re.compile(r"^area coefficient\s*(\d+)$")
-_TEST_SHEET = re.compile(r"^\s*test\s*(\d+)\s*$", re.IGNORECASE)
+# "Test 004", and curve sheets some InView templates suffix: "Test 004 Tagged", "Test 4 (2)"
+_TEST_SHEET = re.compile(r"^\s*test\s*#?\s*(\d+)(?:[\s_\-(].*)?$", re.IGNORECASE)
 _HEADER_UNIT = re.compile(r"^(.*?)\s*[\(\[]([^\)\]]*)[\)\]]\s*$")
+# an averaging range carried in a header: "Avg Hardness [75-85 nm]", "H (100 to 200 nm) GPa"
+_HEADER_RANGE = re.compile(
+    r"[\(\[]?\s*(\d+(?:\.\d+)?)\s*(?:-|–|—|to|\.\.)\s*(\d+(?:\.\d+)?)\s*(nm|µm|μm|um)\s*[\)\]]?",
+    re.IGNORECASE,
+)
+# values no material has: hardness above diamond's, modulus above diamond's (GPa)
+MAX_HARDNESS_GPA = 200.0
+MAX_MODULUS_GPA = 1500.0
 
 # -------------------------------------------------------------------------------------------- units
 
@@ -229,6 +260,7 @@ class _Table:
     keys: tuple[str, ...]  # normalised
     units: tuple[object, ...]
     data: pd.DataFrame  # positional columns 0..n-1, only the rows below header/units
+    ranges_nm: tuple[tuple[float, float] | None, ...] = ()  # averaging range named in each header
 
     def column(self, aliases: Iterable[str]) -> int | None:
         wanted = set(aliases)
@@ -242,33 +274,56 @@ def _is_number(value: object) -> bool:
     return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
+def _parse_header(text: str) -> tuple[str, str | None, tuple[float, float] | None]:
+    """'Avg Hardness [75-85 nm] (GPa)' -> ('Avg Hardness', 'GPa', (75.0, 85.0)): name, unit, range in nm."""
+    depth_range: tuple[float, float] | None = None
+    m = _HEADER_RANGE.search(text)
+    if m:
+        factor = _LENGTH_NM[_clean_unit(m.group(3))]
+        depth_range = (float(m.group(1)) * factor, float(m.group(2)) * factor)
+        text = (text[: m.start()] + " " + text[m.end() :]).strip()
+    u = _HEADER_UNIT.match(text)
+    if u:
+        return u.group(1).strip(), u.group(2), depth_range
+    return text, None, depth_range
+
+
+def _looks_like_units_row(cells: list[object]) -> bool:
+    """A row of short unit labels ('µm', 'GPa', 'nm/s') and blanks: no numbers, no test labels, no '--'."""
+    texts = [c.strip() for c in cells if isinstance(c, str) and c.strip()]
+    if not texts or any(_is_number(c) and not math.isnan(float(cast(float, c))) for c in cells):
+        return False
+    return all(len(t) <= 16 and not _TEST_SHEET.match(t) and t.strip("-") for t in texts)
+
+
 def _split_table(raw: pd.DataFrame, header_aliases: Iterable[str]) -> _Table | None:
-    """Find the header row (first of the top 10 naming a known column) and an optional units row."""
+    """Find the header row (first of the top 30 naming a known column) and an optional units row."""
     wanted = set(header_aliases)
     header_row = None
-    for r in range(min(10, len(raw))):
-        if any(_norm(_HEADER_UNIT.sub(r"\1", str(v))) in wanted for v in raw.iloc[r] if isinstance(v, str)):
+    for r in range(min(30, len(raw))):
+        if any(_norm(_parse_header(v)[0]) in wanted for v in raw.iloc[r] if isinstance(v, str)):
             header_row = r
             break
     if header_row is None:
         return None
     headers: list[str] = []
     units: list[object] = []
+    ranges: list[tuple[float, float] | None] = []
     for v in raw.iloc[header_row]:
         text = "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
-        m = _HEADER_UNIT.match(text)
-        headers.append(m.group(1) if m else text)
-        units.append(m.group(2) if m else None)
+        name, unit, depth_range = _parse_header(text)
+        headers.append(name)
+        units.append(unit)
+        ranges.append(depth_range)
     start = header_row + 1
     if start < len(raw):
         cells = list(raw.iloc[start])
-        has_text = any(isinstance(c, str) and c.strip() for c in cells)
-        if has_text and not any(_is_number(c) and not math.isnan(float(c)) for c in cells):
+        if _looks_like_units_row(cells):
             units = [cells[i] if units[i] is None else units[i] for i in range(len(cells))]
             start += 1
     data = raw.iloc[start:].reset_index(drop=True)
     data.columns = range(data.shape[1])
-    return _Table(tuple(headers), tuple(_norm(h) for h in headers), tuple(units), data)
+    return _Table(tuple(headers), tuple(_norm(h) for h in headers), tuple(units), data, tuple(ranges))
 
 
 def _numeric(series: pd.Series) -> np.ndarray:
@@ -490,11 +545,13 @@ def _peak(curve: _Curve) -> tuple[float, float] | None:
     return float(load[peak]), float(np.nanmax(np.where(ok, depth, np.nan)[: end + 1]))
 
 
-def _csm_average(curve: _Curve, lo_nm: float | None, hi_nm: float | None) -> _CurveResult | None:
+def _csm_average(
+    curve: _Curve, lo_nm: float | None, hi_nm: float | None, test: str, notes: list[str]
+) -> _CurveResult | None:
     """Mean of the CSM Hardness/Modulus channels over [lo, hi] nm of the loading segment.
 
     Default band without file limits: 10-20 % of the maximum depth (the 10 % rule for films; bulk
-    samples are flat there too).
+    samples are flat there too), and the warnings say so.
     """
     assert curve.hardness_gpa is not None
     load, depth = curve.load_mn, curve.depth_nm
@@ -505,6 +562,11 @@ def _csm_average(curve: _Curve, lo_nm: float | None, hi_nm: float | None) -> _Cu
     peak = int(np.nanargmax(load))
     lo = lo_nm if lo_nm is not None else 0.1 * h_peak
     hi = hi_nm if hi_nm is not None else 0.2 * h_peak
+    if lo_nm is None or hi_nm is None:
+        notes.append(
+            f"test {test}: the file names no calculation depth range; CSM hardness averaged over "
+            f"{lo:.0f}-{hi:.0f} nm (10-20 % of the maximum depth)"
+        )
     band = np.zeros(load.size, dtype=bool)
     band[: peak + 1] = (depth[: peak + 1] >= lo) & (depth[: peak + 1] <= hi)
 
@@ -564,45 +626,114 @@ def _frame_compliance_from_cycles(sheets: Mapping[str, pd.DataFrame], notes: lis
 
 
 def _check_file(path: Path) -> str:
-    """Refuse early and clearly: missing, empty or not a workbook. Returns the pandas engine."""
+    """Refuse early and clearly: missing, empty, or neither a workbook nor a text table.
+
+    The content decides, never the extension: labs rename files, and InView's "Excel" export can be an
+    .xlsx named .xls or a tab-separated text file. Returns "openpyxl", "xlrd" or "text".
+    """
     if not path.is_file():
         raise InputError(str(path), "file not found")
     with path.open("rb") as fh:
-        head = fh.read(8)
+        head = fh.read(4096)
     if not head:
         raise InputError(str(path), "empty file")
     if head.startswith(_XLSX_MAGIC):
         return "openpyxl"
-    if head == _XLS_MAGIC:
+    if head.startswith(_XLS_MAGIC):
         return "xlrd"
-    raise InputError(str(path), "not an Excel workbook (.xlsx or .xls)")
+    text = _decode(head, path, partial=True).lstrip().lower()
+    if text.startswith(("<html", "<!doctype", "<?xml", "<table")):
+        raise InputError(str(path), "an HTML/XML page, not a workbook or CSV export (export as .xlsx or CSV)")
+    return "text"
+
+
+def _decode(data: bytes, path: Path, *, partial: bool = False) -> str:
+    """UTF-16 (with BOM), UTF-8 or Windows-1252 text; binary junk is refused."""
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return data.decode("utf-16", errors="replace" if partial else "strict")
+    if b"\x00" in data:
+        raise InputError(str(path), "not an Excel workbook (.xlsx or .xls) or a text (CSV) export")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        if partial and exc.start >= len(data) - 3:  # a multi-byte character cut by the 4 kB sniff
+            return data[: exc.start].decode("utf-8-sig")
+        return data.decode("cp1252", errors="replace")
+
+
+_DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+(?:[eE][-+]?\d+)?$")
+
+
+def _sniff_delimiter(lines: list[str]) -> str:
+    """The separator that splits the most lines into the same number of fields (tab, ';' or ',')."""
+    best, best_score = ",", -1
+    for delim in ("\t", ";", ","):
+        counts = [ln.count(delim) for ln in lines if ln.strip()]
+        nonzero = [c for c in counts if c > 0]
+        if not nonzero:
+            continue
+        mode = max(set(nonzero), key=nonzero.count)
+        score = sum(c == mode for c in counts)
+        if score > best_score:
+            best, best_score = delim, score
+    return best
+
+
+def _text_cell(cell: str, decimal_comma: bool) -> object:
+    text = cell.strip()
+    if not text:
+        return None
+    if decimal_comma and _DECIMAL_COMMA.match(text):
+        text = text.replace(",", ".")
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _read_text(path: Path) -> dict[str, pd.DataFrame]:
+    """A CSV/TSV export as one 'Results' sheet; ';'-separated files may use decimal commas."""
+    lines = _decode(path.read_bytes(), path).splitlines()
+    delimiter = _sniff_delimiter(lines)
+    rows = list(csv.reader(lines, delimiter=delimiter))
+    decimal_comma = delimiter != "," and any(_DECIMAL_COMMA.match(c.strip()) for r in rows for c in r)
+    width = max((len(r) for r in rows), default=0)
+    table = [[_text_cell(c, decimal_comma) for c in r] + [None] * (width - len(r)) for r in rows]
+    return {"Results": pd.DataFrame(table, dtype=object)}
 
 
 def _read_xlsx(path: Path) -> dict[str, pd.DataFrame]:
     """openpyxl directly, not pandas: an .xlsx stores DBL_MAX as text that parses to inf, and pandas'
-    openpyxl reader then dies on int(inf). Here inf just becomes a missing value later."""
-    book = openpyxl.load_workbook(path, read_only=True, data_only=True)
-    try:
-        out = {}
-        for sheet in book.worksheets:
-            if isinstance(sheet, ReadOnlyWorksheet):
-                sheet.reset_dimensions()  # exporters often write a wrong <dimension>
-            out[sheet.title] = pd.DataFrame(list(sheet.iter_rows(values_only=True)))
-        return out
-    finally:
-        book.close()
+    openpyxl reader then dies on int(inf). Here inf just becomes a missing value later. The file is
+    passed open, so openpyxl does not refuse an .xlsx named .xls by its extension."""
+    with path.open("rb") as fh:
+        book = openpyxl.load_workbook(fh, read_only=True, data_only=True)
+        try:
+            out = {}
+            for sheet in book.worksheets:
+                if isinstance(sheet, ReadOnlyWorksheet):
+                    sheet.reset_dimensions()  # exporters often write a wrong <dimension>
+                out[sheet.title] = pd.DataFrame(list(sheet.iter_rows(values_only=True)))
+            return out
+        finally:
+            book.close()
 
 
 def _read_sheets(path: Path, engine: str) -> dict[str, pd.DataFrame]:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # pandas deprecates xlrd; openpyxl warns on styles
-            if engine == "openpyxl":
+            if engine == "text":
+                sheets = _read_text(path)
+            elif engine == "openpyxl":
                 sheets = _read_xlsx(path)
             else:
                 sheets = pd.read_excel(path, sheet_name=None, header=None, engine=engine)
+    except InputError:
+        raise
     except Exception as exc:  # the engines raise a zoo of types on corrupt files
-        raise InputError(str(path), f"unreadable Excel workbook ({type(exc).__name__}: {exc})") from exc
+        what = "text export" if engine == "text" else "Excel workbook"
+        raise InputError(str(path), f"unreadable {what} ({type(exc).__name__}: {exc})") from exc
     if not sheets or all(df.empty for df in sheets.values()):
         raise InputError(str(path), "workbook has no data")
     return {str(name): df for name, df in sheets.items()}
@@ -692,8 +823,105 @@ def _robust_outliers(indents: list[KlaIndent], notes: list[str]) -> None:
             )
 
 
+_NOT_A_VALUE = frozenset(
+    {
+        "std",
+        "stdev",
+        "dev",
+        "deviation",
+        "sd",
+        "sigma",
+        "error",
+        "err",
+        "cov",
+        "cv",
+        "uncertainty",
+        "%",
+        "range",
+    }
+)
+
+
+def _value_columns(table: _Table, key: str, word: str, letter: str) -> list[int]:
+    """Columns that hold a per-test value of ``word``: exact aliases first, then names that contain the
+    word ('Avg Hardness', 'Hardness@CSM'), then a bare letter with a pressure unit ('H' in GPa).
+    Spreads and errors ('Hardness Std Dev') are not values."""
+    exact = [i for i, k in enumerate(table.keys) if k in _RESULT_ALIASES[key]]
+    loose = []
+    for i, k in enumerate(table.keys):
+        named = word in k and not set(re.split(r"[^a-z%]+", k)) & _NOT_A_VALUE
+        lettered = k == letter and _clean_unit(table.units[i]) in _PRESSURE_GPA
+        if i not in exact and (named or lettered):
+            loose.append(i)
+    loose.sort(key=lambda i: not ({"avg", "average", "mean"} & set(table.keys[i].split())))
+    return exact + loose
+
+
+def _result_columns(table: _Table, sheet: str, notes: list[str]) -> dict[str, int | None]:
+    cols = {key: table.column(aliases) for key, aliases in _RESULT_ALIASES.items()}
+    for key, word, letter in (("hardness_gpa", "hardness", "h"), ("modulus_gpa", "modulus", "e")):
+        found = _value_columns(table, key, word, letter)
+        cols[key] = found[0] if found else None
+        if len(found) > 1:
+            others = ", ".join(repr(table.headers[i]) for i in found[1:])
+            notes.append(
+                f"{sheet}: {word} from {table.headers[found[0]]!r}; also present, not used: {others}"
+            )
+    return cols
+
+
+def _missing_value(raw: object) -> str:
+    """What a cell that gave no number held, for the failure reason."""
+    if raw is None or (isinstance(raw, float) and math.isnan(raw)):
+        return "blank"
+    if _is_number(raw):
+        v = float(cast(float, raw))
+        if not math.isfinite(v) or abs(v) >= INVALID_THRESHOLD:
+            return "1.797e308 (the instrument's 'invalid')"
+        return f"{v:g}"
+    text = str(raw).strip()
+    return repr(text) if text else "blank"
+
+
+def _physical(value: float | None, what: str, limit: float) -> str | None:
+    """Why a hardness or modulus value cannot be real (zero, negative, above diamond's), or None."""
+    if value is None:
+        return None
+    if value <= 0:
+        return f"{what} {value:.4g} GPa is not physical (≤ 0)"
+    if value > limit:
+        return f"{what} {value:.4g} GPa is not physical (> {limit:g})"
+    return None
+
+
+def _summary_row(data: pd.DataFrame, row: int) -> bool:
+    """'Average', 'Std Dev', '% COV' ... in any text cell of the row (the label column varies)."""
+    for cell in data.iloc[row]:
+        if isinstance(cell, str) and _norm(cell).rstrip(":") in _SUMMARY_LABELS:
+            return True
+    return False
+
+
+def _curve_sheet_names(sheets: Mapping[str, pd.DataFrame]) -> dict[str, str]:
+    """test key -> curve sheet; 'Test 004' wins over 'Test 004 Tagged' when both exist."""
+    out: dict[str, str] = {}
+    for name in sheets:
+        m = _TEST_SHEET.match(name)
+        if m is None:
+            continue
+        key = str(int(m.group(1)))
+        exact = name.strip().lower().replace(" ", "") == f"test{m.group(1)}".lower()
+        if key not in out or exact:
+            out[key] = name
+    return out
+
+
 def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = None) -> KlaExport:
-    """Read one KLA/Agilent export; ``frame_compliance_nm_mn`` overrides the estimate from the file."""
+    """Read one KLA/Agilent export; ``frame_compliance_nm_mn`` overrides the estimate from the file.
+
+    Every row of the file is one indent. A row whose hardness is missing, marked invalid or impossible
+    (≤ 0, or modulus ≤ 0) comes back as a failed indent with its reason and no hardness number.
+    """
     path = Path(path)
     engine = _check_file(path)
     sheets = _read_sheets(path, engine)
@@ -704,28 +932,42 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
     table = _split_table(sheets[res_name], [a for aliases in _RESULT_ALIASES.values() for a in aliases])
     if table is None or table.data.empty:
         raise InputError(str(path), f"sheet {res_name!r} has no header row with known columns")
-    cols = {key: table.column(aliases) for key, aliases in _RESULT_ALIASES.items()}
+    cols = _result_columns(table, res_name, notes)
     values: dict[str, np.ndarray] = {}
     for key, col in cols.items():
         if col is not None and key != "test_id":
             factor = _unit_factor(key, table.units[col], f"{res_name}: {table.headers[col]}", notes)
             values[key] = _numeric(table.data[col]) * factor
+    hardness_range = table.ranges_nm[cols["hardness_gpa"]] if cols["hardness_gpa"] is not None else None
+    if hardness_range is not None:
+        lo, hi = hardness_range
+        notes.append(
+            f"hardness is the file's own average over {lo:g}-{hi:g} nm "
+            f"(column {table.headers[cast(int, cols['hardness_gpa'])]!r})"
+        )
     area_cols = {int(m.group(1)): i for i, k in enumerate(table.keys) if (m := _AREA_COEFF.match(k))}
 
-    # rows: stop at the first summary label ("Average", "Mean", ...), skip blank rows
+    # rows: skip summary rows ("Average", "Std Dev", "% COV" ...) wherever they are, and blank rows
     test_ids: list[tuple[int, str]] = []
     for row in range(len(table.data)):
         label = table.data.iat[row, cols["test_id"]] if cols["test_id"] is not None else None
         test_key = _test_key(label)
-        if test_key is not None and _norm(test_key) in _SUMMARY_LABELS:
-            break
-        if all(not math.isfinite(v[row]) for v in values.values()) and test_key is None:
+        if _summary_row(table.data, row):
+            continue
+        blank = all(
+            table.data.iat[row, c] is None
+            or (isinstance(table.data.iat[row, c], float) and math.isnan(table.data.iat[row, c]))
+            or (isinstance(table.data.iat[row, c], str) and not table.data.iat[row, c].strip())
+            for c in range(table.data.shape[1])
+            if c != cols["test_id"]
+        )
+        if blank:
             continue
         test_ids.append((row, test_key if test_key is not None else str(len(test_ids) + 1)))
     if not test_ids:
         raise InputError(str(path), f"sheet {res_name!r} has no test rows")
 
-    inputs = _inputs_by_test(sheets, {res_name}, notes)
+    inputs = _inputs_by_test(sheets, set(), notes)  # Results may carry calculation depths too
     for row, test in test_ids:
         for k, col in area_cols.items():
             v = _numeric(table.data[col].iloc[[row]])[0]
@@ -738,11 +980,7 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
     ):
         raise InputError(str(path), f"no position columns (X/Y) in {res_name!r} or any inputs sheet")
 
-    curve_sheets = {
-        sheet_key: name
-        for name in sheets
-        if (sheet_key := _test_key(name)) is not None and _TEST_SHEET.match(name)
-    }
+    curve_sheets = _curve_sheet_names({n: df for n, df in sheets.items() if n != res_name})
     need_h = "hardness_gpa" not in values
     need_curve = need_h or "max_load_mn" not in values or "max_depth_nm" not in values
     if need_h and not curve_sheets:
@@ -773,13 +1011,19 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
             get("max_load_mn"),
             get("max_depth_nm"),
         )
+        failure: str | None = None
+        if not need_h and h is None:
+            raw = table.data.iat[row, cast(int, cols["hardness_gpa"])]
+            failure = f"hardness {_missing_value(raw)}"
         derived: _CurveResult | None = None
         if need_curve and test in curve_sheets:
             curve = _parse_curve(sheets[curve_sheets[test]], curve_sheets[test], notes)
             if curve is None:
                 notes.append(f"test {test}: sheet {curve_sheets[test]!r} has no Load/Depth columns")
             elif need_h and curve.hardness_gpa is not None and np.isfinite(curve.hardness_gpa).any():
-                derived = _csm_average(curve, extra.get("min_calc_depth"), extra.get("max_calc_depth"))
+                derived = _csm_average(
+                    curve, extra.get("min_calc_depth"), extra.get("max_calc_depth"), test, notes
+                )
             elif need_h:
                 poisson = extra.get("poisson")
                 if poisson is None:
@@ -805,7 +1049,15 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
                 h, e = _finite(derived.hardness_gpa), _finite(derived.modulus_gpa)
             p_max = p_max if p_max is not None else _finite(derived.max_load_mn)
             h_max = h_max if h_max is not None else _finite(derived.max_depth_nm)
-        indents.append(KlaIndent(test, x, y, h, e, drift, p_max, h_max, "curve" if need_h else "results"))
+        if need_h and h is None:
+            failure = "no hardness from its curve" if test in curve_sheets else "no curve sheet"
+        failure = failure or _physical(h, "hardness", MAX_HARDNESS_GPA)
+        failure = failure or _physical(e, "modulus", MAX_MODULUS_GPA)
+        if failure is not None:
+            h = None
+            e = e if _physical(e, "modulus", MAX_MODULUS_GPA) is None else None
+        source = "curve" if need_h else "results"
+        indents.append(KlaIndent(test, x, y, h, e, drift, p_max, h_max, source, failure))
 
     if missing_curves:
         notes.append(f"no Test sheet for test(s) {', '.join(missing_curves)}: hardness missing")
@@ -813,8 +1065,13 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
         notes.extend(cf_notes)
         if not cf:
             notes.append("modulus not corrected for frame compliance (none given or estimable): reads low")
+    failed = [i for i in indents if i.failed]
+    if failed:
+        shown = "; ".join(f"test {i.test_id}: {i.failure}" for i in failed[:5])
+        more = f" (and {len(failed) - 5} more)" if len(failed) > 5 else ""
+        notes.append(f"{len(failed)} failed indent(s), no hardness recorded: {shown}{more}")
     _robust_outliers(indents, notes)
-    return KlaExport(str(path), software, tuple(indents), tuple(dict.fromkeys(notes)))
+    return KlaExport(str(path), software, tuple(indents), tuple(dict.fromkeys(notes)), hardness_range)
 
 
 def records(export: KlaExport) -> list[dict[str, Any]]:

@@ -45,6 +45,36 @@ class MoveModel:
 
 
 @dataclass(frozen=True)
+class InViewSettings:
+    """How this lab's InView takes an array and names its methods: the KLA file exchange's conventions.
+
+    The array dialog imports ``x, y`` offsets in µm from the crosshair; its axes need not be the stage's.
+    The default flips Y (InView counts array Y down the camera image, the stage counts it up); a lab checks
+    its own with a 3-site test block (docs/kla.md) and sets the signs here.
+    """
+
+    methods: tuple[tuple[float, str], ...] = (
+        (0.0, "NanoBlitz 3D.nmt"),
+        (5.0, "AENI hold 5 s.nmt"),
+        (80.0, "AENI hold 80 s.nmt"),
+    )
+    array_x_sign: int = 1
+    array_y_sign: int = -1
+    array_swap_xy: bool = False
+    position_tolerance_um: float = 3.0  # an export row must lie this close to its planned site
+    stable_polls: int = 3  # an export counts as complete when size and mtime hold for this many polls
+    poll_s: float = 1.0
+    deadline_factor: float = 1.5  # deadline = estimate × factor + margin
+    deadline_margin_s: float = 180.0
+
+    def method_for(self, hold_s: float) -> str:
+        for hold, name in self.methods:
+            if math.isclose(hold, hold_s):
+                return name
+        raise InputError("inview.methods", f"no InView method for a {hold_s:g} s hold")
+
+
+@dataclass(frozen=True)
 class InstrumentProfile:
     name: str = "kla-imicro"
     description: str = ""
@@ -67,6 +97,9 @@ class InstrumentProfile:
     # steepest sample plane the stage can follow (µm of height per mm of travel): a sample file whose corner
     # heights imply more is refused (mis-read z, or a sample not lying flat)
     max_tilt_um_per_mm: float = 50.0
+    # drift readings below this are the meter's noise, not drift: the correction leaves them alone
+    drift_noise_floor_nm_s: float = 0.005
+    inview: InViewSettings = InViewSettings()
 
     @property
     def reconfiguration_s(self) -> float:
@@ -142,7 +175,18 @@ def _number(source: str, key: str, value: Any, *, positive: bool = False) -> flo
 
 
 def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> InstrumentProfile:
-    known = {"name", "description", "extends", "steps", "move", "reconfiguration", "display", "stage"}
+    known = {
+        "name",
+        "description",
+        "extends",
+        "steps",
+        "move",
+        "reconfiguration",
+        "display",
+        "stage",
+        "drift",
+        "inview",
+    }
     for key in data:
         if key not in known:
             raise InputError(
@@ -206,12 +250,77 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
         if key != "max_tilt_um_per_mm":
             raise InputError(source, f"unknown field stage.{key} (allowed: max_tilt_um_per_mm)")
         updates[key] = _number(source, f"stage.{key}", value, positive=True)
+    drift = data.get("drift", {})
+    if not isinstance(drift, dict):
+        raise InputError(source, "[drift] must be a table")
+    for key, value in drift.items():
+        if key != "noise_floor_nm_s":
+            raise InputError(source, f"unknown field drift.{key} (allowed: noise_floor_nm_s)")
+        updates["drift_noise_floor_nm_s"] = _number(source, f"drift.{key}", value)
+    if "inview" in data:
+        updates["inview"] = _inview(base.inview, data["inview"], source)
     profile = replace(base, **updates)
+    missing = [
+        h for h in profile.allowed_holds_s if not any(math.isclose(h, m) for m, _ in profile.inview.methods)
+    ]
+    if missing:
+        shown = ", ".join(f"{h:g}" for h in missing)
+        raise InputError(source, f"inview.methods has no method for the allowed hold(s) {shown} s")
     if profile.default_hold_s not in profile.allowed_holds_s:
         raise InputError(
             source, f"steps.default_hold_s {profile.default_hold_s:g} is not in steps.allowed_holds_s"
         )
     return profile
+
+
+_INVIEW_NUMBERS = {"position_tolerance_um", "poll_s", "deadline_factor", "deadline_margin_s"}
+
+
+def _inview(base: InViewSettings, table: Any, source: str) -> InViewSettings:
+    """The [inview] table: methods = { "80" = "file.nmt", ... }, axis signs, inbox checks."""
+    if not isinstance(table, dict):
+        raise InputError(source, "[inview] must be a table")
+    allowed = {f.name for f in fields(InViewSettings)}
+    updates: dict[str, Any] = {}
+    for key, value in table.items():
+        where = f"inview.{key}"
+        if key not in allowed:
+            raise InputError(source, f"unknown field {where} (allowed: {', '.join(sorted(allowed))})")
+        if key == "methods":
+            if not isinstance(value, dict) or not value:
+                raise InputError(source, f'field {where} must be a table like {{ "80" = "method.nmt" }}')
+            methods = []
+            for hold, name in value.items():
+                try:
+                    hold_s = float(hold)
+                except ValueError:
+                    raise InputError(
+                        source, f"field {where}: key {hold!r} is not a hold in seconds"
+                    ) from None
+                if not isinstance(name, str) or not name.strip():
+                    raise InputError(source, f"field {where}.{hold} must be a method file name")
+                methods.append((_number(source, f"{where}.{hold}", hold_s), name.strip()))
+            updates[key] = tuple(sorted(methods))
+        elif key in ("array_x_sign", "array_y_sign"):
+            if value not in (1, -1) or isinstance(value, bool):
+                raise InputError(source, f"field {where} must be 1 or -1, got {value!r}")
+            updates[key] = int(value)
+        elif key == "array_swap_xy":
+            if not isinstance(value, bool):
+                raise InputError(source, f"field {where} must be true or false, got {value!r}")
+            updates[key] = value
+        elif key == "stable_polls":
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 100:
+                raise InputError(source, f"field {where} must be a whole number from 1 to 100, got {value!r}")
+            updates[key] = value
+        else:
+            assert key in _INVIEW_NUMBERS
+            updates[key] = _number(source, where, value, positive=key != "deadline_margin_s")
+    if updates.get("deadline_factor", base.deadline_factor) < 1:
+        raise InputError(
+            source, "field inview.deadline_factor must be ≥ 1 (the deadline is after the estimate)"
+        )
+    return replace(base, **updates)
 
 
 def _read_toml(text: str, source: str) -> dict[str, Any]:
@@ -260,6 +369,9 @@ def profile_to_dict(profile: InstrumentProfile) -> dict[str, Any]:
         value = getattr(profile, f.name)
         if isinstance(value, MoveModel):
             value = {mf.name: getattr(value, mf.name) for mf in fields(MoveModel)}
+        elif isinstance(value, InViewSettings):
+            value = {vf.name: getattr(value, vf.name) for vf in fields(InViewSettings)}
+            value["methods"] = [[h, m] for h, m in value["methods"]]
         elif isinstance(value, tuple):
             value = list(value)
         out[f.name] = value
@@ -270,6 +382,10 @@ def profile_from_dict(data: dict[str, Any]) -> InstrumentProfile:
     kwargs = dict(data)
     kwargs["move"] = MoveModel(**kwargs["move"])
     kwargs["allowed_holds_s"] = tuple(kwargs["allowed_holds_s"])
+    if "inview" in kwargs:  # journals written before the KLA driver have none: the defaults apply
+        inview = dict(kwargs["inview"])
+        inview["methods"] = tuple((float(h), str(m)) for h, m in inview["methods"])
+        kwargs["inview"] = InViewSettings(**inview)
     return InstrumentProfile(**kwargs)
 
 

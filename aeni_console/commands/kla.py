@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.commands.common import dumps, write_atomic
+from aeni_console.commands.common import dumps, positive_float, seed_arg, write_atomic
 from core.errors import InputError
 
 if TYPE_CHECKING:
@@ -28,6 +29,30 @@ def register(subparsers: Any) -> None:
     read.add_argument("--json", action="store_true", help="print a JSON list of indent records")
     read.add_argument("--csv", metavar="OUT", type=Path, help="write the records to a CSV file")
     read.set_defaults(func=_read)
+
+    fake = actions.add_parser(
+        "fake-inview",
+        help="a fake InView for tests and demos: runs each ticket's array on the emulator",
+        description=(
+            "Watch DIR/outbox for tickets, run each array on the emulator (the cost model's time ÷ --speed) "
+            "and write InView-like exports to DIR/inbox until stopped (Ctrl-C). Faults: "
+            "aborted, surface-not-found, missing-export, duplicate-export, mm-um, flipped-y "
+            "(NAME for every block, NAME@BLOCK for one)."
+        ),
+    )
+    fake.add_argument("--exchange", metavar="DIR", type=Path, required=True, help="the exchange folder")
+    fake.add_argument("--speed", type=positive_float("--speed"), default=None, help="instrument s per wall s")
+    fake.add_argument("--fault", action="append", default=[], metavar="NAME[@BLOCK]", help="inject a fault")
+    fake.add_argument("--scenario", default="ternary", help="emulator scenario (the run's)")
+    fake.add_argument("--seed", type=seed_arg, default=0, help="emulator seed (the run's)")
+    fake.add_argument("--noise", default=None, help="noise override (the run's)")
+    fake.add_argument("--drift", default=None, help="drift override (the run's)")
+    fake.add_argument("--profile", default=None, help="instrument profile (default: the scenario's)")
+    fake.add_argument("--format", dest="fmt", choices=("xlsx", "csv"), default="xlsx", help="export format")
+    fake.add_argument(
+        "--invalid-rate", type=float, default=0.03, help="share of indents exported as 1.797e308 (0-1)"
+    )
+    fake.set_defaults(func=_fake_inview)
 
 
 def _read(args: argparse.Namespace) -> int:
@@ -87,3 +112,42 @@ def format_table(export: KlaExport) -> str:
             + (f"  {i.failure}" if i.failure else "")
         )
     return "\n".join(lines)
+
+
+def _fake_inview(args: argparse.Namespace) -> int:
+    import signal
+
+    from core.emulator import make_scenario
+    from core.profile import load_profile
+    from drivers.kla.fake_inview import FakeInView, parse_fault
+
+    if not args.exchange.is_dir():
+        raise InputError(str(args.exchange), "exchange folder does not exist")
+    if not 0.0 <= args.invalid_rate <= 1.0:
+        raise InputError("--invalid-rate", f"must be from 0 to 1, got {args.invalid_rate}")
+    faults = tuple(parse_fault(f) for f in args.fault)
+    scenario = make_scenario(args.scenario, args.seed, noise=args.noise, drift=args.drift)
+    profile = load_profile(args.profile or scenario.profile_name)
+    fake = FakeInView(
+        args.exchange,
+        profile,
+        scenario.make_emulator,
+        speed=args.speed,
+        faults=faults,
+        fmt=args.fmt,
+        invalid_rate=args.invalid_rate,
+        log=lambda line: print(f"fake-inview: {line}", flush=True),
+    )
+
+    def stop(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt  # SIGTERM ends it like Ctrl-C
+
+    signal.signal(signal.SIGTERM, stop)
+    shown = ", ".join(args.fault) or "none"
+    print(
+        f"fake-inview: watching {args.exchange}/outbox (speed {args.speed or 'real time'}, faults {shown})",
+        flush=True,
+    )
+    with contextlib.suppress(KeyboardInterrupt):
+        fake.serve_forever()
+    return 0

@@ -1,0 +1,383 @@
+"""The file contract between the engine and InView: the array file, the ticket, and the operator's reports.
+
+InView has no API, but every lab can import an array of sites, run a saved test method and export the
+results. So each block becomes files in an exchange folder (typically a share with the instrument PC):
+
+    outbox/<run>-<block>-sites.txt     one ``x, y`` line per site, µm offsets from the block origin
+    outbox/<run>-<block>-ticket.json   what to load, where to move, which method, the deadline, a token
+    outbox/<run>-<block>-ticket.txt    the same for a person
+    inbox/<run>-<block>-started.txt    the token: the array started (the operator, a helper or fake InView)
+    inbox/<run>-<block>-aborted.txt    the token: the array was aborted (rows present are kept)
+    inbox/<run>-<block>-surface-not-found.txt   the token: InView did not find the surface
+    inbox/<run>-<block>-export.(csv|xlsx|xls)   InView's export of the array
+
+``<block>`` is the block id with three digits. Everything here is plain data and file names; the
+inbox's acceptance rules live in ``drivers.kla.inbox``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import secrets
+import tempfile
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any, Literal
+
+from core.errors import InputError
+from core.plan import Block
+from core.profile import InViewSettings
+
+TOKEN_ALPHABET = "ACDEFHJKMNPRTUVWXY34679"  # no look-alikes (0/O, 1/I/L, 2/Z, 5/S, 8/B)
+TOKEN_LENGTH = 5
+EXPORT_SUFFIXES = (".csv", ".txt", ".tsv", ".xlsx", ".xls")
+ReportKind = Literal["started", "aborted", "surface-not-found"]
+REPORT_KINDS: tuple[ReportKind, ...] = ("started", "aborted", "surface-not-found")
+_NAME = re.compile(
+    r"^(?P<run>.+)-(?P<block>\d{3,})-(?P<kind>sites|ticket|started|aborted|surface-not-found|export)"
+    r"(?P<suffix>\.[A-Za-z]+)?$"
+)
+_RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
+
+
+def new_token() -> str:
+    return "".join(secrets.choice(TOKEN_ALPHABET) for _ in range(TOKEN_LENGTH))
+
+
+def same_token(given: str, token: str) -> bool:
+    """Tokens compare without case and surrounding blanks (typed over SSH, written by a helper)."""
+    return secrets.compare_digest(given.strip().upper().encode(), token.strip().upper().encode())
+
+
+def block_tag(block_id: int) -> str:
+    return f"{block_id:03d}"
+
+
+@dataclass(frozen=True)
+class ParsedName:
+    run: str
+    block_id: int
+    kind: str
+    suffix: str
+
+
+def parse_name(name: str) -> ParsedName | None:
+    """``run-007-export.xlsx`` -> (run, 7, 'export', '.xlsx'); None for any other file."""
+    m = _NAME.match(name)
+    if m is None:
+        return None
+    return ParsedName(m["run"], int(m["block"]), m["kind"], (m["suffix"] or "").lower())
+
+
+# ----------------------------------------------------------------------------------- array convention
+
+
+def to_array_offset(settings: InViewSettings, dx_um: float, dy_um: float) -> tuple[float, float]:
+    """Stage offset from the origin -> the array dialog's (x, y): signs, then an optional swap."""
+    ax, ay = settings.array_x_sign * dx_um, settings.array_y_sign * dy_um
+    return (ay, ax) if settings.array_swap_xy else (ax, ay)
+
+
+def from_array_offset(settings: InViewSettings, ax: float, ay: float) -> tuple[float, float]:
+    """The inverse of :func:`to_array_offset` (what the fake InView does with a sites file)."""
+    if settings.array_swap_xy:
+        ax, ay = ay, ax
+    return settings.array_x_sign * ax, settings.array_y_sign * ay
+
+
+def format_sites(offsets: list[tuple[float, float]]) -> str:
+    """InView's array-import text: ``x, y`` per line, comma and space, no header, µm."""
+    return "".join(f"{_fmt(x)}, {_fmt(y)}\n" for x, y in offsets)
+
+
+def _fmt(v: float) -> str:
+    text = f"{v:.3f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def parse_sites(text: str, source: str) -> list[tuple[float, float]]:
+    out = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = [p.strip() for p in line.split(",")]
+        try:
+            x, y = (float(p) for p in parts)
+        except ValueError:
+            raise InputError(source, f"line {lineno}: expected 'x, y' in µm, got {line!r}") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise InputError(source, f"line {lineno}: offsets must be finite")
+        out.append((x, y))
+    if not out:
+        raise InputError(source, "no sites")
+    return out
+
+
+# ------------------------------------------------------------------------------------------- ticket
+
+
+@dataclass(frozen=True)
+class MethodStep:
+    hold_s: float
+    method: str
+    first_site: int  # 1-based lines of the sites file
+    last_site: int
+
+
+@dataclass(frozen=True)
+class Ticket:
+    """Everything the operator (or a helper) needs for one block, and what the inbox checks against."""
+
+    run: str
+    block_id: int
+    kind: str  # "global": move and engage; "local": the tip stays on the surface
+    grid_g: int
+    pitch_um: float
+    origin_x_um: float
+    origin_y_um: float
+    first_index: int  # the block's first indent in this array (> 0 when a block resumes)
+    sites_um: tuple[tuple[float, float], ...]  # planned absolute stage positions, in array order
+    holds_s: tuple[float, ...]
+    methods: tuple[MethodStep, ...]
+    array_x_sign: int
+    array_y_sign: int
+    array_swap_xy: bool
+    sites_file: str
+    export_stem: str
+    expected_s: float
+    deadline_s: float
+    created_utc: str
+    deadline_utc: str
+    token: str
+    # the engine's model of the instrument before this block (cost-model clock s, stage µm, tip engaged):
+    # for the record, and what the fake InView syncs its emulator to
+    clock_s: float = 0.0
+    from_um: tuple[float, float] = (0.0, 0.0)
+    program_open: bool = False
+
+    @property
+    def n_sites(self) -> int:
+        return len(self.sites_um)
+
+    @property
+    def origin_mm(self) -> tuple[float, float]:
+        return self.origin_x_um / 1000.0, self.origin_y_um / 1000.0
+
+    def created(self) -> datetime:
+        return datetime.fromisoformat(self.created_utc)
+
+    def deadline(self) -> datetime:
+        return datetime.fromisoformat(self.deadline_utc)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["origin_mm"] = list(self.origin_mm)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str) -> Ticket:
+        try:
+            return cls(
+                run=str(d["run"]),
+                block_id=int(d["block_id"]),
+                kind=str(d["kind"]),
+                grid_g=int(d["grid_g"]),
+                pitch_um=float(d["pitch_um"]),
+                origin_x_um=float(d["origin_x_um"]),
+                origin_y_um=float(d["origin_y_um"]),
+                first_index=int(d["first_index"]),
+                sites_um=tuple((float(x), float(y)) for x, y in d["sites_um"]),
+                holds_s=tuple(float(h) for h in d["holds_s"]),
+                methods=tuple(MethodStep(**m) for m in d["methods"]),
+                array_x_sign=int(d["array_x_sign"]),
+                array_y_sign=int(d["array_y_sign"]),
+                array_swap_xy=bool(d["array_swap_xy"]),
+                sites_file=str(d["sites_file"]),
+                export_stem=str(d["export_stem"]),
+                expected_s=float(d["expected_s"]),
+                deadline_s=float(d["deadline_s"]),
+                created_utc=str(d["created_utc"]),
+                deadline_utc=str(d["deadline_utc"]),
+                token=str(d["token"]),
+                clock_s=float(d.get("clock_s", 0.0)),
+                from_um=(float(d.get("from_um", (0, 0))[0]), float(d.get("from_um", (0, 0))[1])),
+                program_open=bool(d.get("program_open", False)),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(source, f"not a valid ticket ({type(exc).__name__}: {exc})") from None
+
+
+def deadline_s(settings: InViewSettings, expected_s: float) -> float:
+    """How long the engine waits for the export: estimate × factor + margin (1.5 × + 180 s by default)."""
+    return expected_s * settings.deadline_factor + settings.deadline_margin_s
+
+
+def make_ticket(
+    run: str,
+    block: Block,
+    settings: InViewSettings,
+    *,
+    expected_s: float,
+    first_index: int = 0,
+    now: datetime | None = None,
+    token: str | None = None,
+    clock_s: float = 0.0,
+    from_um: tuple[float, float] = (0.0, 0.0),
+    program_open: bool = False,
+) -> Ticket:
+    """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre."""
+    if not _RUN_NAME.match(run):
+        raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
+    if not 0 <= first_index < block.n_indents:
+        raise ValueError(f"first_index {first_index} outside block {block.block_id}")
+    specs = block.indents[first_index:]
+    holds = tuple(s.hold_s for s in specs)
+    methods: list[MethodStep] = []
+    for i, hold in enumerate(holds, start=1):
+        if methods and math.isclose(methods[-1].hold_s, hold):
+            last = methods[-1]
+            methods[-1] = MethodStep(last.hold_s, last.method, last.first_site, i)
+        else:
+            methods.append(MethodStep(hold, settings.method_for(hold), i, i))
+    created = (now or datetime.now(UTC)).replace(microsecond=0)
+    wait_s = deadline_s(settings, expected_s)
+    tag = block_tag(block.block_id)
+    return Ticket(
+        run=run,
+        block_id=block.block_id,
+        kind=block.kind,
+        grid_g=block.grid_g,
+        pitch_um=block.pitch_um,
+        origin_x_um=block.center_x_um,
+        origin_y_um=block.center_y_um,
+        first_index=first_index,
+        sites_um=tuple((s.x_um, s.y_um) for s in specs),
+        holds_s=holds,
+        methods=tuple(methods),
+        array_x_sign=settings.array_x_sign,
+        array_y_sign=settings.array_y_sign,
+        array_swap_xy=settings.array_swap_xy,
+        sites_file=f"{run}-{tag}-sites.txt",
+        export_stem=f"{run}-{tag}-export",
+        expected_s=float(expected_s),
+        deadline_s=wait_s,
+        created_utc=created.isoformat(),
+        deadline_utc=(created + timedelta(seconds=math.ceil(wait_s))).isoformat(),
+        token=token or new_token(),
+        clock_s=float(clock_s),
+        from_um=(float(from_um[0]), float(from_um[1])),
+        program_open=program_open,
+    )
+
+
+def array_offsets(ticket: Ticket, settings: InViewSettings) -> list[tuple[float, float]]:
+    return [
+        to_array_offset(settings, x - ticket.origin_x_um, y - ticket.origin_y_um) for x, y in ticket.sites_um
+    ]
+
+
+def _ranges(m: MethodStep) -> str:
+    return f"site {m.first_site}" if m.first_site == m.last_site else f"sites {m.first_site}-{m.last_site}"
+
+
+def ticket_text(ticket: Ticket) -> str:
+    """The ticket for a person at the instrument PC (also shown in the console's ticket panel)."""
+    t = ticket
+    xmm, ymm = t.origin_mm
+    sign = f"x sign {t.array_x_sign:+d}, y sign {t.array_y_sign:+d}" + (
+        ", x/y swapped" if t.array_swap_xy else ""
+    )
+    deadline = t.deadline().strftime("%H:%M:%S UTC")
+    resumed = f" (resumes at indent {t.first_index + 1})" if t.first_index else ""
+    if t.kind == "global":
+        move = (
+            f"2. Lift, then move the stage (XY Control) to the block origin:\n"
+            f"   X {xmm:.4f} mm, Y {ymm:.4f} mm   ({t.origin_x_um:.1f}, {t.origin_y_um:.1f} µm)\n"
+            f"   and find the surface there."
+        )
+    else:
+        move = (
+            f"2. The tip stays on the surface: move (XY Control) to the block origin\n"
+            f"   X {xmm:.4f} mm, Y {ymm:.4f} mm   ({t.origin_x_um:.1f}, {t.origin_y_um:.1f} µm)."
+        )
+    methods = "\n".join(f'   hold {m.hold_s:g} s: "{m.method}" ({_ranges(m)})' for m in t.methods)
+    return (
+        f"AE-NI ticket  run {t.run}  block {t.block_id}{resumed}\n"
+        f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
+        f"\n"
+        f"1. Sample: the run's sample, as calibrated (same mounting, same crosshair reference).\n"
+        f"{move}\n"
+        f"3. Array dialog: import outbox/{t.sites_file}\n"
+        f"   {t.n_sites} sites ({t.grid_g}×{t.grid_g} at {t.pitch_um:g} µm), µm offsets from the crosshair, {sign}.\n"
+        f"4. Test method:\n{methods}\n"
+        f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline} "
+        f"(estimate × 1.5 + 180 s).\n"
+        f"6. Export (Sample File → Export, CSV or Excel) as inbox/{t.export_stem}.xlsx (or .csv).\n"
+        f"If the array aborts or the surface is not found, report it (console keys a / f) with the token.\n"
+    )
+
+
+# --------------------------------------------------------------------------------------- the folder
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Temp file beside the target, then rename: InView or the operator never sees half a file."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class ExchangeFolder:
+    """The outbox and inbox of one run in an exchange folder shared with the instrument PC."""
+
+    def __init__(self, root: str | Path, run: str, settings: InViewSettings) -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise InputError(str(root), "exchange folder does not exist")
+        if not _RUN_NAME.match(run):
+            raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
+        self.run = run
+        self.settings = settings
+        self.outbox = self.root / "outbox"
+        self.inbox = self.root / "inbox"
+        self.outbox.mkdir(exist_ok=True)
+        self.inbox.mkdir(exist_ok=True)
+
+    def ticket_path(self, block_id: int) -> Path:
+        return self.outbox / f"{self.run}-{block_tag(block_id)}-ticket.json"
+
+    def report_path(self, block_id: int, kind: ReportKind) -> Path:
+        return self.inbox / f"{self.run}-{block_tag(block_id)}-{kind}.txt"
+
+    def publish(self, ticket: Ticket) -> None:
+        """Sites file first, then the readable ticket, then the JSON ticket (the fake InView's trigger)."""
+        write_atomic(self.outbox / ticket.sites_file, format_sites(array_offsets(ticket, self.settings)))
+        write_atomic(self.ticket_path(ticket.block_id).with_suffix(".txt"), ticket_text(ticket))
+        write_atomic(self.ticket_path(ticket.block_id), json.dumps(ticket.to_dict(), indent=2) + "\n")
+
+    def read_ticket(self, block_id: int) -> Ticket | None:
+        path = self.ticket_path(block_id)
+        if not path.is_file():
+            return None
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise InputError(str(path), f"unreadable ticket ({exc})") from None
+        return Ticket.from_dict(data, str(path))
+
+    def report(self, ticket: Ticket, kind: ReportKind) -> str | None:
+        """The token in a report file, if the file exists (checked by the caller)."""
+        path = self.report_path(ticket.block_id, kind)
+        try:
+            return path.read_text(encoding="utf-8", errors="replace").strip()
+        except FileNotFoundError:
+            return None

@@ -1,0 +1,290 @@
+"""A fake InView: watches the outbox, runs each array on the emulator, and writes exports as InView does.
+
+It exists so the KLA driver can be tested (and demonstrated) end to end without an instrument, and it
+misbehaves the ways the real one does: exports appear slowly or by a rename, Excel-style ``~$`` lock
+files sit beside them, there is a units row and three summary rows, NanoBlitz column names, and
+1.797e308 where a value is invalid. Faults on demand (``--fault NAME[@BLOCK]``):
+
+    aborted            the array stops half way; a partial export and an ``aborted`` report
+    surface-not-found  no indent at all; a ``surface-not-found`` report, no export
+    missing-export     the array runs but nothing is exported (the engine's deadline passes)
+    duplicate-export   the same export is written again after the first was taken
+    mm-um              positions written in mm under a µm units row
+    flipped-y          the array's Y offsets are applied with the other sign (a wrong convention)
+
+The measurements come from the simulated instrument (``drivers.sim``): the same emulator, cost model and
+clock as the sim driver, synced to the engine's model of the instrument carried by each ticket, so a run
+through the fake InView measures what a sim run on the same seed measures.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import openpyxl
+
+from core.errors import InputError
+from core.plan import Block, IndentResult, IndentSpec
+from core.profile import InstrumentProfile
+from drivers.kla.exchange import ExchangeFolder, Ticket, block_tag, from_array_offset, parse_name, parse_sites
+from drivers.sim.driver import SimulatedDriver
+
+FAULTS: tuple[str, ...] = (
+    "aborted",
+    "surface-not-found",
+    "missing-export",
+    "duplicate-export",
+    "mm-um",
+    "flipped-y",
+)
+INVALID = 1.797e308  # what InView/NanoSuite write for "no value"
+HEADER = [
+    "Test",
+    "X Position",
+    "Y Position",
+    "MODULUS",
+    "HARDNESS",
+    "Drift Rate",
+    "Displacement at Max Load",
+    "Load at Max Load",
+    "Hold Time",
+]
+BERKOVICH_C0 = 24.5
+
+
+@dataclass(frozen=True)
+class Fault:
+    name: str
+    block_id: int | None  # None: every block
+
+    def hits(self, block_id: int) -> bool:
+        return self.block_id is None or self.block_id == block_id
+
+
+def parse_fault(text: str) -> Fault:
+    """``NAME`` or ``NAME@BLOCK``."""
+    name, _, block = text.partition("@")
+    if name not in FAULTS:
+        raise InputError("--fault", f"{name!r} is not a fault (known: {', '.join(FAULTS)})")
+    if block:
+        if not block.isdigit():
+            raise InputError("--fault", f"block in {text!r} must be a whole number")
+        return Fault(name, int(block))
+    return Fault(name, None)
+
+
+@dataclass
+class FakeInView:
+    """One fake instrument PC serving one exchange folder (every run that writes tickets there)."""
+
+    exchange: Path
+    profile: InstrumentProfile
+    make_emulator: Callable[[], Any]
+    speed: float | None = None
+    faults: tuple[Fault, ...] = ()
+    fmt: str = "xlsx"  # or "csv"
+    invalid_rate: float = 0.03  # share of indents InView marks invalid (1.797e308)
+    write_s: float = 0.6  # wall seconds a slow export write takes
+    log: Callable[[str], None] = print
+    _done: set[tuple[str, int]] = field(default_factory=set)
+    _sim: SimulatedDriver | None = None
+
+    def __post_init__(self) -> None:
+        if self.fmt not in ("xlsx", "csv"):
+            raise InputError("--format", f"{self.fmt!r} is not allowed: expected xlsx or csv")
+        (self.exchange / "outbox").mkdir(parents=True, exist_ok=True)
+        (self.exchange / "inbox").mkdir(exist_ok=True)
+
+    def _fault(self, name: str, block_id: int) -> bool:
+        return any(f.name == name and f.hits(block_id) for f in self.faults)
+
+    def pending(self) -> list[Path]:
+        """Tickets not yet served, oldest block first."""
+        out = []
+        for path in sorted((self.exchange / "outbox").glob("*-ticket.json")):
+            parsed = parse_name(path.name.removesuffix(".json"))
+            if parsed is None or (parsed.run, parsed.block_id) in self._done:
+                continue
+            if any((self.exchange / "inbox").glob(f"{parsed.run}-{block_tag(parsed.block_id)}-started.txt")):
+                self._done.add((parsed.run, parsed.block_id))  # served before this process started
+                continue
+            out.append(path)
+        return out
+
+    def serve_forever(self, poll_s: float = 0.2, stop: Callable[[], bool] = lambda: False) -> None:
+        while not stop():
+            for path in self.pending():
+                self.serve(path)
+            time.sleep(poll_s)
+
+    # -- one ticket ------------------------------------------------------------------------------
+    def serve(self, ticket_path: Path) -> None:
+        data = json.loads(ticket_path.read_text(encoding="utf-8"))
+        ticket = Ticket.from_dict(data, str(ticket_path))
+        self._done.add((ticket.run, ticket.block_id))
+        folder = ExchangeFolder(self.exchange, ticket.run, self.profile.inview)
+        tag = f"{ticket.run} block {ticket.block_id}"
+        block = self._block(ticket, folder)
+        started = folder.report_path(ticket.block_id, "started")
+        _write_atomic(started, ticket.token + "\n")
+        self.log(f"{tag}: started ({ticket.n_sites} sites, token {ticket.token})")
+        if self._fault("surface-not-found", ticket.block_id):
+            _write_atomic(folder.report_path(ticket.block_id, "surface-not-found"), ticket.token + "\n")
+            self.log(f"{tag}: surface not found (fault)")
+            return
+        stop_after = ticket.n_sites // 2 if self._fault("aborted", ticket.block_id) else ticket.n_sites
+        results = self._run(block, ticket, stop_after)
+        if stop_after < ticket.n_sites:
+            _write_atomic(folder.report_path(ticket.block_id, "aborted"), ticket.token + "\n")
+            self.log(f"{tag}: aborted after {stop_after} of {ticket.n_sites} indents (fault)")
+        if self._fault("missing-export", ticket.block_id):
+            self.log(f"{tag}: no export (fault)")
+            return
+        payload = self._export_bytes(results, ticket)
+        target = folder.inbox / f"{ticket.export_stem}.{self.fmt}"
+        if ticket.block_id % 2:
+            self._write_slowly(target, payload)
+        else:
+            _write_bytes_atomic(target, payload)
+        self.log(f"{tag}: exported {target.name} ({len(results)} rows)")
+        if self._fault("duplicate-export", ticket.block_id):
+            deadline = time.monotonic() + 30
+            while target.exists() and time.monotonic() < deadline:
+                time.sleep(0.1)  # the engine takes the first copy
+            _write_bytes_atomic(target, payload)
+            self.log(f"{tag}: exported {target.name} again (fault)")
+
+    def _block(self, ticket: Ticket, folder: ExchangeFolder) -> Block:
+        """What the instrument will actually do: the sites file read with this PC's array convention."""
+        sites_path = folder.outbox / ticket.sites_file
+        offsets = parse_sites(sites_path.read_text(encoding="utf-8"), str(sites_path))
+        settings = self.profile.inview
+        specs = []
+        for k, (ax, ay) in enumerate(offsets):
+            dx, dy = from_array_offset(settings, ax, ay)
+            if self._fault("flipped-y", ticket.block_id):
+                dy = -dy
+            hold = ticket.holds_s[k] if k < len(ticket.holds_s) else ticket.holds_s[-1]
+            specs.append(IndentSpec(ticket.origin_x_um + dx, ticket.origin_y_um + dy, hold))
+        # a resumed block keeps its indent numbering: the indents before first_index are never run again
+        indents = tuple([specs[0]] * ticket.first_index + specs)
+        return Block(
+            ticket.block_id,
+            "global" if ticket.kind == "global" else "local",
+            ticket.origin_x_um,
+            ticket.origin_y_um,
+            ticket.grid_g,
+            ticket.pitch_um,
+            ticket.holds_s[0],
+            indents,
+        )
+
+    def _run(self, block: Block, ticket: Ticket, stop_after: int) -> list[IndentResult]:
+        if self._sim is None:
+            self._sim = SimulatedDriver(self.make_emulator(), self.profile, speed=self.speed)
+        sim = self._sim
+        sim.set_state(ticket.clock_s, ticket.from_um, ticket.program_open)
+        results: list[IndentResult] = []
+        if ticket.first_index > 0 or (block.kind == "local" and not sim.program_open()):
+            for _ in sim.recover(block.block_id):
+                pass
+        for ev in sim.execute_block(block, ticket.first_index):
+            if isinstance(ev, IndentResult):
+                results.append(ev)
+                if len(results) >= stop_after:
+                    break
+        return results
+
+    # -- the export ------------------------------------------------------------------------------
+    def _rows(self, results: Iterable[IndentResult], ticket: Ticket) -> list[list[Any]]:
+        mm = self._fault("mm-um", ticket.block_id)
+        rows: list[list[Any]] = [HEADER, ["", "µm", "µm", "GPa", "GPa", "nm/s", "nm", "mN", "s"]]
+        valid: list[list[float]] = []
+        for n, r in enumerate(results, start=1):
+            scale = 1e-3 if mm else 1.0
+            depth_nm = 100.0
+            load_mn = r.hardness_gpa * BERKOVICH_C0 * depth_nm**2 * 1e-6
+            values = [r.modulus_gpa, r.hardness_gpa, r.drift_rate_nm_s, depth_nm, load_mn]
+            invalid = (
+                random.Random(f"{ticket.run}/{ticket.block_id}/{r.indent_index}").random() < self.invalid_rate
+            )
+            if invalid:  # the surface find or the unload failed for this indent: InView writes DBL_MAX
+                values = [INVALID, INVALID, r.drift_rate_nm_s, INVALID, INVALID]
+            else:
+                valid.append(values)
+            rows.append([n, r.commanded_x_um * scale, r.commanded_y_um * scale, *values, r.hold_s])
+        rows.append([])
+        for label, fn in (("Mean", _mean), ("Std. Dev.", _sd), ("% COV", _cov)):
+            stats = [fn([v[k] for v in valid]) if valid else None for k in range(5)]
+            rows.append([label, None, None, *stats, None])
+        return rows
+
+    def _export_bytes(self, results: list[IndentResult], ticket: Ticket) -> bytes:
+        rows = self._rows(results, ticket)
+        if self.fmt == "csv":
+            lines = [
+                ",".join("" if v is None else (repr(v) if isinstance(v, float) else str(v)) for v in r)
+                for r in rows
+            ]
+            return ("\r\n".join(lines) + "\r\n").encode("utf-8-sig")
+        book = openpyxl.Workbook()
+        sheet = book.active
+        assert sheet is not None
+        sheet.title = "Results"
+        for r in rows:
+            sheet.append(r)
+        info = book.create_sheet("Sample Information")
+        info.append(["Sample", ticket.run])
+        info.append(["Block", ticket.block_id])
+        info.append(["Method", ticket.methods[0].method])
+        buf = io.BytesIO()
+        book.save(buf)
+        return buf.getvalue()
+
+    def _write_slowly(self, target: Path, payload: bytes) -> None:
+        """InView writing a big workbook over a share: a lock file, then the file growing in chunks."""
+        lock = target.with_name("~$" + target.name)
+        lock.write_bytes(b"fake-inview")
+        try:
+            chunks = 6
+            step = math.ceil(len(payload) / chunks)
+            with target.open("wb") as fh:
+                for k in range(chunks):
+                    fh.write(payload[k * step : (k + 1) * step])
+                    fh.flush()
+                    time.sleep(self.write_s / chunks)
+        finally:
+            lock.unlink(missing_ok=True)
+
+
+def _mean(v: list[float]) -> float:
+    return sum(v) / len(v)
+
+
+def _sd(v: list[float]) -> float:
+    m = _mean(v)
+    return math.sqrt(sum((x - m) ** 2 for x in v) / max(len(v) - 1, 1))
+
+
+def _cov(v: list[float]) -> float:
+    m = _mean(v)
+    return 100.0 * _sd(v) / m if m else 0.0
+
+
+def _write_bytes_atomic(path: Path, payload: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_bytes(payload)
+    os.replace(tmp, path)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    _write_bytes_atomic(path, text.encode("utf-8"))

@@ -1,0 +1,491 @@
+"""The inbox watcher: when an InView export counts as this block's results, and what its rows mean.
+
+An export is accepted only when it is complete (size and mtime stable over N polls, no ``~$`` lock file
+beside it, and it opens cleanly), when its row count fits the plan, and when its X/Y positions lie on the
+planned sites (mm written as µm is detected and converted). What it then says becomes one outcome per
+planned site: measured, failed (blank, ``--``, 1.797e308, impossible values) or not run (a partial or
+aborted array). Every accepted export is archived with its SHA-256 next to the journal and never parsed
+again; stale and duplicate exports are refused with a reason and kept in the archive's ``refused/``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Literal
+
+from core.errors import InputError
+from drivers.kla.exchange import EXPORT_SUFFIXES, ExchangeFolder, Ticket, parse_name
+from drivers.kla.export import KlaExport, KlaIndent, read_kla_export
+
+SiteStatus = Literal["measured", "failed", "not run"]
+STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a little on a share
+
+
+def sha256_of(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class SiteOutcome:
+    """One planned site of the array after its export was read."""
+
+    indent_index: int  # within the block
+    status: SiteStatus
+    x_um: float | None = None  # as the export reports it (µm, converted where mm was detected)
+    y_um: float | None = None
+    hardness_gpa: float | None = None  # None unless measured
+    modulus_gpa: float | None = None
+    drift_rate_nm_s: float | None = None
+    max_depth_nm: float | None = None
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class AcceptedExport:
+    block_id: int
+    archived: Path
+    sha256: str
+    outcomes: tuple[SiteOutcome, ...]
+    notes: tuple[str, ...]
+
+    @property
+    def partial(self) -> bool:
+        return any(o.status == "not run" for o in self.outcomes)
+
+
+@dataclass(frozen=True)
+class Refusal:
+    file: str
+    reason: str
+    sha256: str | None
+
+
+@dataclass(frozen=True)
+class PollResult:
+    accepted: AcceptedExport | None = None
+    refused: tuple[Refusal, ...] = ()
+    waiting: str = "no export yet"  # what the watcher waits for, for the ticket panel
+
+
+# ------------------------------------------------------------------------------------------ archive
+
+
+class ExportArchive:
+    """Accepted exports (and refused files) with their SHA-256, in a folder next to the journal."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.manifest = self.folder / "manifest.jsonl"
+
+    def entries(self) -> list[dict[str, Any]]:
+        if not self.manifest.is_file():
+            return []
+        out = []
+        for line in self.manifest.read_text(encoding="utf-8").splitlines():
+            if line.strip():
+                try:
+                    out.append(json.loads(line))
+                except json.JSONDecodeError:
+                    continue  # a line cut by a crash; the file it names is still in the folder
+        return out
+
+    def by_sha(self, sha: str) -> dict[str, Any] | None:
+        return next((e for e in self.entries() if e["sha256"] == sha), None)
+
+    def accepted(self, run: str, block_id: int) -> dict[str, Any] | None:
+        return next(
+            (
+                e
+                for e in self.entries()
+                if e["status"] == "accepted" and e["run"] == run and e["block_id"] == block_id
+            ),
+            None,
+        )
+
+    def closed(self, run: str, block_id: int) -> dict[str, Any] | None:
+        """The entry that closed a block: an accepted export or a 'not run' closure (timeout, skip)."""
+        return next(
+            (
+                e
+                for e in self.entries()
+                if e["status"] in ("accepted", "closed") and e["run"] == run and e["block_id"] == block_id
+            ),
+            None,
+        )
+
+    def _append(self, entry: dict[str, Any]) -> None:
+        with self.manifest.open("a", encoding="utf-8") as fh:
+            fh.write(json.dumps(entry) + "\n")
+            fh.flush()
+
+    def _move(self, src: Path, sha: str, sub: str = "") -> Path:
+        folder = self.folder / sub if sub else self.folder
+        folder.mkdir(exist_ok=True)
+        dst = folder / f"{sha[:12]}-{src.name}"
+        # copy, then remove: the inbox may be a share where rename across file systems fails
+        shutil.copy2(src, dst)
+        src.unlink(missing_ok=True)
+        return dst
+
+    def accept(self, src: Path, sha: str, run: str, block_id: int, export: AcceptedExport) -> AcceptedExport:
+        """Archive the file and record what it said, so a resumed run never parses it again."""
+        dst = self._move(src, sha)
+        entry = _entry("accepted", run, block_id, sha, src.name, dst.name, "")
+        entry["outcomes"] = [asdict(o) for o in export.outcomes]
+        entry["notes"] = list(export.notes)
+        self._append(entry)
+        return AcceptedExport(block_id, dst, sha, export.outcomes, export.notes)
+
+    def accepted_export(self, run: str, block_id: int) -> AcceptedExport | None:
+        """A block's accepted export as recorded when it was accepted (for a resumed run)."""
+        e = self.accepted(run, block_id)
+        if e is None:
+            return None
+        outcomes = tuple(SiteOutcome(**o) for o in e.get("outcomes", []))
+        return AcceptedExport(
+            block_id, self.folder / e["file"], e["sha256"], outcomes, tuple(e.get("notes", []))
+        )
+
+    def refuse(self, src: Path, sha: str | None, run: str, block_id: int, reason: str) -> None:
+        if sha is None:
+            sha = sha256_of(src)
+        dst = self._move(src, sha, "refused")
+        self._append(_entry("refused", run, block_id, sha, src.name, f"refused/{dst.name}", reason))
+
+    def close(self, run: str, block_id: int, reason: str) -> None:
+        """A block ended without an accepted export (deadline, skip, surface not found)."""
+        self._append(_entry("closed", run, block_id, "", "", "", reason))
+
+
+def _entry(
+    status: str, run: str, block_id: int, sha: str, original: str, stored: str, reason: str
+) -> dict[str, Any]:
+    return {
+        "status": status,
+        "run": run,
+        "block_id": block_id,
+        "sha256": sha,
+        "original": original,
+        "file": stored,
+        "reason": reason,
+        "utc": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+
+
+# ----------------------------------------------------------------------------------------- matching
+
+
+@dataclass(frozen=True)
+class Match:
+    """Which site each export row belongs to, or why none fits."""
+
+    site_of_row: tuple[int | None, ...] = ()
+    notes: tuple[str, ...] = ()
+    refusal: str = ""
+    scale: float = 1.0
+
+
+def _tolerance_um(ticket: Ticket, tolerance_um: float) -> float:
+    """The settings' tolerance, but below half the closest spacing, so no row can fit two sites."""
+    sites = ticket.sites_um
+    closest = min(
+        (math.dist(a, b) for i, a in enumerate(sites) for b in sites[i + 1 :]),
+        default=math.inf,
+    )
+    return min(tolerance_um, 0.45 * closest)
+
+
+def _assign(
+    rows: list[tuple[float, float] | None], sites: tuple[tuple[float, float], ...], tol: float
+) -> tuple[int | None, ...] | None:
+    """Each positioned row to its nearest site within ``tol``, one to one; None when a row fits none."""
+    taken: set[int] = set()
+    out: list[int | None] = []
+    for pos in rows:
+        if pos is None:
+            out.append(None)
+            continue
+        best = min(range(len(sites)), key=lambda k: math.dist(pos, sites[k]))
+        if math.dist(pos, sites[best]) > tol or best in taken:
+            return None
+        taken.add(best)
+        out.append(best)
+    return tuple(out)
+
+
+def _diagnose(rows: list[tuple[float, float]], ticket: Ticket, tol: float) -> str:
+    """Why the rows are not on the plan, in the operator's terms."""
+    ox, oy = ticket.origin_x_um, ticket.origin_y_um
+    planned = ticket.sites_um[: len(rows)]
+    candidates = {
+        "the Y axis is flipped (set inview.array_y_sign to the other sign)": [
+            (x, 2 * oy - y) for x, y in planned
+        ],
+        "the X axis is flipped (set inview.array_x_sign to the other sign)": [
+            (2 * ox - x, y) for x, y in planned
+        ],
+        "X and Y are swapped (inview.array_swap_xy)": [(ox + (y - oy), oy + (x - ox)) for x, y in planned],
+    }
+    for why, expect in candidates.items():
+        if all(math.dist(r, e) <= tol for r, e in zip(rows, expect, strict=False)):
+            return f"the rows lie where the array would put them if {why}"
+    shift = (
+        sum(r[0] - p[0] for r, p in zip(rows, planned, strict=False)) / len(rows),
+        sum(r[1] - p[1] for r, p in zip(rows, planned, strict=False)) / len(rows),
+    )
+    spread = max(math.dist((r[0] - p[0], r[1] - p[1]), shift) for r, p in zip(rows, planned, strict=False))
+    if spread <= tol:
+        return (
+            f"the array ran from another origin: every row is off by ({shift[0]:+.1f}, {shift[1]:+.1f}) µm "
+            f"(move to X {ox / 1000:.4f} mm, Y {oy / 1000:.4f} mm before importing the array)"
+        )
+    worst = max(math.dist(r, p) for r, p in zip(rows, planned, strict=False))
+    return f"the rows do not lie on the planned sites (up to {worst:.1f} µm off, tolerance {tol:.1f} µm)"
+
+
+def match_rows(export: KlaExport, ticket: Ticket, tolerance_um: float) -> Match:
+    """Rows to planned sites: in array order when they agree, else one-to-one by position.
+
+    InView runs the array in file order, so row k is site k. A row list that is a permutation of the
+    sites (a flipped axis on a grid symmetric about its origin) still puts every measurement where it was
+    made; it is accepted with a warning that names the likely convention error. Positions that are 1000×
+    too small are mm labelled µm: converted, with a note.
+    """
+    tol = _tolerance_um(ticket, tolerance_um)
+    raw = [(i.x_um, i.y_um) if i.x_um is not None and i.y_um is not None else None for i in export.indents]
+    positioned = [p for p in raw if p is not None]
+    if not positioned:
+        return Match(refusal="the export has no X/Y positions to check against the plan")
+    ox, oy = ticket.origin_x_um, ticket.origin_y_um
+    readings: list[tuple[float, str, list[tuple[float, float] | None]]] = [
+        (1.0, "", raw),
+        (1000.0, "X/Y positions were mm labelled as µm: read ×1000", _scaled(raw, 1000.0)),
+        (
+            1.0,
+            "X/Y positions were relative to the block origin: the origin was added",
+            [None if p is None else (p[0] + ox, p[1] + oy) for p in raw],
+        ),
+    ]
+    for scale, note, rows in readings:
+        in_order = (
+            all(p is None or math.dist(p, ticket.sites_um[k]) <= tol for k, p in enumerate(rows))
+            and len(rows) <= ticket.n_sites
+        )
+        if in_order:
+            if any(p is None for p in rows):
+                note = "; ".join(filter(None, [note, "rows without X/Y were taken in array order"]))
+            return Match(tuple(range(len(rows))), (note,) if note else (), scale=scale)
+        assigned = _assign(rows, ticket.sites_um, tol)
+        if assigned is not None and all(a is not None for a in assigned):
+            why = _diagnose([p for p in rows if p is not None], ticket, tol)
+            warn = f"rows are not in the array's order but each lies on a planned site: {why}"
+            return Match(assigned, tuple(filter(None, [note, warn])), scale=scale)
+    return Match(refusal=_diagnose(positioned, ticket, tol))
+
+
+def _scaled(rows: list[tuple[float, float] | None], factor: float) -> list[tuple[float, float] | None]:
+    return [None if p is None else (p[0] * factor, p[1] * factor) for p in rows]
+
+
+def outcomes_for(
+    export: KlaExport, ticket: Ticket, match: Match, not_run_reason: str
+) -> tuple[SiteOutcome, ...]:
+    """One outcome per planned site: measured, failed (with the reader's reason) or not run."""
+    by_site: dict[int, KlaIndent] = {}
+    for indent, site in zip(export.indents, match.site_of_row, strict=True):
+        assert site is not None
+        by_site[site] = indent
+    out = []
+    for k in range(ticket.n_sites):
+        index = ticket.first_index + k
+        row = by_site.get(k)
+        if row is None:
+            out.append(SiteOutcome(index, "not run", reason=not_run_reason))
+            continue
+        x = None if row.x_um is None else row.x_um * match.scale
+        y = None if row.y_um is None else row.y_um * match.scale
+        if row.failed:
+            out.append(
+                SiteOutcome(
+                    index,
+                    "failed",
+                    x,
+                    y,
+                    None,
+                    row.modulus_gpa,
+                    row.drift_rate_nm_s,
+                    row.max_depth_nm,
+                    reason=str(row.failure),
+                )
+            )
+        else:
+            out.append(
+                SiteOutcome(
+                    index,
+                    "measured",
+                    x,
+                    y,
+                    row.hardness_gpa,
+                    row.modulus_gpa,
+                    row.drift_rate_nm_s,
+                    row.max_depth_nm,
+                )
+            )
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------------------------ watcher
+
+
+@dataclass
+class _Seen:
+    size: int
+    mtime_ns: int
+    stable: int = 0
+
+
+@dataclass
+class InboxWatcher:
+    """Polls the inbox for one run; call :meth:`poll` every ``settings.poll_s`` while a block waits."""
+
+    folder: ExchangeFolder
+    archive: ExportArchive
+    _seen: dict[str, _Seen] = field(default_factory=dict)
+
+    def _candidates(self) -> list[tuple[Path, int]]:
+        out = []
+        for path in sorted(self.folder.inbox.iterdir()):
+            name = path.name
+            if name.startswith((".", "~")) or not path.is_file():
+                continue  # temp files, lock files
+            parsed = parse_name(name)
+            if parsed is None or parsed.run != self.folder.run or parsed.kind != "export":
+                continue
+            if parsed.suffix in EXPORT_SUFFIXES:
+                out.append((path, parsed.block_id))
+        return out
+
+    def _locked(self, path: Path) -> bool:
+        """Excel/InView keep ``~$<name>`` (sometimes with the first letters cut) while the file is open."""
+        for lock in self.folder.inbox.glob("~$*"):
+            rest = lock.name[2:]
+            if rest and path.name.endswith(rest):
+                return True
+        return False
+
+    def _stable(self, path: Path) -> bool:
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            self._seen.pop(path.name, None)
+            return False
+        seen = self._seen.get(path.name)
+        if seen is None or (seen.size, seen.mtime_ns) != (st.st_size, st.st_mtime_ns):
+            self._seen[path.name] = _Seen(st.st_size, st.st_mtime_ns)
+            return False
+        seen.stable += 1
+        return seen.stable >= self.folder.settings.stable_polls and st.st_size > 0
+
+    def _refuse(self, path: Path, sha: str | None, block_id: int, reason: str) -> Refusal:
+        self.archive.refuse(path, sha, self.folder.run, block_id, reason)
+        self._seen.pop(path.name, None)
+        return Refusal(path.name, reason, sha)
+
+    def poll(self, ticket: Ticket, *, partial_ok: bool = False, final: bool = False) -> PollResult:
+        """Look once. ``partial_ok``: the array was reported aborted (fewer rows are expected);
+        ``final``: the deadline passed, so a complete-looking export is judged as it is."""
+        refused: list[Refusal] = []
+        waiting = "no export yet"
+        for path, block_id in self._candidates():
+            if not self._stable(path):
+                waiting = f"{path.name} is still being written"
+                continue
+            if self._locked(path):
+                waiting = f"{path.name} is open in InView (lock file ~$…)"
+                continue
+            sha = sha256_of(path)
+            known = self.archive.by_sha(sha)
+            if known is not None:
+                what = "accepted" if known["status"] == "accepted" else "refused"
+                refused.append(
+                    self._refuse(
+                        path,
+                        sha,
+                        block_id,
+                        f"duplicate: same SHA-256 as the export {what} for block {known['block_id']}",
+                    )
+                )
+                continue
+            closed = self.archive.closed(self.folder.run, block_id)
+            if closed is not None:
+                how = (
+                    "has an accepted export"
+                    if closed["status"] == "accepted"
+                    else f"was closed ({closed['reason']})"
+                )
+                refused.append(self._refuse(path, sha, block_id, f"stale: block {block_id} {how}"))
+                continue
+            if block_id != ticket.block_id:
+                continue  # another open block's export (not expected; left for that block)
+            mtime = datetime.fromtimestamp(path.stat().st_mtime, UTC)
+            if (ticket.created() - mtime).total_seconds() > STALE_SLACK_S:
+                refused.append(
+                    self._refuse(
+                        path,
+                        sha,
+                        block_id,
+                        f"stale: written {mtime:%H:%M:%S} UTC, before this block's ticket",
+                    )
+                )
+                continue
+            try:
+                export = read_kla_export(path)
+            except InputError as exc:
+                if final:
+                    refused.append(self._refuse(path, sha, block_id, f"cannot be read: {exc.problem}"))
+                else:
+                    waiting = f"{path.name} does not open cleanly yet ({exc.problem})"
+                continue
+            result = self._judge(path, sha, export, ticket, partial_ok=partial_ok, final=final)
+            if isinstance(result, Refusal):
+                refused.append(result)
+            elif isinstance(result, str):
+                waiting = result
+            else:
+                return PollResult(result, tuple(refused))
+        return PollResult(None, tuple(refused), waiting)
+
+    def _judge(
+        self, path: Path, sha: str, export: KlaExport, ticket: Ticket, *, partial_ok: bool, final: bool
+    ) -> AcceptedExport | Refusal | str:
+        n_rows, n_sites = len(export.indents), ticket.n_sites
+        if n_rows > n_sites:
+            return self._refuse(
+                path, sha, ticket.block_id, f"has {n_rows} rows, the block planned {n_sites} (another array?)"
+            )
+        match = match_rows(export, ticket, self.folder.settings.position_tolerance_um)
+        if match.refusal:
+            return self._refuse(
+                path, sha, ticket.block_id, f"positions do not match the plan: {match.refusal}"
+            )
+        if n_rows < n_sites and not (partial_ok or final):
+            return (
+                f"{path.name} has {n_rows} of {n_sites} rows: waiting for an 'aborted' report "
+                "(then the rows present are kept and the rest marked not run)"
+            )
+        why = "array aborted" if partial_ok else "no row in the export (deadline passed)"
+        outcomes = outcomes_for(export, ticket, match, why)
+        found = AcceptedExport(ticket.block_id, path, sha, outcomes, match.notes + export.warnings)
+        self._seen.pop(path.name, None)
+        return self.archive.accept(path, sha, self.folder.run, ticket.block_id, found)

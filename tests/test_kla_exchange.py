@@ -262,7 +262,7 @@ def test_row_count_partial_waits_for_an_abort_report_more_rows_are_refused(
     assert result.accepted is None and "has 4 of 9 rows: waiting for an 'aborted' report" in result.waiting
     accepted = watcher.poll(t, partial_ok=True).accepted
     assert accepted is not None and accepted.partial
-    assert [o.status for o in accepted.outcomes] == ["measured"] * 4 + ["not run"] * 5
+    assert [o.status for o in accepted.outcomes] == ["measured"] * 4 + ["not_run"] * 5
     assert accepted.outcomes[-1].reason == "array aborted" and accepted.outcomes[-1].hardness_gpa is None
     t3 = ticket_for(block(3))
     extra = [*rows_for(t3), [10, 0.0, 0.0, 1.0, 1.0, 0.0]]
@@ -371,7 +371,7 @@ def test_fake_fault_aborted(exchange: ExchangeFolder, watcher: InboxWatcher) -> 
     assert poll_until(watcher, t).accepted is None  # 4 of 9 rows: held until the abort counts
     accepted = watcher.poll(t, partial_ok=True).accepted
     assert accepted is not None
-    assert [o.status for o in accepted.outcomes] == ["measured"] * 4 + ["not run"] * 5
+    assert [o.status for o in accepted.outcomes] == ["measured"] * 4 + ["not_run"] * 5
 
 
 def test_fake_fault_surface_not_found_and_missing_export(

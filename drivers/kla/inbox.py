@@ -11,6 +11,7 @@ again; stale and duplicate exports are refused with a reason and kept in the arc
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import shutil
@@ -23,7 +24,8 @@ from core.errors import InputError
 from drivers.kla.exchange import EXPORT_SUFFIXES, ExchangeFolder, Ticket, parse_name
 from drivers.kla.export import KlaExport, KlaIndent, read_kla_export
 
-SiteStatus = Literal["measured", "failed", "not run"]
+# the same words as core.plan.IndentResult.status (the engine issue adds it there)
+SiteStatus = Literal["measured", "failed", "not_run"]
 STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a little on a share
 
 
@@ -57,10 +59,11 @@ class AcceptedExport:
     sha256: str
     outcomes: tuple[SiteOutcome, ...]
     notes: tuple[str, ...]
+    original: str = ""  # the file's name in the inbox
 
     @property
     def partial(self) -> bool:
-        return any(o.status == "not run" for o in self.outcomes)
+        return any(o.status == "not_run" for o in self.outcomes)
 
 
 @dataclass(frozen=True)
@@ -145,7 +148,7 @@ class ExportArchive:
         entry["outcomes"] = [asdict(o) for o in export.outcomes]
         entry["notes"] = list(export.notes)
         self._append(entry)
-        return AcceptedExport(block_id, dst, sha, export.outcomes, export.notes)
+        return AcceptedExport(block_id, dst, sha, export.outcomes, export.notes, src.name)
 
     def accepted_export(self, run: str, block_id: int) -> AcceptedExport | None:
         """A block's accepted export as recorded when it was accepted (for a resumed run)."""
@@ -153,9 +156,8 @@ class ExportArchive:
         if e is None:
             return None
         outcomes = tuple(SiteOutcome(**o) for o in e.get("outcomes", []))
-        return AcceptedExport(
-            block_id, self.folder / e["file"], e["sha256"], outcomes, tuple(e.get("notes", []))
-        )
+        notes = tuple(e.get("notes", []))
+        return AcceptedExport(block_id, self.folder / e["file"], e["sha256"], outcomes, notes, e["original"])
 
     def refuse(self, src: Path, sha: str | None, run: str, block_id: int, reason: str) -> None:
         if sha is None:
@@ -278,19 +280,22 @@ def match_rows(export: KlaExport, ticket: Ticket, tolerance_um: float) -> Match:
         ),
     ]
     for scale, note, rows in readings:
-        in_order = (
-            all(p is None or math.dist(p, ticket.sites_um[k]) <= tol for k, p in enumerate(rows))
-            and len(rows) <= ticket.n_sites
-        )
-        if in_order:
-            if any(p is None for p in rows):
-                note = "; ".join(filter(None, [note, "rows without X/Y were taken in array order"]))
-            return Match(tuple(range(len(rows))), (note,) if note else (), scale=scale)
+        if len(rows) > ticket.n_sites:
+            break
+        if any(p is None for p in rows):  # rows without X/Y: only array order can place them
+            if all(p is None or math.dist(p, ticket.sites_um[k]) <= tol for k, p in enumerate(rows)):
+                extra = "rows without X/Y were taken in array order"
+                return Match(tuple(range(len(rows))), tuple(filter(None, [note, extra])), scale=scale)
+            continue
         assigned = _assign(rows, ticket.sites_um, tol)
-        if assigned is not None and all(a is not None for a in assigned):
-            why = _diagnose([p for p in rows if p is not None], ticket, tol)
-            warn = f"rows are not in the array's order but each lies on a planned site: {why}"
-            return Match(assigned, tuple(filter(None, [note, warn])), scale=scale)
+        if assigned is None:
+            continue
+        sites = [a for a in assigned if a is not None]
+        if all(a < b for a, b in itertools.pairwise(sites)):
+            return Match(assigned, (note,) if note else (), scale=scale)  # array order (sites may be skipped)
+        why = _diagnose([p for p in rows if p is not None], ticket, tol)
+        warn = f"rows are not in the array's order but each lies on a planned site: {why}"
+        return Match(assigned, tuple(filter(None, [note, warn])), scale=scale)
     return Match(refusal=_diagnose(positioned, ticket, tol))
 
 
@@ -299,7 +304,11 @@ def _scaled(rows: list[tuple[float, float] | None], factor: float) -> list[tuple
 
 
 def outcomes_for(
-    export: KlaExport, ticket: Ticket, match: Match, not_run_reason: str
+    export: KlaExport,
+    ticket: Ticket,
+    match: Match,
+    not_run_reason: str,
+    skipped: frozenset[int] = frozenset(),
 ) -> tuple[SiteOutcome, ...]:
     """One outcome per planned site: measured, failed (with the reader's reason) or not run."""
     by_site: dict[int, KlaIndent] = {}
@@ -311,7 +320,8 @@ def outcomes_for(
         index = ticket.first_index + k
         row = by_site.get(k)
         if row is None:
-            out.append(SiteOutcome(index, "not run", reason=not_run_reason))
+            why = "skipped by the operator" if index in skipped else not_run_reason
+            out.append(SiteOutcome(index, "not_run", reason=why))
             continue
         x = None if row.x_um is None else row.x_um * match.scale
         y = None if row.y_um is None else row.y_um * match.scale
@@ -402,9 +412,17 @@ class InboxWatcher:
         self._seen.pop(path.name, None)
         return Refusal(path.name, reason, sha)
 
-    def poll(self, ticket: Ticket, *, partial_ok: bool = False, final: bool = False) -> PollResult:
+    def poll(
+        self,
+        ticket: Ticket,
+        *,
+        partial_ok: bool = False,
+        final: bool = False,
+        skipped: frozenset[int] = frozenset(),
+    ) -> PollResult:
         """Look once. ``partial_ok``: the array was reported aborted (fewer rows are expected);
-        ``final``: the deadline passed, so a complete-looking export is judged as it is."""
+        ``final``: the deadline passed, so a complete-looking export is judged as it is; ``skipped``:
+        indent indices the operator took out of the array (their rows are not expected)."""
         refused: list[Refusal] = []
         waiting = "no export yet"
         for path, block_id in self._candidates():
@@ -457,7 +475,9 @@ class InboxWatcher:
                 else:
                     waiting = f"{path.name} does not open cleanly yet ({exc.problem})"
                 continue
-            result = self._judge(path, sha, export, ticket, partial_ok=partial_ok, final=final)
+            result = self._judge(
+                path, sha, export, ticket, partial_ok=partial_ok, final=final, skipped=skipped
+            )
             if isinstance(result, Refusal):
                 refused.append(result)
             elif isinstance(result, str):
@@ -467,9 +487,18 @@ class InboxWatcher:
         return PollResult(None, tuple(refused), waiting)
 
     def _judge(
-        self, path: Path, sha: str, export: KlaExport, ticket: Ticket, *, partial_ok: bool, final: bool
+        self,
+        path: Path,
+        sha: str,
+        export: KlaExport,
+        ticket: Ticket,
+        *,
+        partial_ok: bool,
+        final: bool,
+        skipped: frozenset[int],
     ) -> AcceptedExport | Refusal | str:
         n_rows, n_sites = len(export.indents), ticket.n_sites
+        n_expected = n_sites - len({k for k in skipped if k >= ticket.first_index})
         if n_rows > n_sites:
             return self._refuse(
                 path, sha, ticket.block_id, f"has {n_rows} rows, the block planned {n_sites} (another array?)"
@@ -479,13 +508,13 @@ class InboxWatcher:
             return self._refuse(
                 path, sha, ticket.block_id, f"positions do not match the plan: {match.refusal}"
             )
-        if n_rows < n_sites and not (partial_ok or final):
+        if n_rows < n_expected and not (partial_ok or final):
             return (
-                f"{path.name} has {n_rows} of {n_sites} rows: waiting for an 'aborted' report "
+                f"{path.name} has {n_rows} of {n_expected} rows: waiting for an 'aborted' report "
                 "(then the rows present are kept and the rest marked not run)"
             )
         why = "array aborted" if partial_ok else "no row in the export (deadline passed)"
-        outcomes = outcomes_for(export, ticket, match, why)
+        outcomes = outcomes_for(export, ticket, match, why, skipped)
         found = AcceptedExport(ticket.block_id, path, sha, outcomes, match.notes + export.warnings)
         self._seen.pop(path.name, None)
         return self.archive.accept(path, sha, self.folder.run, ticket.block_id, found)

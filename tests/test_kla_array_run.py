@@ -33,7 +33,9 @@ def watcher(exchange: ExchangeFolder, tmp_path: Path) -> InboxWatcher:
     return InboxWatcher(exchange, ExportArchive(tmp_path / "run.sqlite.exports"))
 
 
-def start(exchange: ExchangeFolder, watcher: InboxWatcher, block_id: int = 2, **kw: object) -> tuple[ArrayRun, Clock]:
+def start(
+    exchange: ExchangeFolder, watcher: InboxWatcher, block_id: int = 2, **kw: object
+) -> tuple[ArrayRun, Clock]:
     t = make_ticket("r1", block(block_id, **kw), FAST.inview, expected_s=100.0, clock_s=1234.0)  # type: ignore[arg-type]
     exchange.publish(t)
     clock = Clock(t.created())
@@ -102,10 +104,14 @@ def test_fault_surface_not_found_closes_the_block_and_a_late_export_is_stale(
     write_export(exchange.inbox / "r1-002-export.csv", rows_for(run.ticket))
     nxt, _ = start(exchange, watcher, 3, centre=(800.0, 800.0))
     assert run_until_end(nxt, 5) is None
-    assert any(e.kind == "refused" and "stale: block 2 was closed (surface not found)" in e.text for e in nxt.events)
+    assert any(
+        e.kind == "refused" and "stale: block 2 was closed (surface not found)" in e.text for e in nxt.events
+    )
 
 
-def test_fault_missing_export_ends_at_the_deadline_as_not_run(exchange: ExchangeFolder, watcher: InboxWatcher) -> None:
+def test_fault_missing_export_ends_at_the_deadline_as_not_run(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
     run, clock = start(exchange, watcher)
     f = fake(exchange, "missing-export")
     (path,) = f.pending()
@@ -119,7 +125,9 @@ def test_fault_missing_export_ends_at_the_deadline_as_not_run(exchange: Exchange
     assert watcher.archive.closed("r1", 2) is not None
 
 
-def test_stable_partial_export_is_taken_at_the_deadline(exchange: ExchangeFolder, watcher: InboxWatcher) -> None:
+def test_stable_partial_export_is_taken_at_the_deadline(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
     run, clock = start(exchange, watcher)
     write_export(exchange.inbox / "r1-002-export.csv", rows_for(run.ticket)[:6])
     assert run_until_end(run, 5) is None and "has 6 of 9 rows" in run.waiting

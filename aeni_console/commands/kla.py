@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -53,6 +54,28 @@ def register(subparsers: Any) -> None:
         "--invalid-rate", type=float, default=0.03, help="share of indents exported as 1.797e308 (0-1)"
     )
     fake.set_defaults(func=_fake_inview)
+
+    check = actions.add_parser(
+        "check",
+        help="first-run check: a 3-site array at a known origin shows the axis signs, origin and units",
+        description=(
+            "Publish a 3-site test array (an L: 100 µm along x, 50 µm along y) at the origin you give, print its "
+            "ticket, then wait for InView's export in DIR/inbox and say whether the sign convention, the origin and "
+            "the units are right, or what to change in the profile's [inview] section. Exit 0 when right."
+        ),
+    )
+    check.add_argument("--exchange", metavar="DIR", type=Path, required=True, help="the exchange folder")
+    check.add_argument("--x-mm", type=float, required=True, help="origin X on the stage (XY Control), mm")
+    check.add_argument("--y-mm", type=float, required=True, help="origin Y on the stage (XY Control), mm")
+    check.add_argument(
+        "--hold-s", type=float, default=None, help="hold of the test indents (default: profile's)"
+    )
+    check.add_argument("--profile", default="kla-imicro", help="instrument profile name or TOML file")
+    check.add_argument("--run", default=None, help="name for the files (default: check-<UTC time>)")
+    check.add_argument(
+        "--timeout-s", type=positive_float("--timeout-s"), default=None, help="wait at most this long"
+    )
+    check.set_defaults(func=_check)
 
 
 def _read(args: argparse.Namespace) -> int:
@@ -150,4 +173,58 @@ def _fake_inview(args: argparse.Namespace) -> int:
     )
     with contextlib.suppress(KeyboardInterrupt):
         fake.serve_forever()
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    import time
+    from datetime import UTC, datetime, timedelta
+
+    from core.cost import block_steps
+    from core.profile import load_profile
+    from drivers.kla.array_run import ArrayRun
+    from drivers.kla.exchange import ExchangeFolder, check_block, make_ticket, ticket_text
+    from drivers.kla.inbox import ExportArchive, InboxWatcher
+
+    profile = load_profile(args.profile)
+    hold = profile.check_hold(args.hold_s, "--hold-s") if args.hold_s is not None else profile.default_hold_s
+    run = args.run or datetime.now(UTC).strftime("check-%Y%m%dT%H%M%SZ")
+    folder = ExchangeFolder(args.exchange, run, profile.inview)
+    block = check_block(args.x_mm * 1000.0, args.y_mm * 1000.0, hold)
+    expected = sum(
+        s.seconds for s in block_steps(profile, block, (block.center_x_um, block.center_y_um), False)
+    )
+    ticket = make_ticket(run, block, profile.inview, expected_s=expected)
+    if args.timeout_s is not None:
+        deadline = datetime.now(UTC) + timedelta(seconds=args.timeout_s)
+        ticket = replace(ticket, deadline_utc=deadline.replace(microsecond=0).isoformat())
+    folder.publish(ticket)
+    print_to_pipe(ticket_text(ticket))
+    array = ArrayRun(folder, InboxWatcher(folder, ExportArchive(args.exchange / "checks")), ticket)
+    shown = 0
+    while True:
+        end = array.poll()
+        for event in array.events[shown:]:
+            print_to_pipe(("" if event.accepted else "refused: ") + event.text)
+        shown = len(array.events)
+        if any(e.kind == "refused" for e in array.events):
+            print_to_pipe(
+                "NOT RIGHT: fix the profile's [inview] section (or the origin) and run the check again"
+            )
+            return 1
+        if end is not None:
+            break
+        time.sleep(profile.inview.poll_s)
+    measured = [o for o in end.outcomes if o.status == "measured"]
+    if len(measured) < len(end.outcomes) or any("not in the array's order" in n for n in end.notes):
+        for note in end.notes:
+            print_to_pipe(f"note: {note}")
+        print_to_pipe(f"NOT RIGHT: {end.how}; {len(measured)} of {len(end.outcomes)} test indents measured")
+        return 1
+    for note in end.notes:
+        print_to_pipe(f"note: {note}")
+    print_to_pipe(
+        "RIGHT: the three indents landed on the planned sites, in order: the axis signs, the origin, the "
+        "units and the export are as the profile says"
+    )
     return 0

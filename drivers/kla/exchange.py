@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from core.errors import InputError
-from core.plan import Block
+from core.plan import Block, IndentSpec
 from core.profile import InViewSettings
 
 TOKEN_ALPHABET = "ACDEFHJKMNPRTUVWXY34679"  # no look-alikes (0/O, 1/I/L, 2/Z, 5/S, 8/B)
@@ -274,6 +274,18 @@ def make_ticket(
     )
 
 
+# an L of three sites, 100 µm along x and 50 µm along y: no flip or swap of the axes maps it onto itself
+TEST_BLOCK_OFFSETS_UM: tuple[tuple[float, float], ...] = ((0.0, 0.0), (100.0, 0.0), (0.0, 50.0))
+
+
+def check_block(origin_x_um: float, origin_y_um: float, hold_s: float, block_id: int = 0) -> Block:
+    """The 3-site block of the first-run check (docs/kla.md): shows the signs, swap and origin at once."""
+    indents = tuple(
+        IndentSpec(origin_x_um + dx, origin_y_um + dy, hold_s) for dx, dy in TEST_BLOCK_OFFSETS_UM
+    )
+    return Block(block_id, "global", origin_x_um, origin_y_um, 1, 50.0, hold_s, indents)
+
+
 def array_offsets(ticket: Ticket, settings: InViewSettings) -> list[tuple[float, float]]:
     return [
         to_array_offset(settings, x - ticket.origin_x_um, y - ticket.origin_y_um) for x, y in ticket.sites_um
@@ -305,6 +317,7 @@ def ticket_text(ticket: Ticket) -> str:
             f"   X {xmm:.4f} mm, Y {ymm:.4f} mm   ({t.origin_x_um:.1f}, {t.origin_y_um:.1f} µm)."
         )
     methods = "\n".join(f'   hold {m.hold_s:g} s: "{m.method}" ({_ranges(m)})' for m in t.methods)
+    grid = f" ({t.grid_g}×{t.grid_g} at {t.pitch_um:g} µm)" if t.grid_g > 1 else ""
     return (
         f"AE-NI ticket  run {t.run}  block {t.block_id}{resumed}\n"
         f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
@@ -312,7 +325,7 @@ def ticket_text(ticket: Ticket) -> str:
         f"1. Sample: the run's sample, as calibrated (same mounting, same crosshair reference).\n"
         f"{move}\n"
         f"3. Array dialog: import outbox/{t.sites_file}\n"
-        f"   {t.n_sites} sites ({t.grid_g}×{t.grid_g} at {t.pitch_um:g} µm), µm offsets from the crosshair, {sign}.\n"
+        f"   {t.n_sites} sites{grid}, µm offsets from the crosshair, {sign}.\n"
         f"4. Test method:\n{methods}\n"
         f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline} "
         f"(estimate × 1.5 + 180 s).\n"

@@ -7,12 +7,31 @@ A capability is a typed protocol a driver class either satisfies or not; the eng
 from __future__ import annotations
 
 from collections.abc import Generator, Iterator
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
 
-DriverEvent = StepRecord | IndentResult
+
+@dataclass(frozen=True)
+class InstrumentWait:
+    """A block waits for the instrument or its operator (a ticket is out): what the console shows.
+
+    A driver that hands blocks to a person yields one of these every poll while it waits, so the engine
+    stays at a checkpoint (commands, pause, abort) and can show WAITING FOR INSTRUMENT.
+    """
+
+    block_id: int
+    ticket: str  # the ticket as a person reads it, without its token
+    deadline_utc: str
+    seconds_left: float
+    waiting: str  # what the driver sees ("no export yet", "... is still being written", how it ended)
+    started: bool  # the operator (or a helper's file) confirmed the start with the token
+    notes: tuple[str, ...] = ()  # reports and refusals since the last one, for the journal
+
+
+DriverEvent = StepRecord | IndentResult | InstrumentWait
 
 
 class DriverAborted(RuntimeError):
@@ -77,3 +96,14 @@ class PhysicsClock(Protocol):
     """Keeps the sample's physics (drift) on a clock without crash-recovery time (the simulated instrument)."""
 
     def physics_clock_s(self) -> float: ...
+
+
+@runtime_checkable
+class WaitsForOperator(Protocol):
+    """Takes the operator's reports while a block waits for the instrument (the KLA driver).
+
+    ``kind`` is started, aborted, surface-not-found (``value``: the ticket's token) or skip (``value``: the
+    1-based site); the answer is (accepted, what happened or why not), journaled by the engine.
+    """
+
+    def operator_report(self, kind: str, value: str, author: str) -> tuple[bool, str]: ...

@@ -9,6 +9,8 @@ from the journal (:meth:`Engine.run` on a reopened journal continues where the l
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import json
 import math
 import os
 import threading
@@ -17,7 +19,15 @@ import traceback
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
-from core.driver import Driver, DriverAborted, PhysicsClock, Recoverable, Restorable
+from core.driver import (
+    Driver,
+    DriverAborted,
+    InstrumentWait,
+    PhysicsClock,
+    Recoverable,
+    Restorable,
+    WaitsForOperator,
+)
 from core.errors import InputError
 from core.interlock import Interlock
 from core.journal import DriverState, Journal, user_name
@@ -106,6 +116,9 @@ class Engine:
         self._restorable = driver if isinstance(driver, Restorable) else None
         self._recoverable = driver if isinstance(driver, Recoverable) else None
         self._physics = driver if isinstance(driver, PhysicsClock) else None
+        # a driver that hands blocks to a person (KLA): its reports, and what it waits for now
+        self._operator = driver if isinstance(driver, WaitsForOperator) else None
+        self._waiting: InstrumentWait | None = None
         self.supervision = supervision
         self.poll_s = poll_s
         self.sleep = sleep
@@ -169,6 +182,8 @@ class Engine:
             want = EngineState.STOPPING
         elif self._paused:
             want = EngineState.PAUSED
+        elif self._waiting is not None:
+            want = EngineState.WAITING_FOR_INSTRUMENT
         elif self._pending is not None:
             want = EngineState.AWAITING_APPROVAL
         else:
@@ -407,7 +422,22 @@ class Engine:
             self._abort = True
             self.stop_reason = f"aborted by {author}"
             return "accepted", "finishing the current indent, lifting, stopping"
+        if kind in (CommandKind.CONFIRM, CommandKind.REPORT, CommandKind.SKIP):
+            return self._instrument_report(kind, author, payload)
         return "rejected", f"unhandled command {kind_s!r}"  # pragma: no cover
+
+    def _instrument_report(self, kind: CommandKind, author: str, payload: dict[str, Any]) -> tuple[str, str]:
+        """The operator's word on the instrument (started with the token, aborted, surface, skip a site)."""
+        if self._operator is None:
+            return "rejected", "this run's driver takes no instrument reports"
+        if kind is CommandKind.CONFIRM:
+            what, value = "started", payload.get("token", "")
+        elif kind is CommandKind.REPORT:
+            what, value = str(payload.get("kind", "")), payload.get("token", "")
+        else:
+            what, value = "skip", payload.get("site", "")
+        ok, why = self._operator.operator_report(what, str(value), author)
+        return ("accepted" if ok else "rejected"), why
 
     def _check_stale(self, payload: dict[str, Any]) -> str:
         assert self._pending is not None
@@ -524,6 +554,16 @@ class Engine:
         gen = self.driver.execute_block(block, start)
         try:
             for ev in gen:
+                if isinstance(ev, InstrumentWait):
+                    self._wait_for_instrument(ev)
+                    if self._abort:
+                        gen.close()
+                        self._stop_mid_block(block, buf)
+                        return False
+                    continue
+                if self._waiting is not None:  # the array ended: its results follow
+                    self._waiting = None
+                    self._settle_state()
                 if not isinstance(ev, IndentResult):
                     buf.append((ev, self._clock()))
                     if ev.category == "recovery":
@@ -553,7 +593,31 @@ class Engine:
         self.journal.set_block_status(block.block_id, "executed", self._clock())
         return True
 
+    def _wait_for_instrument(self, wait: InstrumentWait) -> None:
+        """A checkpoint while the driver waits for the instrument: journal what changed, take commands."""
+        before = self._waiting
+        self._waiting = wait
+        changed = before is None or (before.waiting, before.started) != (wait.waiting, wait.started)
+        self.journal.note_clock(self._clock())
+        for note in wait.notes:
+            self.journal.log("info", note, category="instrument", block_id=wait.block_id)
+        if changed:
+            what = "waiting for the instrument" if before is None else "instrument"
+            self.journal.log(
+                "info",
+                f"block {wait.block_id}: {what}: {wait.waiting}"
+                + ("" if wait.started else " (start not confirmed)"),
+                category="instrument",
+                block_id=wait.block_id,
+                detail=json.dumps(dataclasses.asdict(wait)),
+            )
+        self._checkpoint()
+        while self._paused and not self._abort:
+            self.sleep(self.poll_s)
+            self._checkpoint()
+
     def _stop_mid_block(self, block: Block, buf: list[tuple[StepRecord, float]]) -> None:
+        self._waiting = None
         if buf:
             self.journal.record_steps(buf, self._driver_state("abort"))
         done = self._current[1] if self._current else 0

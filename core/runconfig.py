@@ -42,7 +42,7 @@ __all__ = [
     "make_campaign_config",
     "parse_run_config",
 ]
-DRIVERS: tuple[str, ...] = ("sim",)
+DRIVERS: tuple[str, ...] = ("sim", "kla")
 
 
 class _Strict(BaseModel):
@@ -100,7 +100,8 @@ class PlannerSection(_Strict):
 
 
 class RunSection(_Strict):
-    driver: Literal["sim"] = "sim"
+    driver: Literal["sim", "kla"] = "sim"
+    exchange: str | None = None  # the KLA driver's exchange folder (shared with the instrument PC)
     supervision: str = "auto"
     journal: str | None = None
     speed: float | None = Field(default=None, gt=0)
@@ -132,6 +133,7 @@ class RunOptions:
     journal: str | None = None
     speed: float | None = None  # None: as fast as possible; f: f× faster than the real instrument
     runs_dir: str = "runs"
+    exchange: str | None = None  # driver kla: the exchange folder
 
 
 @dataclass(frozen=True)
@@ -216,6 +218,19 @@ def parse_run_config(
     for key, value in (("noise", c.noise), ("drift", c.drift), ("truth_csv", truth_csv)):
         if value is not None:
             driver_options[key] = value
+    r = rf.run
+    if r.driver == "kla" and not r.exchange:
+        raise InputError(
+            source, "field run.exchange is missing: driver 'kla' needs an exchange folder (--exchange DIR)"
+        )
+    exchange = r.exchange
+    if exchange is not None and base_dir is not None and not Path(exchange).is_absolute():
+        exchange = str((base_dir / exchange).resolve())  # relative to the config file
+    if r.driver == "kla":
+        # a real instrument has no truth: the scenario counts only when it was named (a fake InView plays it)
+        if "scenario" not in c.model_fields_set:
+            driver_options.pop("scenario")
+        driver_options["exchange"] = exchange
     campaign = CampaignConfig(
         policy=c.policy,
         seed=c.seed,
@@ -226,9 +241,13 @@ def parse_run_config(
         sample=sample,
         driver_options=driver_options,
     )
-    r = rf.run
     options = RunOptions(
-        driver=r.driver, supervision=r.supervision, journal=r.journal, speed=r.speed, runs_dir=r.runs_dir
+        driver=r.driver,
+        supervision=r.supervision,
+        journal=r.journal,
+        speed=r.speed,
+        runs_dir=r.runs_dir,
+        exchange=exchange,
     )
     return RunConfig(campaign=campaign, options=options)
 

@@ -20,6 +20,7 @@ class EngineState(StrEnum):
     PAUSING = "pausing"
     PAUSED = "paused"
     AWAITING_APPROVAL = "awaiting-approval"
+    WAITING_FOR_INSTRUMENT = "waiting-for-instrument"  # a ticket is out: the operator runs the array
     STOPPING = "stopping"
     STOPPED = "stopped"
     FAILED = "failed"
@@ -39,6 +40,9 @@ class CommandKind(StrEnum):
     STEP = "step"  # in step mode: run one block
     STOP_AFTER_BLOCK = "stop-after-block"
     ABORT = "abort"
+    CONFIRM = "confirm"  # the array started: payload token
+    REPORT = "report"  # payload kind (aborted | surface-not-found), token
+    SKIP = "skip"  # payload site (1-based, as in the sites file)
 
 
 @dataclass(frozen=True)

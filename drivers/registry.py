@@ -8,6 +8,7 @@ evaluator that scores the map; a real instrument supplies neither truth nor eval
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from core.driver import Driver
@@ -16,8 +17,10 @@ from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
 from core.sample import Sample
 
-DRIVER_KINDS: tuple[str, ...] = ("sim",)
+DRIVER_KINDS: tuple[str, ...] = ("sim", "kla")
 SIM_OPTIONS: tuple[str, ...] = ("scenario", "noise", "drift", "truth_csv", "lateral_sd_um")
+# the KLA driver's own options; the sim options beside them name the emulated sample a fake InView plays
+KLA_OPTIONS: tuple[str, ...] = ("exchange",)
 
 
 def _check_kind(kind: str) -> None:
@@ -65,10 +68,15 @@ def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = 
     return scenario if sample is None else scenario.on_sample(sample)
 
 
+def _sim_part(kind: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in options.items() if kind != "kla" or k not in KLA_OPTIONS}
+
+
 def default_sample(kind: str, options: Mapping[str, Any], seed: int) -> Sample:
-    """The sample a run uses when none is given: the simulated scenario's built-in one."""
+    """The sample a run uses when none is given: the simulated scenario's built-in one (for the KLA
+    driver: the one a fake InView emulates; a real run gives its --sample)."""
     _check_kind(kind)
-    sample: Sample = sim_scenario(options, seed).sample
+    sample: Sample = sim_scenario(_sim_part(kind, options), seed).sample
     return sample
 
 
@@ -80,9 +88,23 @@ def make_driver(
     *,
     seed: int = 0,
     speed: float | None = None,
+    journal: str | Path | None = None,
 ) -> Driver:
-    """The instrument driver for a run on ``sample``."""
+    """The instrument driver for a run on ``sample`` (the KLA driver keeps its exports beside ``journal``)."""
     _check_kind(kind)
+    if kind == "kla":
+        from drivers.kla.driver import make_kla_driver
+
+        if journal is None:
+            raise InputError(
+                "--journal", "the KLA driver needs the run's journal (its exports are kept beside it)"
+            )
+        x0, x1, y0, y1 = sample.calibration.bounds_um
+        exchange = options.get("exchange")
+        start = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+        return make_kla_driver(
+            profile, journal, None if exchange is None else str(exchange), start_um=start, speed=speed
+        )
     driver: Driver = sim_scenario(options, seed, sample).make_driver(profile, speed=speed)
     return driver
 
@@ -90,7 +112,10 @@ def make_driver(
 def make_evaluator(
     kind: str, sample: Sample, options: Mapping[str, Any], *, seed: int = 0
 ) -> MapEvaluator | None:
-    """The map-error scorer where the driver knows a truth (the simulated instrument), else None."""
+    """The map-error scorer where the driver knows a truth (the simulated instrument, or the emulated sample a
+    fake InView plays when the KLA run names its scenario), else None."""
     _check_kind(kind)
-    evaluator: MapEvaluator = sim_scenario(options, seed, sample).evaluator()
+    if kind == "kla" and "scenario" not in options:
+        return None
+    evaluator: MapEvaluator = sim_scenario(_sim_part(kind, options), seed, sample).evaluator()
     return evaluator

@@ -125,7 +125,7 @@ def test_command_line_overrides_win_and_are_validated(tmp_path: Path) -> None:
         ),
         ('[run]\nsupervision = "lazy"', "run.supervision", "'lazy'", "expected auto, supervised, step"),
         ("[run]\nspeed = 0", "run.speed", "0", "greater than 0"),
-        ('[run]\ndriver = "kla"', "run.driver", "'kla'", "'sim'"),
+        ('[run]\ndriver = "ftp"', "run.driver", "'ftp'", "'sim' or 'kla'"),
     ],
 )
 def test_each_bad_field_is_named_with_value_and_allowed(

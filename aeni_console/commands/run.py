@@ -45,6 +45,7 @@ def engine_argv(
     supervision: str = "auto",
     speed: float | None = None,
     driver: str = "sim",
+    exchange: str | None = None,
 ) -> list[str]:
     """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
     from core.campaign import campaign_config_to_dict
@@ -59,6 +60,8 @@ def engine_argv(
     ]  # fmt: skip
     if speed is not None:
         argv += ["--speed", repr(float(speed))]
+    if exchange is not None:
+        argv += ["--exchange", str(exchange)]
     return argv
 
 
@@ -71,6 +74,8 @@ def start_engine_process(
     *,
     log_path: str | Path | None = None,
     wait_s: float = 60.0,
+    driver: str = "sim",
+    exchange: str | None = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -85,7 +90,7 @@ def start_engine_process(
     log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
     with open(log, "ab") as fh:
         proc = subprocess.Popen(
-            engine_argv(config, journal, supervision, speed),
+            engine_argv(config, journal, supervision, speed, driver, exchange),
             stdin=subprocess.DEVNULL,
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -122,11 +127,13 @@ def _prepare_process() -> None:
         pass
 
 
-def _make_driver(kind: str, campaign: Any, speed: float | None) -> Any:
+def _make_driver(kind: str, campaign: Any, speed: float | None, journal: Path) -> Any:
     from drivers.registry import make_driver
 
     c = campaign.config
-    return make_driver(kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed)
+    return make_driver(
+        kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed, journal=journal
+    )
 
 
 def with_sample(config: Any, driver: str) -> Any:
@@ -209,7 +216,7 @@ def run_engine(
     if create is not None and speed is not None:
         spd = speed
     try:
-        driver = _make_driver(driver_kind, campaign, spd)
+        driver = _make_driver(driver_kind, campaign, spd, path)
         c = campaign.config
         engine = Engine(
             journal,
@@ -279,6 +286,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "campaign.lattice_n": args.lattice_n,
         "planner.budget_s": args.budget_s,
         "run.driver": args.driver,
+        "run.exchange": args.exchange,
         "run.supervision": args.supervision,
         "run.journal": args.journal,
         "run.speed": args.speed,
@@ -310,7 +318,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if journal.exists():
         raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
     if args.detach:
-        pid = start_engine_process(config, journal, options.supervision, options.speed, detach=True)
+        pid = start_engine_process(
+            config,
+            journal,
+            options.supervision,
+            options.speed,
+            detach=True,
+            driver=options.driver,
+            exchange=options.exchange,
+        )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
         print(f"watch: aeni status {journal}    stop: send abort from a console, or kill {pid}")
@@ -557,6 +573,14 @@ def _payload_value(text: str) -> Any:
         return text
 
 
+# the instrument reports of the KLA driver take plain words, not field=value
+_INSTRUMENT_REPORTS: dict[str, tuple[str, ...]] = {
+    "confirm": ("token",),
+    "report": ("kind", "token"),
+    "skip": ("site",),
+}
+
+
 def _cmd_send(args: argparse.Namespace) -> int:
     import getpass
 
@@ -565,6 +589,13 @@ def _cmd_send(args: argparse.Namespace) -> int:
 
     path = resolve_run(args.run)
     payload: dict[str, Any] = {}
+    if args.kind in _INSTRUMENT_REPORTS:  # confirm TOKEN | report KIND TOKEN | skip SITE
+        names = _INSTRUMENT_REPORTS[args.kind]
+        if len(args.fields) != len(names):
+            usage = " ".join(n.upper() for n in names)
+            raise InputError(args.kind, f"expected `aeni send RUN {args.kind} {usage}`")
+        payload = dict(zip(names, args.fields, strict=True))
+        args.fields = []
     for item in args.fields:
         key, sep, value = item.partition("=")
         if not sep or not key:
@@ -591,7 +622,8 @@ def register(subparsers: Any) -> None:
     )
     run.add_argument("config", nargs="?", metavar="CONFIG.toml", help="run configuration (optional)")
     run.add_argument("--sample", help="sample file (sample.toml); default: the scenario's built-in sample")
-    run.add_argument("--driver", help="instrument driver (sim)")
+    run.add_argument("--driver", help="instrument driver (sim | kla)")
+    run.add_argument("--exchange", help="driver kla: the exchange folder shared with the instrument PC")
     run.add_argument("--policy", help="planning policy")
     run.add_argument("--seed", help="random seed")
     run.add_argument("--scenario", help="emulator scenario")
@@ -636,10 +668,14 @@ def register(subparsers: Any) -> None:
         "kind",
         choices=[k.value for k in _command_kinds()],
         metavar="COMMAND",
-        help="pause | resume | approve | veto | step | adjust | stop-after-block | abort",
+        help="pause | resume | approve | veto | step | adjust | stop-after-block | abort | "
+        "confirm TOKEN | report aborted|surface-not-found TOKEN | skip SITE",
     )
     send.add_argument(
-        "fields", nargs="*", metavar="FIELD=VALUE", help="adjust: settings to change; veto: hold_blocks=N"
+        "fields",
+        nargs="*",
+        metavar="FIELD=VALUE",
+        help="adjust: settings to change; veto: hold_blocks=N; confirm/report/skip: the token or site",
     )
     send.set_defaults(func=_cmd_send)
 

@@ -228,8 +228,13 @@ def make_ticket(
     clock_s: float = 0.0,
     from_um: tuple[float, float] = (0.0, 0.0),
     program_open: bool = False,
+    speed: float | None = None,
 ) -> Ticket:
-    """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre."""
+    """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre.
+
+    ``speed``: the instrument runs that many times faster than the cost model (a fake InView at ``--speed``),
+    so the deadline is the estimate ÷ speed × factor + margin of wall time.
+    """
     if not _RUN_NAME.match(run):
         raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
     if not 0 <= first_index < block.n_indents:
@@ -244,7 +249,7 @@ def make_ticket(
         else:
             methods.append(MethodStep(hold, settings.method_for(hold), i, i))
     created = (now or datetime.now(UTC)).replace(microsecond=0)
-    wait_s = deadline_s(settings, expected_s)
+    wait_s = deadline_s(settings, expected_s / (speed or 1.0))
     tag = block_tag(block.block_id)
     return Ticket(
         run=run,
@@ -327,8 +332,7 @@ def ticket_text(ticket: Ticket) -> str:
         f"3. Array dialog: import outbox/{t.sites_file}\n"
         f"   {t.n_sites} sites{grid}, µm offsets from the crosshair, {sign}.\n"
         f"4. Test method:\n{methods}\n"
-        f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline} "
-        f"(estimate × 1.5 + 180 s).\n"
+        f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline}.\n"
         f"6. Export (Sample File → Export, CSV or Excel) as inbox/{t.export_stem}.xlsx (or .csv).\n"
         f"If the array aborts or the surface is not found, report it (console keys a / f) with the token.\n"
     )

@@ -1,0 +1,260 @@
+"""The KLA iMicro driver: the Driver contract through the InView file exchange, with the operator in the loop.
+
+For each block it publishes the array and the ticket, then waits (yielding ``InstrumentWait`` so the engine
+can show WAITING FOR INSTRUMENT, take the operator's reports and keep its checkpoints) until the block's
+array ends: an accepted export, a surface not found, or the deadline. It then reports, in indent order, the
+cost model's steps and one ``IndentResult`` per site: measured, failed (no number) or not run.
+
+The clock is the cost model's, as for the simulated instrument, so budgets and the ledger mean the same with
+either driver; the time actually spent waiting is in the journal's wall-clock times.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+from collections.abc import Callable, Generator, Iterator
+from dataclasses import replace
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import cast
+
+from core.cost import comeback_step, indent_steps
+from core.driver import DriverAborted, DriverEvent, InstrumentWait
+from core.errors import InputError
+from core.plan import Block, IndentResult, StepRecord
+from core.profile import InstrumentProfile
+from drivers.kla.array_run import ArrayEnd, ArrayRun, utc_now
+from drivers.kla.exchange import (
+    REPORT_KINDS,
+    ExchangeFolder,
+    ReportKind,
+    Ticket,
+    make_ticket,
+    ticket_text,
+    write_atomic,
+)
+from drivers.kla.inbox import ExportArchive, InboxWatcher, SiteOutcome
+
+
+def archive_dir_for(journal_path: str | Path) -> Path:
+    """Accepted exports live next to the journal: ``runs/x.sqlite`` -> ``runs/x.sqlite.exports/``."""
+    p = Path(journal_path)
+    return p.with_name(p.name + ".exports")
+
+
+def make_kla_driver(
+    profile: InstrumentProfile,
+    journal: str | Path,
+    exchange: str | Path | None,
+    *,
+    start_um: tuple[float, float] = (0.0, 0.0),
+    speed: float | None = None,
+) -> KlaDriver:
+    """The driver for a run's journal. A new run names its exchange folder, which is kept beside the
+    journal (``<journal>.exports/exchange.json``) so ``aeni resume`` finds it again."""
+    archive = archive_dir_for(journal)
+    where = archive / "exchange.json"
+    if exchange is None:
+        try:
+            exchange = str(json.loads(where.read_text(encoding="utf-8"))["exchange"])
+        except (OSError, ValueError, KeyError) as exc:
+            raise InputError(str(where), f"cannot tell this run's exchange folder ({exc})") from None
+    folder = Path(exchange).resolve()
+    if not folder.is_dir():
+        raise InputError(str(exchange), "exchange folder does not exist")
+    run = Path(journal).name.removesuffix(".sqlite")
+    driver = KlaDriver(profile, folder, run, archive, start_um=start_um, speed=speed)
+    if not where.exists():
+        write_atomic(where, json.dumps({"exchange": str(folder), "run": run}) + "\n")
+    return driver
+
+
+class KlaDriver:
+    """Runs blocks on an iMicro through an exchange folder (see docs/kla.md)."""
+
+    def __init__(
+        self,
+        profile: InstrumentProfile,
+        exchange: str | Path,
+        run: str,
+        archive: str | Path,
+        *,
+        start_um: tuple[float, float] = (0.0, 0.0),
+        clock_s: float = 0.0,
+        now: Callable[[], datetime] = utc_now,
+        speed: float | None = None,
+    ) -> None:
+        self.profile = profile
+        self.folder = ExchangeFolder(exchange, run, profile.inview)
+        self.archive = ExportArchive(archive)
+        self.watcher = InboxWatcher(self.folder, self.archive)
+        self.now = now
+        self.speed = speed  # a fake InView's speed-up: deadlines shrink with it
+        self._pos = start_um
+        self._clock_s = clock_s
+        self._open = False
+        self._abort = threading.Event()
+        self._array: ArrayRun | None = None
+
+    # -- state -----------------------------------------------------------------------------------
+    def position_um(self) -> tuple[float, float]:
+        return self._pos
+
+    def clock_s(self) -> float:
+        return self._clock_s
+
+    def program_open(self) -> bool:
+        return self._open
+
+    def set_state(
+        self,
+        clock_s: float,
+        position_um: tuple[float, float],
+        program_open: bool,
+        physics_clock_s: float | None = None,
+    ) -> None:
+        """Restore the model of the instrument after a crash (the real one kept going)."""
+        self._clock_s, self._pos, self._open = clock_s, position_um, program_open
+
+    def abort(self) -> None:
+        self._abort.set()
+
+    def end_program(self) -> Iterator[StepRecord]:
+        if self._open:
+            yield self._advance(comeback_step(self.profile))
+            self._open = False
+
+    def _advance(self, step: StepRecord) -> StepRecord:
+        self._clock_s += step.seconds
+        return step
+
+    # -- the operator ------------------------------------------------------------------------------
+    def operator_report(self, kind: str, value: str, author: str) -> tuple[bool, str]:
+        """A report from the console or ``aeni send``: started/aborted/surface-not-found with the token,
+        or skip with a 1-based site number. (False, why) when nothing waits or it does not fit."""
+        array = self._array
+        if array is None:
+            return False, "no block is waiting for the instrument"
+        if kind == "skip":
+            try:
+                site = int(value)
+            except ValueError:
+                return False, f"skip needs a site number, got {value!r}"
+            return array.skip(array.ticket.first_index + site - 1, author)
+        if kind not in REPORT_KINDS:
+            return False, f"unknown report {kind!r} (expected {', '.join(REPORT_KINDS)} or skip)"
+        return array.report(cast(ReportKind, kind), value, author)
+
+    # -- a block -----------------------------------------------------------------------------------
+    def _ticket(self, block: Block, start_index: int) -> Ticket:
+        """This block's ticket: the one already out (a resumed run keeps its token), or a new one."""
+        existing = self.folder.read_ticket(block.block_id)
+        wanted = tuple((s.x_um, s.y_um) for s in block.indents[start_index:])
+        if existing is not None and existing.first_index == start_index and existing.sites_um == wanted:
+            if existing.deadline() <= self.now():  # the engine was down past it: a fresh wait, same token
+                wait = timedelta(seconds=self.profile.inview.deadline_margin_s)
+                existing = replace(
+                    existing, deadline_utc=(self.now() + wait).replace(microsecond=0).isoformat()
+                )
+                self.folder.publish(existing)
+            return existing
+        pos, is_open, expected = self._pos, self._open, 0.0
+        for i in range(start_index, block.n_indents):
+            expected += sum(s.seconds for s in indent_steps(self.profile, block, i, pos, is_open))
+            pos, is_open = (block.indents[i].x_um, block.indents[i].y_um), True
+        ticket = make_ticket(
+            self.folder.run,
+            block,
+            self.profile.inview,
+            expected_s=expected,
+            first_index=start_index,
+            now=self.now(),
+            clock_s=self._clock_s,
+            from_um=self._pos,
+            program_open=self._open,
+            speed=self.speed,
+        )
+        self.folder.publish(ticket)
+        return ticket
+
+    def _recorded_end(self, ticket: Ticket) -> ArrayEnd | None:
+        """A block the archive already closed (the engine died after that, before journaling it)."""
+        accepted = self.archive.accepted_export(ticket.run, ticket.block_id)
+        if accepted is not None:
+            return ArrayEnd(
+                accepted.outcomes, "export accepted before the restart", accepted.sha256, accepted.archived
+            )
+        closed = self.archive.closed(ticket.run, ticket.block_id)
+        if closed is not None:
+            why = str(closed["reason"])
+            outcomes = tuple(
+                SiteOutcome(ticket.first_index + k, "not_run", reason=why) for k in range(ticket.n_sites)
+            )
+            return ArrayEnd(outcomes, why)
+        return None
+
+    def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
+        if self._abort.is_set():
+            raise DriverAborted("driver was aborted")
+        ticket = self._ticket(block, start_index)
+        end = self._recorded_end(ticket)
+        if end is None:
+            array = ArrayRun(self.folder, self.watcher, ticket, now=self.now)
+            self._array = array
+            shown = 0
+            try:
+                while True:
+                    end = array.poll()
+                    notes = tuple(e.text for e in array.events[shown:])
+                    shown = len(array.events)
+                    yield InstrumentWait(
+                        block_id=block.block_id,
+                        ticket=ticket_text(ticket).replace(ticket.token, "·····"),
+                        deadline_utc=ticket.deadline_utc,
+                        seconds_left=max(array.seconds_left(), 0.0),
+                        waiting=array.waiting if end is None else end.how,
+                        started=array.started,
+                        notes=notes,
+                    )
+                    if end is not None:
+                        break
+                    if self._abort.wait(self.profile.inview.poll_s):
+                        raise DriverAborted(f"aborted while block {block.block_id} waited for the instrument")
+            finally:
+                self._array = None
+        yield from self._results(block, ticket, end)
+
+    def _results(self, block: Block, ticket: Ticket, end: ArrayEnd) -> Iterator[DriverEvent]:
+        """The cost model's steps for the sites that ran, and one result per site in indent order."""
+        for outcome in sorted(end.outcomes, key=lambda o: o.indent_index):
+            i = outcome.indent_index
+            spec = block.indents[i]
+            if outcome.status == "not_run":
+                yield IndentResult.unmeasured(
+                    block.block_id, i, spec, self._clock_s, "not_run", outcome.reason
+                )
+                continue
+            for step in indent_steps(self.profile, block, i, self._pos, self._open):
+                yield self._advance(step)
+            self._pos, self._open = (spec.x_um, spec.y_um), True
+            yield IndentResult(
+                block_id=block.block_id,
+                indent_index=i,
+                commanded_x_um=spec.x_um,
+                commanded_y_um=spec.y_um,
+                actual_x_um=spec.x_um if outcome.x_um is None else outcome.x_um,
+                actual_y_um=spec.y_um if outcome.y_um is None else outcome.y_um,
+                hold_s=spec.hold_s,
+                hardness_gpa=_nan(outcome.hardness_gpa),
+                modulus_gpa=_nan(outcome.modulus_gpa),
+                drift_rate_nm_s=_nan(outcome.drift_rate_nm_s),
+                t_s=self._clock_s,
+                status=outcome.status,
+                note=outcome.reason,
+            )
+
+
+def _nan(value: float | None) -> float:
+    return math.nan if value is None else float(value)

@@ -1,0 +1,240 @@
+"""The KLA driver against a running fake InView: every fault ends as specified, each planned indent is
+reported exactly once, and no failed or not-run indent carries a number."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from core.driver import Driver, DriverAborted, InstrumentWait, WaitsForOperator
+from core.emulator import make_scenario
+from core.plan import Block, IndentResult, StepRecord, local_grid
+from core.profile import load_profile
+from drivers.kla.driver import KlaDriver, make_kla_driver
+from drivers.kla.fake_inview import FakeInView, parse_fault
+from drivers.sim.driver import SimulatedDriver
+
+BASE = load_profile("kla-imicro")
+PROFILE = replace(
+    BASE, inview=replace(BASE.inview, stable_polls=2, poll_s=0.01, deadline_factor=1.0, deadline_margin_s=2.0)
+)
+SEED = 3
+
+
+def block(block_id: int, centre: tuple[float, float] = (500.0, 500.0), kind: str = "global") -> Block:
+    return Block(block_id, kind, centre[0], centre[1], 3, 5.0, 80.0, local_grid(*centre, 3, 5.0, 80.0))  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def exchange(tmp_path: Path) -> Path:
+    root = tmp_path / "exchange"
+    root.mkdir()
+    return root
+
+
+def running_fake(exchange: Path, *faults: str, rate: float = 0.0) -> Iterator[FakeInView]:
+    fake = FakeInView(
+        exchange,
+        PROFILE,
+        make_scenario("ternary", SEED).make_emulator,
+        faults=tuple(parse_fault(f) for f in faults),
+        invalid_rate=rate,
+        write_s=0.02,
+        log=lambda _line: None,
+    )
+    stop = threading.Event()
+    thread = threading.Thread(target=fake.serve_forever, kwargs={"poll_s": 0.01, "stop": stop.is_set})
+    thread.start()
+    try:
+        yield fake
+    finally:
+        stop.set()
+        thread.join()
+
+
+def driver(exchange: Path, tmp_path: Path) -> KlaDriver:
+    return KlaDriver(PROFILE, exchange, "r1", tmp_path / "r1.sqlite.exports", speed=1e6)
+
+
+def run_block(d: KlaDriver, b: Block) -> tuple[list[IndentResult], list[StepRecord], list[InstrumentWait]]:
+    results, steps, waits = [], [], []
+    for ev in d.execute_block(b):
+        if isinstance(ev, IndentResult):
+            results.append(ev)
+        elif isinstance(ev, StepRecord):
+            steps.append(ev)
+        else:
+            waits.append(ev)
+    return results, steps, waits
+
+
+def sim_hardness(b: Block, clock_s: float = 0.0) -> list[float]:
+    sim = SimulatedDriver(make_scenario("ternary", SEED).make_emulator(), PROFILE)
+    sim.set_state(clock_s, (0.0, 0.0), False)
+    return [ev.hardness_gpa for ev in sim.execute_block(b) if isinstance(ev, IndentResult)]
+
+
+def check_invariants(b: Block, results: list[IndentResult]) -> None:
+    """Each planned indent exactly once, in order; a number only where it was measured."""
+    assert [r.indent_index for r in results] == list(range(b.n_indents))
+    for r in results:
+        assert r.measured == math.isfinite(r.hardness_gpa)
+        if not r.measured:
+            assert math.isnan(r.hardness_gpa) and r.note
+
+
+def test_kla_driver_satisfies_the_contract_and_waits_for_an_operator(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    assert isinstance(d, Driver) and isinstance(d, WaitsForOperator)
+
+
+def test_normal_block_measures_what_the_sim_measures(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    for _ in running_fake(exchange, rate=0.25):
+        results, steps, waits = run_block(d, b)
+    check_invariants(b, results)
+    statuses = [r.status for r in results]
+    assert "failed" in statuses and set(statuses) <= {"measured", "failed"}
+    expect = sim_hardness(b)
+    for r, h in zip(results, expect, strict=True):
+        if r.measured:
+            assert r.hardness_gpa == pytest.approx(h)
+    assert (
+        waits
+        and waits[0].block_id == 0
+        and "·····" in waits[0].ticket
+        and d.folder.read_ticket(0).token not in waits[0].ticket
+    )  # type: ignore[union-attr]
+    assert waits[-1].waiting.startswith("export r1-000-export.xlsx accepted")
+    assert any("array started" in n for w in waits for n in w.notes)
+    # the clock is the cost model's: the same steps and seconds the sim driver would have charged
+    assert d.clock_s() == pytest.approx(sum(s.seconds for s in steps)) and d.program_open()
+    assert d.position_um() == (b.indents[-1].x_um, b.indents[-1].y_um)
+
+
+def test_fault_aborted_keeps_the_rows_present_rest_not_run(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    for _ in running_fake(exchange, "aborted"):
+        results, steps, _ = run_block(d, b)
+    check_invariants(b, results)
+    assert [r.status for r in results] == ["measured"] * 4 + ["not_run"] * 5
+    assert results[-1].note == "array aborted"
+    assert len([s for s in steps if s.category == "indent"]) == 4  # only what ran is charged
+
+
+def test_fault_surface_not_found_runs_nothing(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    for _ in running_fake(exchange, "surface-not-found"):
+        results, steps, _ = run_block(d, b)
+    check_invariants(b, results)
+    assert {(r.status, r.note) for r in results} == {("not_run", "surface not found")}
+    assert steps == [] and d.clock_s() == 0.0 and not d.program_open()
+
+
+def test_fault_missing_export_times_out_to_not_run(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    for _ in running_fake(exchange, "missing-export"):
+        results, _, waits = run_block(d, b)
+    check_invariants(b, results)
+    assert all(r.status == "not_run" and r.note.startswith("no export by the deadline") for r in results)
+    assert waits[-2].started and waits[-2].seconds_left < 2.0
+
+
+def test_fault_duplicate_export_is_refused_and_counted_once(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    b0, b1 = block(0), block(1, (700.0, 500.0), "local")
+    for _ in running_fake(exchange, "duplicate-export@0"):
+        first, _, _ = run_block(d, b0)
+        second, _, waits = run_block(d, b1)
+    check_invariants(b0, first)
+    check_invariants(b1, second)
+    notes = [n for w in waits for n in w.notes]
+    assert any("refused: duplicate: same SHA-256 as the export accepted for block 0" in n for n in notes)
+    accepted = [e for e in d.archive.entries() if e["status"] == "accepted"]
+    assert [e["block_id"] for e in accepted] == [0, 1]
+
+
+@pytest.mark.parametrize("fault", ["mm-um", "flipped-y"])
+def test_faults_mm_um_and_flipped_y_still_put_every_value_where_it_was_measured(
+    exchange: Path, tmp_path: Path, fault: str
+) -> None:
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    for _ in running_fake(exchange, fault):
+        results, _, _ = run_block(d, b)
+    check_invariants(b, results)
+    assert all(r.measured for r in results)
+    mirrored = fault == "flipped-y"
+    truth_block = (
+        replace(b, indents=tuple(replace(s, y_um=1000.0 - s.y_um) for s in b.indents)) if mirrored else b
+    )
+    measured_at = {
+        (round(s.x_um, 3), round(s.y_um, 3)): h
+        for s, h in zip(truth_block.indents, sim_hardness(truth_block), strict=True)
+    }
+    for r in results:
+        assert (r.actual_x_um, r.actual_y_um) == pytest.approx((r.commanded_x_um, r.commanded_y_um))
+        assert r.hardness_gpa == pytest.approx(
+            measured_at[(round(r.actual_x_um, 3), round(r.actual_y_um, 3))]
+        )
+
+
+def test_operator_reports_through_the_driver(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    assert d.operator_report("started", "X", "alice") == (False, "no block is waiting for the instrument")
+    gen = d.execute_block(b)
+    first = next(gen)
+    assert isinstance(first, InstrumentWait) and not first.started
+    token = d.folder.read_ticket(0).token  # type: ignore[union-attr]
+    assert d.operator_report("started", "WRONG", "alice")[0] is False
+    assert d.operator_report("started", token, "alice") == (True, "block 0: array started (token confirmed)")
+    assert d.operator_report("skip", "9", "alice") == (True, "block 0: site 9 skipped")
+    assert d.operator_report("skip", "ten", "alice")[0] is False
+    assert d.operator_report("wave", token, "alice")[0] is False
+    assert d.operator_report("surface-not-found", token, "alice")[0]
+    rest = list(gen)
+    results = [ev for ev in rest if isinstance(ev, IndentResult)]
+    check_invariants(b, results)
+    assert results[8].note == "skipped by the operator" and results[0].note == "surface not found"
+
+
+def test_abort_while_waiting_raises_at_once(exchange: Path, tmp_path: Path) -> None:
+    d = driver(exchange, tmp_path)
+    gen = d.execute_block(block(0))
+    assert isinstance(next(gen), InstrumentWait)
+    d.abort()
+    with pytest.raises(DriverAborted, match="waited for the instrument"):
+        next(gen)
+
+
+def test_resume_keeps_the_ticket_and_takes_an_export_accepted_before_the_crash(
+    exchange: Path, tmp_path: Path
+) -> None:
+    journal = tmp_path / "r1.sqlite"
+    d = make_kla_driver(PROFILE, journal, exchange, speed=1e6)
+    b = block(0)
+    gen = d.execute_block(b)
+    next(gen)  # the ticket is out
+    token = d.folder.read_ticket(0).token  # type: ignore[union-attr]
+    del gen  # the engine dies while waiting
+    for _ in running_fake(exchange):
+        again = make_kla_driver(
+            PROFILE, journal, None, speed=1e6
+        )  # as `aeni resume`: the folder from beside the journal
+        results, _, _ = run_block(again, b)
+    assert again.folder.root == exchange.resolve() and again.folder.read_ticket(0).token == token  # type: ignore[union-attr]
+    check_invariants(b, results)
+    # a second restart after the export was accepted (but before the engine journaled it): no parse, same values
+    third = make_kla_driver(PROFILE, journal, None, speed=1e6)
+    replayed, _, waits = run_block(third, b)
+    assert waits == [] and [r.hardness_gpa for r in replayed] == [r.hardness_gpa for r in results]

@@ -1,0 +1,265 @@
+"""Whole runs through the KLA driver: headless against a fake InView process, the same map as the sim
+driver on the same seed, WAITING FOR INSTRUMENT with `aeni send RUN confirm TOKEN`, and kill -9 while
+waiting followed by `aeni resume`."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from core.journal import JournalReader
+from core.runview import EngineState
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+BUDGET_S = "7400"  # two 5×5 blocks of the cost-aware policy on the ternary library
+FAST_PROFILE = 'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.05\ndeadline_margin_s = 60.0\n'
+
+
+def aeni(*args: str) -> list[str]:
+    return [sys.executable, "-m", "aeni_console.cli", *args]
+
+
+@pytest.fixture
+def setup(tmp_path: Path) -> tuple[Path, Path, Path]:
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    profile = tmp_path / "fast.toml"
+    profile.write_text(FAST_PROFILE)
+    config = tmp_path / "run.toml"
+    config.write_text(f'name = "kla"\n[campaign]\nseed = 0\nprofile = "{profile}"\n')
+    return exchange, profile, config
+
+
+def fake_inview(exchange: Path, profile: Path, *faults: str) -> subprocess.Popen[str]:
+    argv = aeni("kla", "fake-inview", "--exchange", str(exchange), "--speed", "1e6", "--invalid-rate", "0")
+    argv += ["--profile", str(profile), "--seed", "0"]
+    for f in faults:
+        argv += ["--fault", f]
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+
+
+def stop(proc: subprocess.Popen[str]) -> str:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=60)
+    return out or ""
+
+
+def running(proc: subprocess.Popen[str]) -> Iterator[subprocess.Popen[str]]:
+    try:
+        yield proc
+    finally:
+        stop(proc)
+
+
+def kla_run(config: Path, exchange: Path, journal: Path, *extra: str) -> list[str]:
+    return aeni(
+        "run", str(config), "--driver", "kla", "--exchange", str(exchange), "--budget-s", BUDGET_S,
+        "--journal", str(journal), "--speed", "1e6", "--quiet", *extra,
+    )  # fmt: skip
+
+
+def manifest(journal: Path) -> list[dict[str, object]]:
+    path = journal.with_name(journal.name + ".exports") / "manifest.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def indents(journal: Path) -> list[tuple[int, int, float]]:
+    with sqlite3.connect(journal) as conn:
+        return list(
+            conn.execute(
+                "SELECT block_id, indent_index, hardness_gpa FROM indents ORDER BY block_id, indent_index"
+            )
+        )
+
+
+@pytest.mark.slow
+def test_headless_run_has_one_hashed_export_per_block_and_the_sims_map(
+    tmp_path: Path, setup: tuple[Path, Path, Path]
+) -> None:
+    exchange, profile, config = setup
+    journal = tmp_path / "runs" / "kla.sqlite"
+    for _ in running(fake_inview(exchange, profile)):
+        proc = subprocess.run(
+            kla_run(config, exchange, journal), capture_output=True, text=True, env=ENV, timeout=300
+        )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    entries = manifest(journal)
+    accepted = [e for e in entries if e["status"] == "accepted"]
+    with JournalReader(journal) as r:
+        snap = r.snapshot()
+    assert snap.n_blocks == len(accepted) >= 2
+    assert [e["block_id"] for e in accepted] == list(range(len(accepted)))
+    folder = journal.with_name(journal.name + ".exports")
+    for e in accepted:
+        data = (folder / str(e["file"])).read_bytes()
+        assert hashlib.sha256(data).hexdigest() == e["sha256"]
+    rows = indents(journal)
+    assert len(rows) == len({(b, i) for b, i, _ in rows}) == 25 * len(accepted)
+    # the same map as the simulated driver on the same seed and budget (the fake InView measures on the
+    # same emulator): final MAPE within 10 %
+    sim_journal = tmp_path / "runs" / "sim.sqlite"
+    sim = subprocess.run(
+        aeni("run", str(config), "--budget-s", BUDGET_S, "--journal", str(sim_journal), "--quiet"),
+        capture_output=True, text=True, env=ENV, timeout=300,
+    )  # fmt: skip
+    assert sim.returncode == 0, sim.stderr
+    with JournalReader(sim_journal) as r:
+        sim_mape = r.snapshot().mape_pct
+    assert snap.mape_pct is not None and sim_mape is not None
+    assert abs(snap.mape_pct - sim_mape) <= 0.10 * sim_mape
+
+
+def wait_for(predicate: object, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():  # type: ignore[operator]
+            return
+        time.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+def engine_state(journal: Path) -> EngineState:
+    with JournalReader(journal) as r:
+        return r.state()[0]
+
+
+def test_waiting_for_instrument_takes_the_token_by_aeni_send(
+    tmp_path: Path, setup: tuple[Path, Path, Path]
+) -> None:
+    exchange, _profile, config = setup
+    journal = tmp_path / "runs" / "kla.sqlite"
+    engine = subprocess.Popen(
+        kla_run(config, exchange, journal),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+    )
+    try:
+        ticket = exchange / "outbox" / "kla-000-ticket.json"
+        wait_for(
+            lambda: (
+                ticket.exists()
+                and journal.exists()
+                and engine_state(journal) is EngineState.WAITING_FOR_INSTRUMENT
+            )
+        )
+        token = json.loads(ticket.read_text())["token"]
+        bad = subprocess.run(aeni("send", str(journal), "confirm"), capture_output=True, text=True, env=ENV)
+        assert bad.returncode == 2 and "expected `aeni send RUN confirm TOKEN`" in bad.stderr
+        for word in ("WRONG", token, token):
+            assert (
+                subprocess.run(
+                    aeni("send", str(journal), "confirm", word), env=ENV, capture_output=True
+                ).returncode
+                == 0
+            )
+        with sqlite3.connect(journal) as conn:
+            get = "SELECT outcome, reason FROM commands WHERE kind = 'confirm' AND processed = 1 ORDER BY command_id"
+            wait_for(lambda: len(list(conn.execute(get))) == 3)
+            outcomes = list(conn.execute(get))
+        assert [o for o, _ in outcomes] == ["rejected", "accepted", "rejected"]
+        assert "'WRONG' is not block 0's token" in outcomes[0][1] and "already reported" in outcomes[2][1]
+        assert outcomes[1][1] == "block 0: array started (token confirmed)"
+        # the ticket's text is in the journal for the console, without its token
+        with sqlite3.connect(journal) as conn:
+            details = [
+                json.loads(d)
+                for (d,) in conn.execute(
+                    "SELECT detail FROM events WHERE category = 'instrument' AND detail IS NOT NULL"
+                )
+            ]
+        assert details and details[-1]["started"] and token not in details[-1]["ticket"]
+        assert "X 0.5" in details[0]["ticket"] or "mm" in details[0]["ticket"]
+        subprocess.run(aeni("send", str(journal), "abort"), env=ENV, check=True, capture_output=True)
+        engine.wait(timeout=60)
+    finally:
+        if engine.poll() is None:
+            engine.kill()
+        engine.communicate()
+    assert engine_state(journal) is EngineState.STOPPED
+
+
+@pytest.mark.slow
+def test_kill_9_while_waiting_then_resume_picks_up_the_export(
+    tmp_path: Path, setup: tuple[Path, Path, Path]
+) -> None:
+    exchange, profile, config = setup
+    journal = tmp_path / "runs" / "kla.sqlite"
+    engine = subprocess.Popen(
+        kla_run(config, exchange, journal), stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, env=ENV
+    )
+    ticket = exchange / "outbox" / "kla-000-ticket.json"
+    try:
+        wait_for(
+            lambda: (
+                ticket.exists()
+                and journal.exists()
+                and engine_state(journal) is EngineState.WAITING_FOR_INSTRUMENT
+            )
+        )
+    finally:
+        engine.send_signal(signal.SIGKILL)
+        engine.wait()
+    token = json.loads(ticket.read_text())["token"]
+    # the instrument went on: the export arrives while no engine runs
+    fake = fake_inview(exchange, profile)
+    try:
+        wait_for(lambda: any((exchange / "inbox").glob("kla-000-export.*")))
+        resumed = subprocess.run(
+            aeni("resume", str(journal), "--quiet"), capture_output=True, text=True, env=ENV, timeout=300
+        )
+        assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    finally:
+        log = stop(fake)
+    assert log.count("kla block 0: started") == 1  # the array ran once
+    assert json.loads(ticket.read_text())["token"] == token  # the resumed engine kept the ticket
+    accepted = [e for e in manifest(journal) if e["status"] == "accepted"]
+    assert [e["block_id"] for e in accepted].count(0) == 1
+    rows = indents(journal)
+    block0 = [h for b, _, h in rows if b == 0]
+    assert len(block0) == 25
+    recorded = [o["hardness_gpa"] for o in accepted[0]["outcomes"]]  # type: ignore[union-attr]
+    assert block0 == pytest.approx(recorded)
+    assert len(rows) == len({(b, i) for b, i, _ in rows})
+
+
+def test_driver_kla_needs_an_exchange_folder(tmp_path: Path) -> None:
+    from core.errors import InputError
+    from core.runconfig import load_run_config
+
+    with pytest.raises(
+        InputError, match=r"field run.exchange is missing: driver 'kla' needs an exchange folder"
+    ):
+        load_run_config(None, {"run.driver": "kla"})
+    config = tmp_path / "c.toml"
+    config.write_text('[run]\ndriver = "kla"\nexchange = "shared/ex"\n')
+    assert load_run_config(config).options.exchange == str(tmp_path / "shared" / "ex")
+    missing = subprocess.run(
+        aeni(
+            "run",
+            "--driver",
+            "kla",
+            "--exchange",
+            str(tmp_path / "nope"),
+            "--journal",
+            str(tmp_path / "j.sqlite"),
+        ),
+        capture_output=True,
+        text=True,
+        env=ENV,
+    )
+    assert missing.returncode == 2 and "exchange folder does not exist" in missing.stderr
+    assert "Traceback" not in missing.stderr

@@ -33,11 +33,14 @@ from aeni_console.widgets.log import LogPanel
 from aeni_console.widgets.mapview import MapPanel
 from aeni_console.widgets.queue import QueuePanel
 from aeni_console.widgets.status import StatusBar
+from aeni_console.widgets.ticket import AskScreen, TicketPanel
 from core.runview import Command, CommandKind, EngineState, RunSnapshot
 
 LIVE_ACTIONS = frozenset(
     {"pause", "resume", "approve", "veto", "adjust", "step", "stop_after_block", "abort"}
 )
+# the operator's word on the instrument while a block waits for it (the KLA driver)
+INSTRUMENT_ACTIONS = frozenset({"confirm_start", "report_aborted", "report_no_surface", "skip_site"})
 REPLAY_ACTIONS = frozenset({"replay_prev", "replay_next", "replay_first", "replay_last"})
 
 # (action, palette title, palette help) — every key is also in the command palette
@@ -50,6 +53,10 @@ PALETTE: tuple[tuple[str, str, str], ...] = (
     ("step", "Step one block", "Switch to step mode and run one block, then wait (s)"),
     ("stop_after_block", "Stop after this block", "Finish the running block, then stop the run (b)"),
     ("abort", "Abort the run", "Stop now, after confirmation (x)"),
+    ("confirm_start", "Instrument: array started", "Confirm with the ticket's token (c)"),
+    ("report_aborted", "Instrument: array aborted", "The exported rows are kept, the rest not run (a)"),
+    ("report_no_surface", "Instrument: surface not found", "The block ends, every site not run (f)"),
+    ("skip_site", "Instrument: skip a site", "A site taken out of the array (k)"),
     ("cycle_map", "Cycle the map field", "mean → epistemic sd → noise sd → total sd (m)"),
     ("replay_prev", "Replay: previous block", "One block back (←)"),
     ("replay_next", "Replay: next block", "One block forward (→)"),
@@ -99,6 +106,10 @@ class ConsoleApp(App[None]):
         Binding("space", "pause", "Pause"),
         Binding("space", "resume", "Resume"),
         Binding("a", "approve", "Approve"),
+        Binding("c", "confirm_start", "Started"),
+        Binding("a", "report_aborted", "Aborted"),
+        Binding("f", "report_no_surface", "No surface"),
+        Binding("k", "skip_site", "Skip"),
         Binding("v", "veto", "Veto"),
         Binding("e", "adjust", "Adjust"),
         Binding("s", "step", "Step"),
@@ -158,6 +169,8 @@ class ConsoleApp(App[None]):
         self.cost_panel = CostPanel(id="cost")
         self.decision_panel = DecisionPanel(id="decision")
         self.decision_panel.replay = self.replay_mode
+        self.ticket_panel = TicketPanel(id="ticket")
+        self.ticket_panel.display = False
         self.queue_panel = QueuePanel(id="queue")
         self.drift_panel = DriftPanel(id="drift")
         self.log_panel = LogPanel(id="log")
@@ -167,6 +180,7 @@ class ConsoleApp(App[None]):
                 yield self.map_panel
                 yield self.cost_panel
             with Vertical(id="right"):
+                yield self.ticket_panel
                 yield self.decision_panel
                 yield self.queue_panel
                 yield self.drift_panel
@@ -181,6 +195,7 @@ class ConsoleApp(App[None]):
             self.queue_panel,
             self.drift_panel,
             self.log_panel,
+            self.ticket_panel,
         ):
             title = getattr(widget, "BORDER_TITLE", None)
             if title and not widget.border_title:
@@ -240,6 +255,12 @@ class ConsoleApp(App[None]):
             self.decision_panel.show(snap)
         if old is None or old.log != snap.log:
             self.log_panel.show_events(snap.log)
+        waiting = snap.instrument_wait is not None
+        self.ticket_panel.display = waiting
+        self.decision_panel.display = self.queue_panel.display = self.drift_panel.display = not waiting
+        if waiting and (old is None or old.instrument_wait != snap.instrument_wait):
+            self.ticket_panel.now_unix = self.clock()
+            self.ticket_panel.show(snap)
         self.map_panel.set_snapshot(snap)
         self._show_status()
         if old is None or old.state != snap.state:
@@ -256,6 +277,12 @@ class ConsoleApp(App[None]):
                 f"{why.capitalize()} waiting: a approve · v veto · e adjust", title="AWAITING APPROVAL"
             )
             self.bell()
+        elif snap.state is EngineState.WAITING_FOR_INSTRUMENT and snap.can_command:
+            self.notify(
+                "Run the ticket on the instrument; c confirms the start with its token",
+                title="WAITING FOR INSTRUMENT",
+            )
+            self.bell()
         elif snap.finished and (old is None or not old.finished):
             self.notify(f"The run has ended ({snap.state.label}).", title="Run ended")
 
@@ -264,6 +291,8 @@ class ConsoleApp(App[None]):
             return
         replay = (self.replay_index, self.replay_count) if self.replay_mode and self.replay_count else None
         self.status_bar.show(self.snapshot, self.clock(), replay, self.note)
+        if self.ticket_panel.display:
+            self.ticket_panel.tick(self.clock())
 
     # ------------------------------------------------------------------ which keys apply now
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
@@ -273,16 +302,22 @@ class ConsoleApp(App[None]):
             if action in ("replay_prev", "replay_first"):
                 return self.replay_index > 0
             return 0 <= self.replay_index < self.replay_count - 1
-        if action not in LIVE_ACTIONS:
+        if action not in LIVE_ACTIONS | INSTRUMENT_ACTIONS:
             return True
         snap = self.snapshot
         if self.replay_mode or snap is None or not snap.can_command or snap.finished:
             return False
         st = snap.state
+        if action in INSTRUMENT_ACTIONS:
+            return st is EngineState.WAITING_FOR_INSTRUMENT and snap.instrument_wait is not None
         if self.inflight is not None and action in ("approve", "veto", "step"):
             return False
         if action == "pause":
-            return st in (EngineState.RUNNING, EngineState.AWAITING_APPROVAL)
+            return st in (
+                EngineState.RUNNING,
+                EngineState.AWAITING_APPROVAL,
+                EngineState.WAITING_FOR_INSTRUMENT,
+            )
         if action == "resume":
             return st in (EngineState.PAUSED, EngineState.PAUSING)
         if action in ("approve", "veto"):
@@ -297,6 +332,7 @@ class ConsoleApp(App[None]):
                 EngineState.PAUSING,
                 EngineState.PAUSED,
                 EngineState.AWAITING_APPROVAL,
+                EngineState.WAITING_FOR_INSTRUMENT,
             )
         return st not in (EngineState.STOPPED, EngineState.FAILED)  # adjust, abort
 
@@ -421,6 +457,48 @@ class ConsoleApp(App[None]):
                 f"Abort {name} now? The instrument stops after the current step; this cannot be undone."
             ),
             done,
+        )
+
+    def _ask_instrument(self, question: str, placeholder: str, send: Callable[[str], None]) -> None:
+        def done(answer: str | None) -> None:
+            if answer:
+                send(answer)
+
+        self.push_screen(AskScreen(question, placeholder, cursor_blink=self.cursor_blink), done)
+
+    def _block_now(self) -> int:
+        snap = self.snapshot
+        assert snap is not None and snap.instrument_wait is not None
+        return snap.instrument_wait.block_id
+
+    def action_confirm_start(self) -> None:
+        self._ask_instrument(
+            f"Block {self._block_now()}: the array has started. Type the token from the ticket:",
+            "token",
+            lambda token: self.send_command(CommandKind.CONFIRM, {"token": token}),
+        )
+
+    def action_report_aborted(self) -> None:
+        self._ask_instrument(
+            f"Block {self._block_now()} was aborted: the exported rows are kept, the rest not run. Token:",
+            "token",
+            lambda token: self.send_command(CommandKind.REPORT, {"kind": "aborted", "token": token}),
+        )
+
+    def action_report_no_surface(self) -> None:
+        self._ask_instrument(
+            f"Block {self._block_now()}: InView found no surface; every site becomes not run. Token:",
+            "token",
+            lambda token: self.send_command(
+                CommandKind.REPORT, {"kind": "surface-not-found", "token": token}
+            ),
+        )
+
+    def action_skip_site(self) -> None:
+        self._ask_instrument(
+            f"Block {self._block_now()}: which site did you take out of the array (1-based, as in the sites file)?",
+            "site number",
+            lambda site: self.send_command(CommandKind.SKIP, {"site": site}),
         )
 
     def action_cycle_map(self) -> None:

@@ -29,6 +29,7 @@ class InstrumentWait:
     waiting: str  # what the driver sees ("no export yet", "... is still being written", how it ended)
     started: bool  # the operator (or a helper's file) confirmed the start with the token
     notes: tuple[str, ...] = ()  # reports and refusals since the last one, for the journal
+    panel: tuple[str, ...] = ()  # the ticket in short lines, for the console's ticket panel
 
 
 DriverEvent = StepRecord | IndentResult | InstrumentWait

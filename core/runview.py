@@ -6,11 +6,13 @@ to the engine directly, so it can attach to a live run, a finished run or a repl
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
 
+from core.driver import InstrumentWait
 from core.plan import Block, Decision, IndentSpec, PlannerSettings
 
 
@@ -133,6 +135,8 @@ class RunSnapshot:
     reverse_x: bool
     finished: bool  # the engine process has ended (stopped, failed, or done)
     allowed_holds_s: tuple[float, ...] = ()  # the instrument profile's holds (the adjust form checks them)
+    # WAITING FOR INSTRUMENT: the ticket out and what the driver sees (the KLA driver), else None
+    instrument_wait: InstrumentWait | None = None
 
 
 @dataclass(frozen=True)
@@ -147,3 +151,10 @@ class MapFields:
     noise_sd_gpa: np.ndarray
     total_sd_gpa: np.ndarray
     next_candidate_um: tuple[float, float] | None = None
+
+
+def instrument_wait_from_json(text: str) -> InstrumentWait:
+    """The journal's copy of a driver's InstrumentWait (the engine stores it as JSON)."""
+    d = json.loads(text)
+    d["notes"] = tuple(d.get("notes", ()))
+    return InstrumentWait(**d)

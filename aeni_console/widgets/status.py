@@ -16,6 +16,7 @@ STATE_STYLES: dict[EngineState, str] = {
     EngineState.PAUSING: "bold black on yellow",
     EngineState.PAUSED: "bold black on yellow",
     EngineState.AWAITING_APPROVAL: "bold white on magenta",
+    EngineState.WAITING_FOR_INSTRUMENT: "bold black on cyan",
     EngineState.STOPPING: "bold black on yellow",
     EngineState.STOPPED: "bold reverse",
     EngineState.FAILED: "bold white on red",

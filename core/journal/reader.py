@@ -48,6 +48,7 @@ from core.runview import (
     QueueItem,
     RunSnapshot,
     TestedCenter,
+    instrument_wait_from_json,
 )
 from core.settings import settings_from_dict
 
@@ -426,7 +427,12 @@ class JournalReader:
             log_rows = c.execute(
                 "SELECT wall_utc, t_s, level, text FROM events ORDER BY event_id DESC LIMIT ?", (LOG_TAIL,)
             ).fetchall()
+            wait_row = c.execute(
+                "SELECT detail FROM events WHERE category = 'instrument' AND detail IS NOT NULL "
+                "ORDER BY event_id DESC LIMIT 1"
+            ).fetchone()
         state, finished = self._effective_state(eng)
+        waiting = state is EngineState.WAITING_FOR_INSTRUMENT and wait_row is not None and not finished
         current = open_blk[0] if open_blk and open_blk[1] in ("planned", "running", "aborted") else None
         done = open_blk[2] if open_blk and current is not None else 0
         pos = ds.position_um if ds else (0.0, 0.0)
@@ -485,6 +491,7 @@ class JournalReader:
             reverse_x=self.profile.reverse_x,
             finished=finished,
             allowed_holds_s=self.profile.allowed_holds_s,
+            instrument_wait=instrument_wait_from_json(wait_row[0]) if waiting else None,
         )
 
 
@@ -551,6 +558,7 @@ class ReplayView:
         return replace(
             self.final,
             can_command=False,
+            instrument_wait=None,
             instrument_s=float(t_end),
             wall_s=wall_s,
             n_indents=len(results),

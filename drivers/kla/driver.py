@@ -32,6 +32,7 @@ from drivers.kla.exchange import (
     ReportKind,
     Ticket,
     make_ticket,
+    ticket_panel,
     ticket_text,
     write_atomic,
 )
@@ -217,6 +218,7 @@ class KlaDriver:
                         waiting=array.waiting if end is None else end.how,
                         started=array.started,
                         notes=notes,
+                        panel=ticket_panel(ticket),
                     )
                     if end is not None:
                         break

@@ -338,6 +338,23 @@ def ticket_text(ticket: Ticket) -> str:
     )
 
 
+def ticket_panel(ticket: Ticket) -> tuple[str, ...]:
+    """The ticket in short lines (≤ 40 characters where it can) for the console at 80×24."""
+    t = ticket
+    xmm, ymm = t.origin_mm
+    how = "find the surface" if t.kind == "global" else "stay engaged"
+    lines = [
+        f"move to X {xmm:.4f} mm  Y {ymm:.4f} mm",
+        f"  = ({t.origin_x_um:.1f}, {t.origin_y_um:.1f}) µm; {how}",
+        f"array: {t.n_sites} sites, x{t.array_x_sign:+d} y{t.array_y_sign:+d}"
+        + (" swap" if t.array_swap_xy else ""),
+        f"  outbox/{t.sites_file}",
+    ]
+    lines += [f"method {m.hold_s:g} s: {m.method}" for m in t.methods]
+    lines += [f"export: inbox/{t.export_stem}.xlsx", f"expected {t.expected_s:,.0f} s of instrument time"]
+    return tuple(lines)
+
+
 # --------------------------------------------------------------------------------------- the folder
 
 

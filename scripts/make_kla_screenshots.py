@@ -36,7 +36,11 @@ SHOTS = (("waiting-for-instrument-80x24.svg", (80, 24)), ("waiting-for-instrumen
 async def shoot(journal: Path, ticket: Path, out: Path, size: tuple[int, int]) -> None:
     created = datetime.fromisoformat(json.loads(ticket.read_text())["created_utc"]).timestamp()
     app = ConsoleApp(
-        JournalSource(journal), poll_s=0.05, author="operator", cursor_blink=False, clock=lambda: created + 754.0
+        JournalSource(journal),
+        poll_s=0.05,
+        author="operator",
+        cursor_blink=False,
+        clock=lambda: created + 754.0,
     )
     async with app.run_test(size=size) as pilot:
         await wait_until(

@@ -263,3 +263,61 @@ def test_driver_kla_needs_an_exchange_folder(tmp_path: Path) -> None:
     )
     assert missing.returncode == 2 and "exchange folder does not exist" in missing.stderr
     assert "Traceback" not in missing.stderr
+
+
+@pytest.mark.slow
+def test_every_fault_through_the_engine_is_journaled_as_specified(tmp_path: Path) -> None:
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    profile = tmp_path / "fast.toml"  # a short deadline margin, so the missing export times out quickly
+    profile.write_text(
+        'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.05\ndeadline_margin_s = 5.0\n'
+    )
+    config = tmp_path / "run.toml"
+    config.write_text(f'name = "kla"\n[campaign]\nseed = 0\nprofile = "{profile}"\n')
+    journal = tmp_path / "runs" / "kla.sqlite"
+    faults = (
+        "aborted@0",
+        "surface-not-found@1",
+        "missing-export@2",
+        "duplicate-export@3",
+        "flipped-y@4",
+        "mm-um@5",
+    )
+    argv = aeni("kla", "fake-inview", "--exchange", str(exchange), "--speed", "1e6", "--invalid-rate", "0.1")
+    argv += ["--profile", str(profile), "--seed", "0"]
+    for f in faults:
+        argv += ["--fault", f]
+    fake = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+    try:
+        run = kla_run(config, exchange, journal)
+        run[run.index("--budget-s") + 1] = "14000"
+        proc = subprocess.run(run, capture_output=True, text=True, env=ENV, timeout=600)
+    finally:
+        log = stop(fake)
+    assert proc.returncode == 0, proc.stdout + proc.stderr + log
+    with sqlite3.connect(journal) as conn:
+        rows = list(conn.execute("SELECT block_id, indent_index, status, hardness_gpa, note FROM indents"))
+        observed = [b for (b,) in conn.execute("SELECT block_id FROM blocks WHERE status = 'observed'")]
+        refusals = [t for (t,) in conn.execute("SELECT text FROM events WHERE category = 'instrument'")]
+    assert observed[:6] == list(range(6))
+    # every planned indent exactly once, a number only where it was measured
+    assert len(rows) == len({(b, i) for b, i, *_ in rows}) == 25 * len(observed)
+    for _b, _i, status, hardness, note in rows:
+        assert (hardness is not None) == (status == "measured")
+        assert status == "measured" or note
+
+    def statuses(block: int) -> list[str]:
+        return [s for b, _, s, *_ in sorted(rows) if b == block]
+
+    assert statuses(0)[12:] == ["not_run"] * 13 and "measured" in statuses(0)[:12]  # aborted half way
+    assert statuses(1) == ["not_run"] * 25 and statuses(2) == ["not_run"] * 25  # no surface; no export
+    notes = {n for b, _, _, _, n in rows if b in (1, 2)}
+    assert notes == {"surface not found"} | {n for n in notes if n.startswith("no export by the deadline")}
+    assert len(notes) == 2
+    for block in (3, 4, 5):  # duplicate refused, flipped Y and mm-as-µm still measured where they were
+        assert set(statuses(block)) <= {"measured", "failed"} and statuses(block).count("measured") >= 15
+    assert "failed" in {s for _, _, s, *_ in rows}  # 1.797e308 rows became failed indents
+    assert any("refused: duplicate: same SHA-256 as the export accepted for block 3" in t for t in refusals)
+    accepted = [e["block_id"] for e in manifest(journal) if e["status"] == "accepted"]
+    assert len(accepted) == len(set(accepted))  # each export counted once

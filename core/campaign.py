@@ -305,6 +305,7 @@ class Campaign:
                 smoothed_drift_rates_nm_s(np.array([r.drift_rate_nm_s for r in results])),
                 np.array([r.hold_s for r in results]),
                 full_hold_s=max(self.profile.allowed_holds_s),
+                floor_nm_s=self.profile.drift_noise_floor_nm_s,
             )
         xs = np.array([r.actual_x_um for r in results])
         ys = np.array([r.actual_y_um for r in results])

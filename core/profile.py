@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from core.drift import DRIFT_READING_FLOOR_NM_S
 from core.errors import InputError
 
 BUILTIN_PROFILES = ("kla-imicro", "kla-imicro-film")
@@ -98,7 +99,7 @@ class InstrumentProfile:
     # heights imply more is refused (mis-read z, or a sample not lying flat)
     max_tilt_um_per_mm: float = 50.0
     # drift readings below this are the meter's noise, not drift: the correction leaves them alone
-    drift_noise_floor_nm_s: float = 0.005
+    drift_noise_floor_nm_s: float = DRIFT_READING_FLOOR_NM_S
     inview: InViewSettings = InViewSettings()
 
     @property

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from aeni_console.cli import main as cli_main
 from core.journal import JournalReader
 from core.runview import EngineState
 
@@ -110,11 +111,9 @@ def test_headless_run_has_one_hashed_export_per_block_and_the_sims_map(
     # the same map as the simulated driver on the same seed and budget (the fake InView measures on the
     # same emulator): final MAPE within 10 %
     sim_journal = tmp_path / "runs" / "sim.sqlite"
-    sim = subprocess.run(
-        aeni("run", str(config), "--budget-s", BUDGET_S, "--journal", str(sim_journal), "--quiet"),
-        capture_output=True, text=True, env=ENV, timeout=300,
-    )  # fmt: skip
-    assert sim.returncode == 0, sim.stderr
+    assert (
+        cli_main(["run", str(config), "--budget-s", BUDGET_S, "--journal", str(sim_journal), "--quiet"]) == 0
+    )
     with JournalReader(sim_journal) as r:
         sim_mape = r.snapshot().mape_pct
     assert snap.mape_pct is not None and sim_mape is not None
@@ -136,7 +135,7 @@ def engine_state(journal: Path) -> EngineState:
 
 
 def test_waiting_for_instrument_takes_the_token_by_aeni_send(
-    tmp_path: Path, setup: tuple[Path, Path, Path]
+    tmp_path: Path, setup: tuple[Path, Path, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     exchange, _profile, config = setup
     journal = tmp_path / "runs" / "kla.sqlite"
@@ -157,15 +156,10 @@ def test_waiting_for_instrument_takes_the_token_by_aeni_send(
             )
         )
         token = json.loads(ticket.read_text())["token"]
-        bad = subprocess.run(aeni("send", str(journal), "confirm"), capture_output=True, text=True, env=ENV)
-        assert bad.returncode == 2 and "expected `aeni send RUN confirm TOKEN`" in bad.stderr
+        assert cli_main(["send", str(journal), "confirm"]) == 2
+        assert "expected `aeni send RUN confirm TOKEN`" in capsys.readouterr().err
         for word in ("WRONG", token, token):
-            assert (
-                subprocess.run(
-                    aeni("send", str(journal), "confirm", word), env=ENV, capture_output=True
-                ).returncode
-                == 0
-            )
+            assert cli_main(["send", str(journal), "confirm", word]) == 0
         with sqlite3.connect(journal) as conn:
             get = "SELECT outcome, reason FROM commands WHERE kind = 'confirm' AND processed = 1 ORDER BY command_id"
             wait_for(lambda: len(list(conn.execute(get))) == 3)
@@ -183,7 +177,7 @@ def test_waiting_for_instrument_takes_the_token_by_aeni_send(
             ]
         assert details and details[-1]["started"] and token not in details[-1]["ticket"]
         assert "X 0.5" in details[0]["ticket"] or "mm" in details[0]["ticket"]
-        subprocess.run(aeni("send", str(journal), "abort"), env=ENV, check=True, capture_output=True)
+        assert cli_main(["send", str(journal), "abort"]) == 0
         engine.wait(timeout=60)
     finally:
         if engine.poll() is None:
@@ -236,7 +230,7 @@ def test_kill_9_while_waiting_then_resume_picks_up_the_export(
     assert len(rows) == len({(b, i) for b, i, _ in rows})
 
 
-def test_driver_kla_needs_an_exchange_folder(tmp_path: Path) -> None:
+def test_driver_kla_needs_an_exchange_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from core.errors import InputError
     from core.runconfig import load_run_config
 
@@ -247,22 +241,13 @@ def test_driver_kla_needs_an_exchange_folder(tmp_path: Path) -> None:
     config = tmp_path / "c.toml"
     config.write_text('[run]\ndriver = "kla"\nexchange = "shared/ex"\n')
     assert load_run_config(config).options.exchange == str(tmp_path / "shared" / "ex")
-    missing = subprocess.run(
-        aeni(
-            "run",
-            "--driver",
-            "kla",
-            "--exchange",
-            str(tmp_path / "nope"),
-            "--journal",
-            str(tmp_path / "j.sqlite"),
-        ),
-        capture_output=True,
-        text=True,
-        env=ENV,
+    journal = tmp_path / "j.sqlite"
+    code = cli_main(
+        ["run", "--driver", "kla", "--exchange", str(tmp_path / "nope"), "--journal", str(journal)]
     )
-    assert missing.returncode == 2 and "exchange folder does not exist" in missing.stderr
-    assert "Traceback" not in missing.stderr
+    err = capsys.readouterr().err
+    assert code == 2 and "exchange folder does not exist" in err and err.count("\n") == 1
+    assert not journal.exists()  # nothing half-made: the same command can be run again
 
 
 @pytest.mark.slow

@@ -192,6 +192,8 @@ def run_engine(
     path = Path(journal_path)
     if create is not None:
         config, options = create
+        if options.driver == "kla" and not (options.exchange and Path(options.exchange).is_dir()):
+            raise InputError(str(options.exchange), "exchange folder does not exist")  # before any journal
         campaign = Campaign(with_sample(config, options.driver))
         journal = create_run_journal(
             path, config, campaign, options.supervision, options.driver, options.speed

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from aeni_console.commands import kla as kla_command
-from core.emulator import make_scenario
 from core.profile import load_profile
 from drivers.kla.fake_inview import FakeInView, parse_fault
+from drivers.sim.scenarios import make_scenario
 
 FAST_TOML = 'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.02\n'
 

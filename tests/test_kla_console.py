@@ -15,11 +15,11 @@ from aeni_console.app import ConsoleApp
 from aeni_console.journal_source import JournalSource
 from aeni_console.testing import wait_until, widget_text
 from aeni_console.widgets.ticket import AskScreen
-from core.emulator import make_scenario
 from core.profile import load_profile
 from core.runview import EngineState
 from drivers.kla.exchange import ExchangeFolder
 from drivers.kla.fake_inview import FakeInView
+from drivers.sim.scenarios import make_scenario
 
 pytestmark = pytest.mark.slow
 

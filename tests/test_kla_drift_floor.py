@@ -8,12 +8,16 @@ import pytest
 
 from core.campaign import Campaign, CampaignConfig
 from core.plan import Block, IndentResult, local_grid
+from drivers.sim.scenarios import make_scenario
 
 
 def centre_value(tmp_path: Path, floor_nm_s: float) -> float:
     profile = tmp_path / f"floor-{floor_nm_s}.toml"
     profile.write_text(f'extends = "kla-imicro"\n[drift]\nnoise_floor_nm_s = {floor_nm_s}\n')
-    campaign = Campaign(CampaignConfig(policy="adaptive-hold-corrected", profile=str(profile), lattice_n=20))
+    campaign = Campaign(
+        CampaignConfig(policy="adaptive-hold-corrected", profile=str(profile), lattice_n=20),
+        make_scenario("ternary", 0).sample,
+    )
     assert campaign.profile.drift_noise_floor_nm_s == floor_nm_s
     specs = local_grid(500.0, 500.0, 3, 5.0, 5.0)
     block = Block(0, "global", 500.0, 500.0, 3, 5.0, 5.0, specs)

@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 
 from core.driver import Driver, DriverAborted, InstrumentWait, WaitsForOperator
-from core.emulator import make_scenario
 from core.plan import Block, IndentResult, StepRecord, local_grid
 from core.profile import load_profile
 from drivers.kla.driver import KlaDriver, make_kla_driver
 from drivers.kla.fake_inview import FakeInView, parse_fault
 from drivers.sim.driver import SimulatedDriver
+from drivers.sim.scenarios import make_scenario
 
 BASE = load_profile("kla-imicro")
 PROFILE = replace(

@@ -18,7 +18,6 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from core.emulator import make_scenario
 from core.errors import InputError
 from core.plan import Block, IndentResult, local_grid
 from core.profile import InstrumentProfile, InViewSettings, load_profile
@@ -35,6 +34,7 @@ from drivers.kla.exchange import (
 from drivers.kla.fake_inview import FakeInView, parse_fault
 from drivers.kla.inbox import ExportArchive, InboxWatcher, PollResult
 from drivers.sim.driver import SimulatedDriver
+from drivers.sim.scenarios import make_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = load_profile("kla-imicro")

@@ -38,7 +38,7 @@ def setup(tmp_path: Path) -> tuple[Path, Path, Path]:
     profile = tmp_path / "fast.toml"
     profile.write_text(FAST_PROFILE)
     config = tmp_path / "run.toml"
-    config.write_text(f'name = "kla"\n[campaign]\nseed = 0\nprofile = "{profile}"\n')
+    config.write_text(f'name = "kla"\n[campaign]\nscenario = "ternary"\nseed = 0\nprofile = "{profile}"\n')
     return exchange, profile, config
 
 
@@ -259,7 +259,7 @@ def test_every_fault_through_the_engine_is_journaled_as_specified(tmp_path: Path
         'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.05\ndeadline_margin_s = 5.0\n'
     )
     config = tmp_path / "run.toml"
-    config.write_text(f'name = "kla"\n[campaign]\nseed = 0\nprofile = "{profile}"\n')
+    config.write_text(f'name = "kla"\n[campaign]\nscenario = "ternary"\nseed = 0\nprofile = "{profile}"\n')
     journal = tmp_path / "runs" / "kla.sqlite"
     faults = (
         "aborted@0",

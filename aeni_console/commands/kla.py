@@ -140,9 +140,9 @@ def format_table(export: KlaExport) -> str:
 def _fake_inview(args: argparse.Namespace) -> int:
     import signal
 
-    from core.emulator import make_scenario
     from core.profile import load_profile
     from drivers.kla.fake_inview import FakeInView, parse_fault
+    from drivers.sim.scenarios import make_scenario
 
     if not args.exchange.is_dir():
         raise InputError(str(args.exchange), "exchange folder does not exist")
@@ -154,7 +154,7 @@ def _fake_inview(args: argparse.Namespace) -> int:
     fake = FakeInView(
         args.exchange,
         profile,
-        scenario.make_emulator,
+        lambda: scenario.make_emulator(profile),
         speed=args.speed,
         faults=faults,
         fmt=args.fmt,

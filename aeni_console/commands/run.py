@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import signal
@@ -192,8 +193,13 @@ def run_engine(
     path = Path(journal_path)
     if create is not None:
         config, options = create
-        if options.driver == "kla" and not (options.exchange and Path(options.exchange).is_dir()):
-            raise InputError(str(options.exchange), "exchange folder does not exist")  # before any journal
+        if options.driver == "kla":
+            if not (options.exchange and Path(options.exchange).is_dir()):
+                raise InputError(
+                    str(options.exchange), "exchange folder does not exist"
+                )  # before any journal
+            opts = {**config.driver_options, "exchange": str(Path(options.exchange).resolve())}
+            config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
         campaign = Campaign(with_sample(config, options.driver))
         journal = create_run_journal(
             path, config, campaign, options.supervision, options.driver, options.speed

@@ -20,12 +20,11 @@ import numpy as np
 from core.cost import CostLedger
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
-from core.estimators import CentreEstimator, centre_value, estimator_efficiency
 from core.geometry import CandidateLattice
 from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings
 from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext
-from core.policies.registry import make_policy
+from core.policies.registry import RECOMMENDED, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
 from core.sample import Sample, grid_baseline_s, sample_from_dict
@@ -33,7 +32,7 @@ from core.settings import adjust_settings, check_holds, settings_from_dict, sett
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
 VETO_HOLD_BLOCKS = 3
-UNGUARDED_FLOOR_UV = 0.001  # 1 µm on the 1000 µm square: a floor in name only (the unguarded ablation)
+OUTLIER_REFIT_INFLATION = 4.0  # a value whose noise the outlier rule inflates this much is refitted at once
 
 
 @dataclass(frozen=True)
@@ -46,7 +45,7 @@ class CampaignConfig:
     never reads them.
     """
 
-    policy: str = "cost-aware"
+    policy: str = RECOMMENDED
     seed: int = 0
     profile: str | None = None
     lattice_n: int | None = None
@@ -125,10 +124,9 @@ class Campaign:
         self.placement_mask = sample.placement_mask(self.lattice.xy_um, 2 * DEFAULT_PITCH_UM)
         self.placement_mask.flags.writeable = False
         self.policy = make_policy(config.policy)
-        features = getattr(self.policy, "features", None)
-        self._needs_covariance = getattr(features, "acquisition", None) == "ivr" or bool(
-            getattr(features, "bias_aware_hold", False)
-        )
+        parts = self.policy.parts
+        self.noise = parts.noise
+        self._needs_covariance = parts.needs_covariance
         self.settings = config.settings
         check_holds(self.settings, self.profile.allowed_holds_s)
         if self.settings.fixed_hold_s is None:
@@ -136,19 +134,11 @@ class Campaign:
         if self.settings.budget_s is None and self.settings.indent_budget is None:
             # default horizon: the instrument time of the full grid baseline on this area
             self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
-        pitch_uv = min(self.lattice.pitch_uv)
-        floor = bool(getattr(self.policy, "surrogate_floor", True))
-        self.centre_estimator: CentreEstimator = getattr(self.policy, "centre_estimator", "median")
-        self.drift_correction = bool(getattr(self.policy, "drift_correction", False))
-        self.surrogate = HeteroskedasticGP(
-            heteroskedastic=True,
-            lengthscale_floor_uv=max(0.5 * pitch_uv, 0.005) if floor else UNGUARDED_FLOOR_UV,
-            lengthscale_prior=floor,
-            seed=config.seed,
-            guard=getattr(self.policy, "surrogate_guard", "keep-last-good"),
-            nugget=getattr(self.policy, "surrogate_nugget", False),
+        self.surrogate: HeteroskedasticGP = parts.surrogate.build(
+            parts.guard, min(self.lattice.pitch_uv), config.seed
         )
         self.centres: list[CentreRecord] = []
+        self.noise_inflation: list[float] = []  # per centre, from the noise model's outlier rule (1: trusted)
         self.blocks: list[Block] = []
         self.indents_xy: list[tuple[float, float]] = []
         self.drift_rates: list[float] = []
@@ -192,7 +182,8 @@ class Campaign:
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])
         sd = self.predict_stage(xy[:, 0], xy[:, 1]).noise_sd
         n = np.array([c.n_indents for c in self.centres])
-        return median_noise_var(sd, n, self.centre_estimator) + self.surrogate.site_var_gpa2
+        noise_var = median_noise_var(sd, n, self.noise.centre_estimator) * np.array(self.noise_inflation)
+        return noise_var + self.surrogate.site_var_gpa2
 
     def _program_state(self) -> tuple[tuple[float, float] | None, float | None, int]:
         centre: tuple[float, float] | None = None
@@ -297,9 +288,9 @@ class Campaign:
         if not results:
             self.blocks.append(block)
             return
-        h = np.array([r.hardness_gpa for r in results])
-        raw_median = float(np.median(h))
-        if self.drift_correction:
+        h_raw = np.array([r.hardness_gpa for r in results])
+        h = h_raw
+        if self.noise.drift_correction:
             h = drift_corrected_hardness_gpa(
                 h,
                 smoothed_drift_rates_nm_s(np.array([r.drift_rate_nm_s for r in results])),
@@ -309,18 +300,23 @@ class Campaign:
             )
         xs = np.array([r.actual_x_um for r in results])
         ys = np.array([r.actual_y_um for r in results])
-        self.centres.append(
-            CentreRecord(
-                block_id=block.block_id,
-                x_um=float(xs.mean()),
-                y_um=float(ys.mean()),
-                median_gpa=raw_median,
-                spread_var_gpa2=float(np.var(h, ddof=1)) if len(h) >= 2 else math.nan,
-                n_indents=len(h),
-                value_gpa=centre_value(h, self.centre_estimator),
-                efficiency=float(estimator_efficiency(self.centre_estimator, len(h))),
+        # a replicate grid is one centre; a block of scattered singles (grid_g 1) is one centre per indent
+        groups = [np.arange(len(h))] if block.grid_g > 1 else [np.array([i]) for i in range(len(h))]
+        for idx in groups:
+            value, efficiency = self.noise.centre(h[idx])
+            self.centres.append(
+                CentreRecord(
+                    block_id=block.block_id,
+                    x_um=float(xs[idx].mean()),
+                    y_um=float(ys[idx].mean()),
+                    median_gpa=float(np.median(h_raw[idx])),
+                    spread_var_gpa2=float(np.var(h[idx], ddof=1)) if len(idx) >= 2 else math.nan,
+                    n_indents=len(idx),
+                    value_gpa=value,
+                    efficiency=efficiency,
+                )
             )
-        )
+            self.noise_inflation.append(1.0)
         self.blocks.append(block)
         self.indents_xy.extend(zip(xs.tolist(), ys.tolist(), strict=True))
         self.drift_rates.extend(r.drift_rate_nm_s for r in results)
@@ -333,7 +329,8 @@ class Campaign:
             median_gpa=np.array([c.value_gpa for c in self.centres]),
             spread_var_gpa2=np.array([c.spread_var_gpa2 for c in self.centres]),
             n_indents=np.array([c.n_indents for c in self.centres]),
-            efficiency=np.array([c.efficiency for c in self.centres], dtype=float),
+            efficiency=np.array([c.efficiency for c in self.centres], dtype=float)
+            * np.array(self.noise_inflation),
         )
 
     def observe_block(
@@ -348,9 +345,34 @@ class Campaign:
         if len(self.centres) < 2 or not refit:
             return None
         report = self.surrogate.fit(self.observations())
+        reweighed = self._reweigh_outliers()
+        if reweighed == "refit":
+            report = self.surrogate.fit(self.observations())
+        elif reweighed == "condition":
+            # the same hyperparameters on the new weights: what is journaled is what the model uses
+            hyper = self.surrogate.hyper
+            assert hyper is not None
+            self.surrogate.set_hyper(hyper, self.observations())
         self._last_fit = report
         self.prediction = self.surrogate.predict(self.lattice.uv)
         return report
+
+    def _reweigh_outliers(self) -> str | None:
+        """The noise model's outlier rule from the fitted map's residuals: "refit" when a value newly counts
+        as an outlier (the map is fitted again without its pull), "condition" when the weights changed
+        otherwise, None when nothing changed."""
+        if self.noise.outliers == "none":
+            return None
+        obs = self.observations()
+        resid = obs.median_gpa - self.surrogate.predict_mean(obs.uv)
+        new = self.noise.noise_inflation(resid, obs.uv)
+        old = np.array(self.noise_inflation)
+        if np.array_equal(new, old):
+            return None
+        self.noise_inflation = new.tolist()
+        if np.any((new > OUTLIER_REFIT_INFLATION) & (old <= OUTLIER_REFIT_INFLATION)):
+            return "refit"
+        return "condition"
 
     def fit_report(self) -> FitReport | None:
         return self._last_fit
@@ -411,6 +433,7 @@ class Campaign:
             "vetoes": [[v.x_um, v.y_um, v.until_blocks_done] for v in self.vetoes],
             "settings": settings_to_dict(self.settings),
             "blocks_done": len(self.blocks),
+            "noise_inflation": list(self.noise_inflation),
         }
 
     def restore(self, state: dict[str, Any], blocks: Sequence[tuple[Block, Sequence[IndentResult]]]) -> None:
@@ -419,6 +442,9 @@ class Campaign:
             self._record(block, results)
         self.settings = settings_from_dict(state["settings"])
         self.vetoes = [_Veto(float(x), float(y), int(u)) for x, y, u in state.get("vetoes", [])]
+        inflation = state.get("noise_inflation")
+        if isinstance(inflation, list) and len(inflation) == len(self.centres):
+            self.noise_inflation = [float(v) for v in inflation]
         hyper = state.get("gp")
         if hyper is not None and len(self.centres) >= 2:
             self.surrogate.set_hyper(hyper, self.observations())
@@ -443,13 +469,15 @@ def run_headless(
     on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None]
     | None = None,
     stop_when: Callable[[HeadlessResult], str | None] | None = None,
+    refit_every: int = 1,
 ) -> HeadlessResult:
     """Run a campaign to its end with no operator (``aeni simulate``, the bench).
 
     Every block passes the safety interlock first; with no operator to veto, a refused block ends the
     run with the interlock's reason. ``evaluator`` (a simulated instrument's) scores the map after each
     refit into ``trajectory``. ``stop_when`` may end the run early (after any block) with a reason: the
-    bench stops a run once its question is answered.
+    bench stops a run once its question is answered. ``refit_every`` > 1 fits the model only after every so
+    many blocks (a policy that never looks at it, such as the grid baseline in the bench).
     """
     from core.interlock import Interlock
 
@@ -472,12 +500,13 @@ def run_headless(
             else:
                 result.ledger.add(event)
         interlock.passed(decision.block, results)
-        report = campaign.observe_block(decision.block, results)
+        refit = (result.blocks + 1) % refit_every == 0
+        report = campaign.observe_block(decision.block, results, refit=refit)
         result.decisions.append(decision)
         result.blocks += 1
         result.indents += len(results)
         result.instrument_s = driver.clock_s()
-        if evaluator is not None:
+        if evaluator is not None and refit:
             score = evaluator.score(campaign)
             campaign.note_score(score)
             if score.mape_pct is not None:

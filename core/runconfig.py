@@ -50,7 +50,7 @@ class _Strict(BaseModel):
 
 
 class CampaignSection(_Strict):
-    policy: str = "cost-aware"
+    policy: str = "aeni"  # core.policies.registry.RECOMMENDED (a test keeps them equal)
     scenario: str = "ternary"
     noise: Literal["hetero", "homo", "10pct"] | None = None
     drift: Literal["none", "good", "bad"] | None = None
@@ -62,11 +62,13 @@ class CampaignSection(_Strict):
     @field_validator("policy")
     @classmethod
     def _policy(cls, v: str) -> str:
-        from core.policies.registry import policy_names
+        from core.errors import InputError
+        from core.policies.registry import policy_parts
 
-        names = policy_names()
-        if v not in names:
-            raise ValueError(f"must be one of {', '.join(names)}")
+        try:
+            policy_parts(v)  # a registered policy, or an ablation BASE+modifier (the bench's)
+        except InputError as exc:
+            raise ValueError(exc.problem) from None
         return v
 
 

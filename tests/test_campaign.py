@@ -180,12 +180,12 @@ def test_drift_correction_feeds_the_gp_and_leaves_the_measured_values_alone() ->
         rec = c.centres[-1]
         return rec.value_gpa, rec.median_gpa, [r.hardness_gpa for r in res]
 
-    clean, _, _ = block_values("adaptive-hold-corrected", 5.0, "none")
-    corrected, raw_median, raw = block_values("adaptive-hold-corrected", 5.0, "steady")
+    clean, _, _ = block_values("adaptive-hold+drift-corr", 5.0, "none")
+    corrected, raw_median, raw = block_values("adaptive-hold+drift-corr", 5.0, "steady")
     plain, plain_median, plain_raw = block_values("adaptive-hold", 5.0, "steady")
     assert raw == plain_raw and raw_median == plain == plain_median  # the paper's policy: the median as read
     assert raw_median < 0.95 * clean  # 0.1 nm/s left in a 5 s indent: about -7 %
     assert abs(corrected / clean - 1) < 0.01
     # an 80 s hold is already corrected by the instrument: nothing to undo
-    slow_corrected, slow_median, _ = block_values("adaptive-hold-corrected", 80.0, "steady")
+    slow_corrected, slow_median, _ = block_values("adaptive-hold+drift-corr", 80.0, "steady")
     assert slow_corrected == slow_median

@@ -8,13 +8,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign, CampaignConfig, run_headless
 from core.cost import block_costs_for, block_steps
 from core.errors import InputError
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.policies.base import PlanContext, grid_size_for_noise
-from core.policies.planner import BayesPlanner, PlannerFeatures
-from core.policies.registry import POLICY_DESCRIPTIONS, make_policy, policy_names
+from core.policies.blocks import ReplicateGrid
+from core.policies.hold import HoldRule, robust_rate
+from core.policies.parts import PolicyParts
+from core.policies.planner import BayesPlanner
+from core.policies.registry import POLICY_DESCRIPTIONS, RECOMMENDED, make_policy, policy_names, policy_parts
 from core.profile import load_profile
 from drivers.sim.scenarios import make_scenario
 
@@ -22,6 +25,7 @@ from drivers.sim.scenarios import make_scenario
 FAST_HOLD_S = load_profile("kla-imicro").fast_hold_s
 SLOW_HOLD_S = load_profile("kla-imicro").default_hold_s
 _TERNARY = make_scenario("ternary", 0).sample
+PLUS = "aeni-paper+huber+bias-hold+drift-corr"  # the paper's workflow with this product's noise and hold
 
 
 @dataclass
@@ -80,7 +84,7 @@ def _cached(policy: str, scenario: str = "ternary") -> Run:
     return _RUNS[key]
 
 
-PLANNERS = ("cost-aware", "meta-grid", "adaptive-hold", "aeni", "aeni-plus")
+PLANNERS = ("cost-aware", "meta-grid", "adaptive-hold", "aeni-paper", "aeni", PLUS)
 
 
 # -- registry -------------------------------------------------------------------------------------------
@@ -89,35 +93,45 @@ PLANNERS = ("cost-aware", "meta-grid", "adaptive-hold", "aeni", "aeni-plus")
 def test_every_registered_policy_builds_and_unknown_names_fail() -> None:
     names = policy_names()
     assert set(names) == set(POLICY_DESCRIPTIONS)
-    for required in (
+    # one recommendation, first; the paper's policies stay as named references; nothing else is top-level
+    assert names[0] == RECOMMENDED == "aeni"
+    assert set(names) == {
+        "aeni",
         "grid",
         "uncertainty",
         "cost-aware",
         "adaptive-grid",
         "meta-grid",
         "adaptive-hold",
-        "aeni",
-    ):
-        assert required in names
-    assert "aeni-plus" in names
+        "aeni-paper",
+    }
     for name in names:
         assert make_policy(name).name == name
     with pytest.raises(InputError, match="unknown policy 'nope'"):
         make_policy("nope")
+    with pytest.raises(InputError, match="unknown modifier 'fast'"):
+        make_policy("aeni-paper+fast")
+    with pytest.raises(InputError, match="replicate grids"):
+        make_policy("aeni+tight")  # aeni places singles: a grid setting does not apply
+    assert CampaignConfig().policy == "aeni"  # the default everywhere starts here
 
 
-def test_each_improvement_is_one_feature_on_top_of_the_paper_version() -> None:
-    """The ablations measure one idea each only if the policies differ in exactly those features."""
-
-    def features(name: str) -> PlannerFeatures:
-        return make_policy(name).features  # type: ignore[attr-defined,no-any-return]
-
-    assert replace(features("adaptive-hold"), drift_correction=True) == features("adaptive-hold-corrected")
-    assert replace(
-        features("aeni"), centre_estimator="huber", bias_aware_hold=True, drift_correction=True
-    ) == features("aeni-plus")
-    assert replace(features("aeni-plus"), surrogate_nugget=True) == features("aeni-nugget")
-    assert not features("aeni").drift_correction and not features("cost-aware").drift_correction
+def test_each_ablation_changes_one_setting_of_one_part() -> None:
+    """The ablations measure one idea each only if the policies differ in exactly those settings."""
+    paper = policy_parts("aeni-paper")
+    plus = policy_parts(PLUS)
+    assert replace(policy_parts("adaptive-hold"), noise=replace(paper.noise, drift_correction=True)) == (
+        policy_parts("adaptive-hold+drift-corr")
+    )
+    assert plus == replace(
+        paper,
+        noise=replace(paper.noise, centre_estimator="huber", drift_correction=True),
+        hold=replace(paper.hold, bias_aware=True),
+    )
+    assert policy_parts(f"{PLUS}+nugget") == replace(plus, surrogate=replace(plus.surrogate, nugget=True))
+    assert not paper.noise.drift_correction and not policy_parts("cost-aware").noise.drift_correction
+    aeni = policy_parts("aeni")
+    assert policy_parts("aeni+gaussian") == replace(aeni, noise=replace(aeni.noise, outliers="none"))
 
 
 # -- placement and cost invariants ----------------------------------------------------------------------
@@ -157,7 +171,7 @@ def test_the_planner_priced_exactly_what_ran(policy: str) -> None:
 
 @pytest.mark.parametrize(
     ("policy", "scenario"),
-    [("cost-aware", "ternary"), ("meta-grid", "ternary"), ("aeni", "film"), ("aeni-plus", "film")],
+    [("cost-aware", "ternary"), ("meta-grid", "ternary"), ("aeni-paper", "film"), (PLUS, "film")],
 )
 def test_local_blocks_stay_in_the_safe_band_and_meta_grid_hops_stay_within_500_um(
     policy: str, scenario: str
@@ -248,7 +262,8 @@ def test_slow_program_switches_to_fast_only_when_g2_times_75_s_pays_the_reconfig
     g: int, switches: bool
 ) -> None:
     planner = BayesPlanner(
-        "probe", PlannerFeatures(stay=True, adaptive_hold=True, fixed_g=g, local_hop_um=500.0)
+        "probe",
+        PolicyParts(blocks=ReplicateGrid(fixed_g=g, local_hop_um=500.0), hold=HoldRule(adaptive=True)),
     )
     c, ctx = _context_after("adaptive-hold", blocks=3)
     assert ctx.program_open
@@ -273,7 +288,7 @@ def test_drift_rising_ends_a_fast_program() -> None:
 
 
 def test_aeni_phases_seeds_then_exploration_then_up_to_five_locals() -> None:
-    run = _cached("aeni")
+    run = _cached("aeni-paper")
     d = run.decisions
     assert [x.phase for x in d[:2]] == ["seed", "seed"]
     assert all(
@@ -337,7 +352,7 @@ def test_uncertainty_ignores_cost_and_always_opens_a_new_program() -> None:
 def test_variance_model_reproduces_the_surrogates_epistemic_sd() -> None:
     from core.policies.variance import PosteriorCov, reference_lattice
 
-    c, ctx = _context_after("aeni-ivr", blocks=6)
+    c, ctx = _context_after(f"{PLUS}+ivr", blocks=6)
     assert ctx.gp is not None and ctx.tested_noise_var_gpa2 is not None and ctx.prediction is not None
     u, v = c.calibration.to_uv(ctx.tested_xy_um[:, 0], ctx.tested_xy_um[:, 1])
     ref = reference_lattice(4)
@@ -355,7 +370,7 @@ def test_variance_model_reproduces_the_surrogates_epistemic_sd() -> None:
 
 
 def test_aeni_ivr_prices_jumps_with_their_programs_and_holds_fast_when_drift_is_quiet() -> None:
-    run = _cached("aeni-ivr")
+    run = _cached(f"{PLUS}+ivr")
     later = [d for d in run.decisions if d.phase == "exploit"]
     assert later
     # the seeds hold 80 s (drift unknown); without drift the bias of a 5 s hold is far below the aim
@@ -368,10 +383,10 @@ def test_aeni_ivr_prices_jumps_with_their_programs_and_holds_fast_when_drift_is_
 
 
 def test_aeni_nugget_uses_huber_values_and_learns_the_site_scatter() -> None:
-    run = _cached("aeni-nugget")
+    run = _cached(f"{PLUS}+nugget")
     c = run.campaign
-    assert c.centre_estimator == "huber" and c.surrogate.nugget
-    assert not Campaign(CampaignConfig(policy="aeni-plus"), _TERNARY).surrogate.nugget
+    assert c.noise.centre_estimator == "huber" and c.surrogate.nugget
+    assert not Campaign(CampaignConfig(policy=PLUS), _TERNARY).surrogate.nugget
     assert all(rec.efficiency is not None and rec.efficiency < 1.2 for rec in c.centres)
     obs = c.observations()
     assert np.allclose(obs.efficiency, [rec.efficiency for rec in c.centres])
@@ -379,7 +394,7 @@ def test_aeni_nugget_uses_huber_values_and_learns_the_site_scatter() -> None:
     assert c.surrogate.site_sd_gpa < 0.05
 
 
-@pytest.mark.parametrize("policy", ["aeni-plus", "aeni-nugget"])
+@pytest.mark.parametrize("policy", [PLUS, f"{PLUS}+nugget", "aeni"])
 def test_aeni_plus_resumes_to_the_same_decision(policy: str) -> None:
     c, ctx, history = _context_and_history(policy, blocks=5)
     first = c.policy.propose(ctx)
@@ -396,16 +411,18 @@ def test_aeni_plus_resumes_to_the_same_decision(policy: str) -> None:
     assert second.jump_score == pytest.approx(first.jump_score, rel=1e-6)
 
 
-def test_features_are_frozen_data() -> None:
-    f = PlannerFeatures()
+def test_parts_are_frozen_data() -> None:
+    parts = policy_parts("aeni")
     with pytest.raises(dataclasses.FrozenInstanceError):
-        f.cost_aware = False  # type: ignore[misc]
+        parts.hold = HoldRule()  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        parts.noise.drift_correction = False  # type: ignore[misc]
 
 
 def test_aeni_nugget_learns_the_collapse_fields_site_scatter() -> None:
     """On the collapse provocation the scatter between centres is real (0.1 GPa of site texture): the nugget
     finds it, so the length-scales need not shrink to explain it."""
-    run = _cached("aeni-nugget", "collapse")
+    run = _cached(f"{PLUS}+nugget", "collapse")
     c = run.campaign
     assert 0.04 < c.surrogate.site_sd_gpa < 0.2
     report = c.fit_report()
@@ -414,26 +431,85 @@ def test_aeni_nugget_learns_the_collapse_fields_site_scatter() -> None:
 
 def test_tight_and_unguarded_differ_only_in_the_guard() -> None:
     tight, loose = (
-        Campaign(CampaignConfig(policy="aeni-tight"), _TERNARY),
-        Campaign(CampaignConfig(policy="aeni-unguarded"), _TERNARY),
+        Campaign(CampaignConfig(policy="aeni-paper+tight"), _TERNARY),
+        Campaign(CampaignConfig(policy="aeni-paper+tight+unguarded"), _TERNARY),
     )
     assert tight.surrogate.guard == "keep-last-good" and tight.surrogate.lengthscale_prior
     assert tight.surrogate.floor_uv >= 0.005
     assert loose.surrogate.guard == "off" and not loose.surrogate.lengthscale_prior
     assert loose.surrogate.floor_uv < 0.25 * tight.surrogate.floor_uv
-    ft, fl = tight.policy.features, loose.policy.features  # type: ignore[attr-defined]
-    assert replace(fl, surrogate_guard="keep-last-good", surrogate_floor=True) == ft
+    assert replace(loose.policy.parts, guard=tight.policy.parts.guard) == tight.policy.parts
 
 
 def test_bias_aware_drift_estimate_ignores_the_reading_noise_but_not_an_event() -> None:
-    from core.policies.planner import _robust_rate
-
     rng = np.random.default_rng(0)
     quiet = tuple(np.maximum(0.002 * rng.standard_normal(25), 0.0).tolist())  # no drift, noisy readings
-    assert _robust_rate(quiet) < 0.0015
+    assert robust_rate(quiet) < 0.0015
     # an event shows in the very next reading: the paper's 2 % rule fires on it at once
     event = (*quiet, 0.3)
-    assert _robust_rate(event) == pytest.approx(0.3)
+    assert robust_rate(event) == pytest.approx(0.3)
     # a fall is trusted only once the window's median has come down
     after = (*([0.2] * 11), 0.0)
-    assert _robust_rate(after) == pytest.approx(0.2)
+    assert robust_rate(after) == pytest.approx(0.2)
+
+
+# -- aeni: scattered singles ----------------------------------------------------------------------------
+
+
+def test_aeni_runs_blocks_of_scattered_singles_each_its_own_centre() -> None:
+    run = _cached("aeni")
+    c = run.campaign
+    blocks = [d.block for d in run.decisions]
+    assert all(b.grid_g == 1 and b.n_indents >= 2 for b in blocks)
+    assert len(c.centres) == sum(len(r) for r in run.results)  # one centre per indent
+    assert all(rec.n_indents == 1 and np.isnan(rec.spread_var_gpa2) for rec in c.centres)
+    for d, steps in zip(run.decisions, run.steps, strict=True):
+        pts = np.array([(i.x_um, i.y_um) for i in d.block.indents])
+        gaps = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+        np.fill_diagonal(gaps, np.inf)
+        assert gaps.min() >= 15.0  # spread out, never sharing a site
+        assert not any(s.category == "reconfigure" for s in steps)  # no hop trips the safety rule
+        assert all(i.hold_s == d.block.hold_s for i in d.block.indents)
+    # a space-filling start, then the model places the indents; programs serve several blocks
+    phases = [d.phase for d in run.decisions]
+    assert phases[0] == "explore" and "exploit" in phases
+    assert sum(b.kind == "local" for b in blocks) >= 1
+    # the first block holds 80 s (drift unknown); with no drift later ones go fast
+    assert blocks[0].hold_s == SLOW_HOLD_S and any(b.hold_s == FAST_HOLD_S for b in blocks)
+
+
+def test_travel_order_visits_points_on_a_line_in_order() -> None:
+    from core.policies.scattered import travel_order
+
+    _, ctx = _context_after("aeni", blocks=1)
+    xs = np.array([700.0, 100.0, 400.0, 300.0, 600.0, 200.0, 500.0])
+    pts = np.column_stack([xs, np.full(len(xs), 500.0)])
+    order = travel_order(pts, (0.0, 500.0), ctx)
+    assert list(xs[order]) == sorted(xs)
+
+
+def test_aeni_treats_indents_on_pores_as_outliers() -> None:
+    """5 % of the surface reads 50 % low: the Student-t rule inflates those values' noise so they barely pull
+    the map, and leaves the film's real values trusted."""
+    from drivers.sim.robust_fields import robust_scenario
+
+    scen = robust_scenario("outliers", 2)
+    c = Campaign(
+        CampaignConfig(policy="aeni", seed=2, lattice_n=30, settings=PlannerSettings(budget_s=20_000.0)),
+        scen.sample,
+    )
+    run_headless(c, scen.make_driver(c.profile))
+    truth = scen.truth.hardness_gpa(
+        np.array([r.x_um for r in c.centres]), np.array([r.y_um for r in c.centres])
+    )
+    on_pore = np.array([r.value_gpa for r in c.centres]) < 0.7 * truth
+    inflation = np.array(c.noise_inflation)
+    assert on_pore.sum() >= 3
+    assert np.all(inflation[on_pore] > 4.0)  # at least a doubled sd, most far more
+    assert np.mean(inflation[~on_pore] == 1.0) > 0.95
+    gaussian = Campaign(replace(c.config, policy="aeni+gaussian"), scen.sample)
+    run_headless(gaussian, scen.make_driver(gaussian.profile))
+    assert all(v == 1.0 for v in gaussian.noise_inflation)
+    evaluator = scen.evaluator()
+    mine, theirs = evaluator.score(c).mape_pct, evaluator.score(gaussian).mape_pct
+    assert mine is not None and theirs is not None and mine < theirs

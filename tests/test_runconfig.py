@@ -48,11 +48,10 @@ def write(tmp_path: Path, text: str) -> Path:
 
 def test_defaults_without_a_file() -> None:
     rc = load_run_config(None)
-    assert (
-        rc.campaign.policy == "cost-aware"
-        and rc.campaign.driver_options == {"scenario": "ternary"}
-        and rc.campaign.seed == 0
-    )
+    from core.policies.registry import RECOMMENDED
+
+    assert rc.campaign.policy == RECOMMENDED == "aeni"  # the recommended policy is the run file's default
+    assert rc.campaign.driver_options == {"scenario": "ternary"} and rc.campaign.seed == 0
     assert rc.campaign.settings.budget_s is None and rc.campaign.name == "run"
     assert rc.options.supervision == "auto" and rc.options.driver == "sim" and rc.options.speed is None
 

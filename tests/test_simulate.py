@@ -66,7 +66,7 @@ def test_truth_from_a_rough_csv(tmp_path: Path, capsys: pytest.CaptureFixture[st
     from aeni_console.bench.harness import write_rough_truth
 
     csv = write_rough_truth(tmp_path / "rough.csv", seed=4, n=41)
-    data = _simulate(capsys, "--policy", "aeni-plus", "--truth", str(csv), "--budget-s", "15000")
+    data = _simulate(capsys, "--policy", "aeni", "--truth", str(csv), "--budget-s", "15000")
     assert data["scenario"] == "csv"
     assert set(data) == JSON_KEYS
     # the rough map's hardness is ≈ 3–7 GPa; the model ends within a few percent of it

@@ -21,30 +21,33 @@ from aeni_console.bench.harness import (
     BenchConfig,
     PolicySummary,
     RunRecord,
-    mape_at_equal_time,
     records_to_json,
     speedup_by_level,
     summarise,
+    worst_rise,
 )
 
 DIVERGED_RISE = 1.5  # a run whose MAPE rises above 1.5× its best so far has diverged
 
-POLICY_COLORS: dict[str, str] = {
-    "grid": "#000000",
-    "uncertainty": "#7f7f7f",
-    "cost-aware": "#1f77b4",
-    "adaptive-grid": "#17becf",
-    "meta-grid": "#2ca02c",
-    "adaptive-hold": "#bcbd22",
-    "aeni": "#ff7f0e",
-    "aeni-bias-hold": "#e377c2",
-    "adaptive-hold-corrected": "#8c6d31",
-    "aeni-plus": "#d62728",
-    "aeni-ivr": "#8c564b",
-    "aeni-nugget": "#ff9896",
-    "aeni-tight": "#393b79",
-    "aeni-unguarded": "#9467bd",
-}
+_PALETTE = (
+    "#ff7f0e", "#000000", "#7f7f7f", "#1f77b4", "#17becf", "#2ca02c", "#bcbd22", "#d62728",
+    "#8c564b", "#e377c2", "#393b79", "#9467bd", "#ff9896", "#8c6d31",
+)  # fmt: skip
+
+
+def policy_order(names: Sequence[str]) -> list[str]:
+    """The registry's policies in its order (the recommended one first), then any ablations by name."""
+    from core.policies.registry import policy_names
+
+    known = [p for p in policy_names() if p in names]
+    return known + sorted(set(names) - set(known))
+
+
+def policy_color(name: str, names: Sequence[str]) -> str:
+    order = policy_order(names)
+    return _PALETTE[order.index(name) % len(_PALETTE)] if name in order else "#999999"
+
+
 LEDGER_COLORS: dict[str, str] = {
     "setup": "#c7c7c7",
     "lift": "#aec7e8",
@@ -120,84 +123,180 @@ def _get(summaries: Sequence[PolicySummary], scenario: str, policy: str) -> Poli
     return next((s for s in summaries if s.scenario == scenario and s.policy == policy), None)
 
 
-def targets(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = ()) -> list[dict[str, Any]]:
-    """The issue's targets, each with the measured median and whether it is met."""
+TERNARY_GOAL, LOOSE2_GOAL, UNC_GOAL, SUITE_GOAL, FILM_GOAL = 10.0, 25.0, 4.0, 5.0, 4.0
+
+
+def _sw(s: PolicySummary | None, factor: str = "1") -> tuple[float, float] | None:
+    return None if s is None else s.suite_vs_grid.get(factor)
+
+
+def targets(
+    summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = (), config: BenchConfig | None = None
+) -> list[dict[str, Any]]:
+    """Issue 13's targets for ``aeni``, each with the measured median (and worst seed) and whether it is met."""
     out: list[dict[str, Any]] = []
 
     def add(name: str, goal: str, measured: float | None, ok: bool | None, note: str = "") -> None:
         out.append({"target": name, "goal": goal, "measured": measured, "met": ok, "note": note})
 
-    for scen in ("ternary", "film"):
-        for pol in ("aeni", "aeni-plus"):
-            s = _get(summaries, scen, pol)
-            if s is None:
-                continue
-            g, u = _med(s.speedup_grid), _med(s.speedup_uncertainty)
-            loose = _med(s.speedup_grid_loose)
-            note = f"reached {s.hit_rate:.0%} of seeds; at {LOOSE_FACTOR:g}× the grid's MAPE: {_fmt_target(loose, '×')}"
-            add(f"`{pol}` vs `grid` ({scen})", "≥ 30×", g, None if g is None else g >= 30, note)
-            add(f"`{pol}` vs `uncertainty` ({scen})", "≥ 3.5×", u, None if u is None else u >= 3.5)
-    for pol, goal, lim in (("adaptive-grid", "≈ 4×", 3.0), ("meta-grid", "≈ 10×", 7.5)):
-        s = _get(summaries, "ternary", pol)
-        if s is not None:
-            v = _med(s.speedup_ref.get("uncertainty"))
-            add(f"`{pol}` vs fixed 5×5 (`uncertainty`, ternary)", goal, v, None if v is None else v >= lim)
-    for pol in ("adaptive-hold", "adaptive-hold-corrected"):
-        for scen, ratio_goal in (("good-drift", True), ("bad-drift", False)):
-            ah, ca = _get(summaries, scen, pol), _get(summaries, scen, "cost-aware")
-            if ah is None or ca is None:
-                continue
-            t_ah, t_ca = _med(ah.t_hit_s), _med(ca.t_hit_s)
-            ratio = None if t_ah is None or t_ca is None or math.isinf(t_ca) else t_ah / t_ca
-            m_ah, m_ca = _med(ah.final_mape_pct), _med(ca.final_mape_pct)
-            if ratio_goal:
-                # "no worse" at the same instrument time: a run that reaches the target sooner stops sooner
-                same = mape_at_equal_time(records, scen, pol, "cost-aware")
-                mine, theirs = same if same is not None else (m_ah, m_ca)
-                ok = None if ratio is None else ratio <= 0.6 and (mine or 0) <= (theirs or 0) * 1.05
-                note = f"final MAPE {m_ah:.3f} % vs {m_ca:.3f} %" if m_ah and m_ca else ""
-                if same is not None:
-                    note += f"; when it stops {same[0]:.3f} %, fixed 80 s at that time {same[1]:.3f} %"
-                add(
-                    f"`{pol}` time / fixed 80 s (`cost-aware`), good drift",
-                    "≤ 0.6×, MAPE no worse",
-                    ratio,
-                    ok,
-                    note,
-                )
-            else:
-                ok = (
-                    None
-                    if m_ah is None or m_ca is None
-                    else m_ah <= m_ca * 1.05 and ah.hit_rate >= ca.hit_rate
-                )
-                add(
-                    f"`{pol}` loses no MAPE in bad drift",
-                    "final MAPE ≤ fixed 80 s",
-                    m_ah,
-                    ok,
-                    f"vs {m_ca:.3f} %; reached {ah.hit_rate:.0%} vs {ca.hit_rate:.0%}" if m_ca else "",
-                )
-    # the same tight planner with and without the guard (floor, prior and keep-last-good)
-    guarded, unguarded = (
-        _get(summaries, "collapse", "aeni-tight"),
-        _get(summaries, "collapse", "aeni-unguarded"),
-    )
-    if guarded is not None and unguarded is not None:
-        rise_g, rise_u = _med(guarded.worst_rise), _med(unguarded.worst_rise)
-        alarms_g, alarms_u = _med(guarded.collapse_alarms), _med(unguarded.collapse_alarms)
-        diverged = rise_u is not None and rise_u > DIVERGED_RISE
+    t = _get(summaries, "ternary", "aeni")
+    if t is not None:
+        one, two = _sw(t, "1"), _sw(t, "2")
+        if one is not None:
+            add(
+                "`aeni` vs `grid`, ternary, at the grid's final MAPE",
+                f"≥ {TERNARY_GOAL:g}×",
+                one[0],
+                one[0] >= TERNARY_GOAL,
+                f"worst seed {_x(one[1])}; reached on {_seeds(t)} seeds",
+            )
+        if two is not None:
+            add(
+                "`aeni` vs `grid`, ternary, at 2× that MAPE",
+                f"≥ {LOOSE2_GOAL:g}×",
+                two[0],
+                two[0] >= LOOSE2_GOAL,
+                f"worst seed {_x(two[1])}",
+            )
+        u = _med(t.speedup_uncertainty)
+        if u is not None:
+            lo = t.speedup_uncertainty[0] if t.speedup_uncertainty else None
+            add(
+                "`aeni` vs `uncertainty`, ternary",
+                f"≥ {UNC_GOAL:g}×",
+                u,
+                u >= UNC_GOAL,
+                f"lower quartile {_x(lo)}",
+            )
+    robust = [sc.key for sc in (config.scenarios if config is not None else ()) if sc.group == "robustness"]
+    for sc in robust:
+        a = _get(summaries, sc, "aeni")
+        sw = _sw(a)
+        if a is None or sw is None:
+            continue
         add(
-            "collapse guard keeps MAPE bounded where the unguarded planner diverges (collapse)",
-            f"unguarded MAPE rises > {DIVERGED_RISE:g}× its best, guarded does not",
-            rise_u,
-            None if rise_g is None or rise_u is None else diverged and rise_g <= DIVERGED_RISE,
-            f"worst rise of MAPE over its best so far, median: guarded {rise_g:.2f}×, unguarded {rise_u:.2f}×; "
-            f"collapse alarms per run: {alarms_g:.0f} vs {alarms_u:.0f}"
-            if rise_g is not None and rise_u is not None and alarms_g is not None and alarms_u is not None
-            else "",
+            f"`aeni` vs `grid`, {sc}",
+            f"≥ {SUITE_GOAL:g}× median, worst seed ≥ 1×",
+            sw[0],
+            sw[0] >= SUITE_GOAL and sw[1] >= 1.0,
+            f"worst seed {_x(sw[1])}; reached on {_seeds(a)} seeds",
+        )
+    f = _get(summaries, "film", "aeni")
+    sw = _sw(f)
+    if f is not None and sw is not None:
+        add(
+            "`aeni` on the real-film scenario: every seed, vs `grid`",
+            f"all seeds, ≥ {FILM_GOAL:g}×",
+            sw[0],
+            f.hit_rate == 1.0 and sw[0] >= FILM_GOAL,
+            f"reached on {_seeds(f)} seeds; worst seed {_x(sw[1])}",
+        )
+    c = _get(summaries, "collapse", "aeni")
+    if c is not None:
+        rise = c.worst_rise[2] if c.worst_rise else None
+        runs = [r for r in records if r.scenario == "collapse" and r.policy == "aeni"]
+        diverged = sum(1 for r in runs if (w := worst_rise(r.trajectory)) is not None and w > DIVERGED_RISE)
+        ok = c.hit_rate == 1.0 and diverged == 0
+        add(
+            "`aeni` under collapse provocation: no failure on any seed",
+            f"all seeds reach the target, none diverges (MAPE > {DIVERGED_RISE:g}× its best)",
+            float(diverged),
+            ok,
+            f"reached on {_seeds(c)} seeds; diverged on {diverged}; upper-quartile rise {_x(rise)}",
         )
     return out
+
+
+def _x(v: float | None) -> str:
+    if v is None:
+        return "—"
+    return "∞" if math.isinf(v) else f"{v:.2f}×"
+
+
+def suite_tables(summaries: Sequence[PolicySummary], config: BenchConfig) -> list[str]:
+    """Policies × fields against the grid at 1×, 1.5× and 2× its final MAPE: median (worst seed)."""
+    scens = [sc for sc in config.scenarios if any(s.scenario == sc.key for s in summaries)]
+    pols = policy_order([s.policy for s in summaries if s.policy != "grid"])
+    out = [
+        "## Every policy on every field",
+        "",
+        "Grid time / policy time to reach f × the grid's final MAPE, paired by seed: median (worst seed in"
+        " brackets; 0 = that seed never reached it within the grid's time, — = not run on that field).",
+        "",
+    ]
+    for f in ("1", "1.5", "2"):
+        out += [
+            f"### At {f}× the grid's final MAPE",
+            "",
+            "| field | " + " | ".join(f"`{p}`" for p in pols) + " |",
+            "|---|" + "---|" * len(pols),
+        ]
+        for sc in scens:
+            cells = []
+            for p in pols:
+                sw = _sw(_get(summaries, sc.key, p), f)
+                cells.append("—" if sw is None else f"{_x(sw[0])} ({_x(sw[1])})")
+            out.append(f"| {sc.key} | " + " | ".join(cells) + " |")
+        out.append("")
+    return out
+
+
+def _oracle() -> dict[str, Any] | None:
+    """benchmarks/results/oracle_bound.json: evenly spread designs on the ternary field (read, not typed in)."""
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "oracle_bound.json"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        best = data["best"]["median"]
+        return {
+            "target_pct": float(data["grid_final_mape_pct"]),
+            "singles": int(best["indents"]),
+            "bound_x": float(best["max_speedup"]),
+            "seeds": int(data["seeds"]),
+        }
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = ()) -> str:
+    """Where each policy loses, with this run's own figures, and the oracle's limit read from its JSON."""
+    out = ["### Where the policies lose", ""]
+    t = _get(summaries, "ternary", "aeni")
+    oracle = _oracle()
+    if oracle is not None:
+        text = (
+            f"- **The even-design limit.** `benchmarks/oracle_bound.py` ({oracle['seeds']} seeds) spreads single"
+            f" indents evenly with no travel, drift or overhead: the cheapest such design that reaches the grid's"
+            f" final MAPE ({oracle['target_pct']:.3f} %) takes {oracle['singles']} indents, at most"
+            f" {oracle['bound_x']:.1f}× faster than the grid."
+        )
+        if t is not None and t.indents is not None and _sw(t) is not None:
+            text += (
+                f" `aeni` reaches it {_x(_sw(t)[0])} faster (median), with a median of {t.indents[1]:.0f} indents"  # type: ignore[index]
+                " when its run ends (the target plus the run-on)."
+            )
+        out.append(text)
+    for sc in dict.fromkeys(s.scenario for s in summaries):
+        a = _get(summaries, sc, "aeni")
+        sw = _sw(a)
+        if a is None or sw is None:
+            continue
+        worst = [r for r in records if r.scenario == sc and r.policy == "aeni"]
+        miss = [r.seed for r in worst if r.t_hit_s is None]
+        if sw[0] < SUITE_GOAL or sw[1] < 1.0 or miss:
+            out.append(
+                f"- **`aeni` on {sc}:** median {_x(sw[0])}, worst seed {_x(sw[1])}"
+                + (f"; never reached the grid's MAPE on seed(s) {', '.join(map(str, miss))}" if miss else "")
+                + "."
+            )
+    for pol in policy_order([s.policy for s in summaries]):
+        if pol in ("grid", "aeni"):
+            continue
+        losses = [
+            s.scenario for s in summaries if s.policy == pol and (sw := _sw(s)) is not None and sw[0] < 1.0
+        ]
+        if losses:
+            out.append(f"- `{pol}` is slower than the grid (median) on: {', '.join(losses)}.")
+    return "\n".join(out)
 
 
 def level_table(records: Sequence[RunRecord]) -> list[str]:
@@ -224,64 +323,8 @@ def level_table(records: Sequence[RunRecord]) -> list[str]:
     ]
 
 
-def _centre_costs_s() -> dict[str, float]:
-    """Seconds per tested centre (the profile's cost model): a 5×5 or 2×2 grid as a new program, and a 2×2
-    sub-grid 300 µm away inside an engaged program, at 80 s or 5 s holds."""
-    from core.cost import block_costs_for
-    from core.plan import Block, local_grid
-    from core.profile import load_profile
-
-    prof = load_profile("kla-imicro")
-
-    def cost(g: int, hold_s: float, engaged: bool) -> float:
-        blk = Block(
-            1,
-            "local" if engaged else "global",
-            800.0,
-            500.0,
-            g,
-            5.0,
-            hold_s,
-            local_grid(800.0, 500.0, g, 5.0, hold_s),
-        )
-        return float(block_costs_for(prof, blk, (500.0, 500.0), engaged))
-
-    slow, fast = prof.default_hold_s, prof.fast_hold_s
-    return {
-        "5x5": cost(5, slow, False),
-        "2x2": cost(2, slow, False),
-        "2x2 sub": cost(2, slow, True),
-        "2x2 sub fast": cost(2, fast, True),
-    }
-
-
-def _drift_pairs(
-    summaries: Sequence[PolicySummary], paper: str, ours: str
-) -> list[tuple[str, PolicySummary, PolicySummary]]:
-    """(scenario, paper's policy, its improved version) in each drift scenario that ran both."""
-    return [
-        (scen, a, b)
-        for scen in ("good-drift", "bad-drift")
-        if (a := _get(summaries, scen, paper)) is not None and (b := _get(summaries, scen, ours)) is not None
-    ]
-
-
 def _seeds(s: PolicySummary) -> str:
     return f"{round(s.hit_rate * s.n_seeds)}/{s.n_seeds}"
-
-
-def _time_share(summaries: Sequence[PolicySummary]) -> str:
-    """Where aeni-plus's time goes on the ternary field: how close to pure indenting it already is."""
-    s = _get(summaries, "ternary", "aeni-plus")
-    if s is None or not s.ledger_s or s.indents is None:
-        return ""
-    total = sum(s.ledger_s.values())
-    share = (s.ledger_s.get("indent", 0.0) + s.ledger_s.get("hold", 0.0)) / total if total else 0.0
-    return (
-        f"- **How much is left to save on the ternary field:** `aeni-plus` spends {share:.0%} of its instrument"
-        f" time indenting and holding (median {s.indents[1]:.0f} indents per run, against the grid's 2,025):"
-        " overheads are no longer what decides its speed."
-    )
 
 
 def _fmt_target(v: float | None, goal: str) -> str:
@@ -301,7 +344,7 @@ def results_markdown(
     from_json: bool = False,
 ) -> str:
     summaries = summarise(records)
-    order = {p: i for i, p in enumerate(POLICY_COLORS)}
+    order = {p: i for i, p in enumerate(policy_order([r.policy for r in records]))}
     lines = [
         "# AE-NI policy benchmark",
         "",
@@ -339,7 +382,7 @@ def results_markdown(
         " is 100×100); the decisions use the same cost model, GP and rules as `aeni simulate`.",
         "",
     ]
-    tgts = targets(summaries, records)
+    tgts = targets(summaries, records, config)
     if tgts:
         lines += [
             "## Targets",
@@ -352,10 +395,12 @@ def results_markdown(
             lines.append(
                 f"| {t['target']} | {t['goal']} | {_fmt_target(t['measured'], t['goal'])} | {met} | {t['note']} |"
             )
-        lines += ["", why_text(summaries), _time_share(summaries), ""]
+        lines += ["", why_text(summaries, records), ""]
+    lines += suite_tables(summaries, config)
     lines += level_table(records)
     for group, title in (
         ("paper", "The paper's comparisons"),
+        ("provocation", "Provocations: drift and length-scale collapse"),
         ("robustness", "Robustness: fields nothing was tuned on"),
     ):
         scens = [s for s in config.scenarios if s.group == group]
@@ -395,8 +440,8 @@ def results_markdown(
         "",
         "- *reached*: seeds whose run reached the grid's final MAPE within the budget.",
         "- *vs its reference*: each idea against the policy it extends (adaptive grid and meta-grid against fixed",
-        "  5×5 grids = `uncertainty`; adaptive hold against fixed 80 s = `cost-aware`; the drift-corrected adaptive",
-        "  hold against the paper's; `aeni-plus` against `aeni`).",
+        "  5×5 grids = `uncertainty`; adaptive hold against fixed 80 s = `cost-aware`; `aeni-paper` against",
+        "  `uncertainty`; `aeni` against `aeni-paper`; the unguarded ablation against the guarded one).",
         "- *max found*: highest true hardness among indented points (true maximum of the field in brackets).",
         "- *reconfig.*: reconfigurations in the ledger: safety-rule hops ≥ 1000 µm while engaged and, on the film",
         "  profile, every global jump (priced there as one 520 s reconfiguration).",
@@ -408,123 +453,6 @@ def results_markdown(
 def _quartiles_of(values: Sequence[float | None]) -> float | None:
     vals = [v for v in values if v is not None]
     return float(np.median(vals)) if vals else None
-
-
-# benchmarks/oracle_bound.py (6 seeds): evenly spread designs on the ternary field, fitted by the same GP
-ORACLE_NOTE = (
-    "`benchmarks/oracle_bound.py` spreads indents evenly over the square with no travel, drift or overhead"
-    " (2×2…5×5 grids or single indents, 5 s hold, the same GP): see `docs/benchmarks.md`."
-)
-
-
-def why_text(summaries: Sequence[PolicySummary]) -> str:
-    """Why the unmet targets are unmet, with this run's own figures."""
-
-    def med(scen: str, pol: str, attr: str) -> float | None:
-        s = _get(summaries, scen, pol)
-        return None if s is None else _med(getattr(s, attr))
-
-    out = ["### Why some targets are not met", ""]
-    grid_t = med("ternary", "grid", "instrument_s")
-    aeni_n, aeni_x = med("ternary", "aeni", "indents"), med("ternary", "aeni", "speedup_grid")
-    if grid_t and aeni_n is not None and aeni_x is not None:
-        out.append(
-            f"- **30× against the grid's own final error asks for a map from ≤ {grid_t / 30 / 45:.0f} indents.**"
-            f" The target is the MAPE that 2,025 indents at 80 s end with; 30× means reaching it within"
-            f" {grid_t / 30:,.0f} s, i.e. at most {grid_t / 30 / 45:.0f} indents of 40 + 5 s with no lift, engage,"
-            f" drift settle or travel at all. `aeni` reaches it {aeni_x:.1f}× faster than the grid and has used a"
-            f" median of {aeni_n:.0f} indents when its run ends (the target plus the run-on). {ORACLE_NOTE} The best even design of ≤ 212 indents (196 single indents) ends"
-            " 1.33× above the grid's MAPE; the cheapest one that reaches it takes 529 single indents (≤ 12×)."
-        )
-    film, film_aeni = _get(summaries, "film", "aeni-plus"), _get(summaries, "film", "aeni")
-    if film is not None and film_aeni is not None:
-        x = _med(film.speedup_grid)
-        text = (
-            "- **The film** (noise up to 10 % of the maximum hardness, good drift, 520 s jumps): `aeni` reaches"
-            f" the grid's final error on {_seeds(film_aeni)} seeds and `aeni-plus` on {_seeds(film)}"
-            + (f", {x:.1f}× faster than the grid" if x is not None and 0 < x < math.inf else "")
-            + ". "
-        )
-        if film.hit_rate > film_aeni.hit_rate:
-            text += (
-                "The drift correction makes the difference: the paper's hold leaves the bias of fast indents in"
-                " the map, and where the noise alone already sets the grid's final error that bias is enough to"
-                " miss it."
-            )
-        else:
-            text += (
-                "The noise sets the grid's final error there: it is what averaging ~2,000 noisy indents gives,"
-                " and a map as good needs a comparable number of indents."
-            )
-        out.append(text)
-    ah = _get(summaries, "good-drift", "adaptive-hold")
-    if ah is not None:
-        text = (
-            "- **The paper's 2 % area-error rule lets a 5 s hold carry up to ~1.9 % of hardness bias** (the"
-            " threshold is DR ≈ 0.025 nm/s over 40 s on a 100 nm indent), four times the grid's final MAPE. After"
-            " every drift event the fast hold comes back while the bias is still 0.2–1.9 %, an event that starts"
-            " during a fast block biases the rest of it by up to ~20 %, and bias does not average out."
-        )
-        corr = _drift_pairs(summaries, "adaptive-hold", "adaptive-hold-corrected")
-        if corr:
-            text += (
-                " `adaptive-hold-corrected` keeps the paper's rule and undoes Eq. 7 on every fast indent with"
-                " the drift rate measured around it (H·(1 + area error), the running median of 5 readings;"
-                " rates under 0.005 nm/s are the meter's noise floor and left alone); what is left is the"
-                " readings' noise and the 1/16 of the bias that a 5 s hold had already corrected"
-                + "".join(
-                    f"; in {scen} it reaches the target on {_seeds(c)} seeds (`adaptive-hold` {_seeds(a)}),"
-                    f" final MAPE {_fmt_num(c.final_mape_pct, 3, ' %')}"
-                    f" (`adaptive-hold` {_fmt_num(a.final_mape_pct, 3, ' %')})"
-                    for scen, a, c in corr
-                )
-                + "."
-            )
-        plus = [(scen, p, a) for scen, a, p in _drift_pairs(summaries, "aeni", "aeni-plus")]
-        if plus:
-            text += (
-                " `aeni-plus` corrects its fast indents the same way and goes fast only where the bias is small"
-                " against the precision it aims at"
-                + "".join(
-                    f"; in {scen} it reaches the target on {_seeds(p)} seeds (`aeni` {_seeds(a)})"
-                    for scen, p, a in plus
-                )
-                + "."
-            )
-        out.append(text)
-    c = _centre_costs_s()
-    out.append(
-        "- **Adaptive grid and meta-grid cannot reach 4× and 10× at equal information.** What they save is"
-        f" time per tested centre: a 5×5 grid as a new program takes {c['5x5']:,.0f} s, a 2×2 one"
-        f" {c['2x2']:,.0f} s ({c['5x5'] / c['2x2']:.1f}× less), a 2×2 sub-grid inside an engaged program"
-        f" {c['2x2 sub']:,.0f} s ({c['5x5'] / c['2x2 sub']:.1f}× less; {c['5x5'] / c['2x2 sub fast']:.0f}× with"
-        " 5 s holds). These are the most either could gain if a 2×2 centre told the model as much as a 5×5"
-        " one; it tells less (its median's variance is ~4.8× larger), so the measured gain is smaller at every"
-        " error level (see *Speed-up by error level*). The paper's ≈ 4× matches the per-centre cost of"
-        " adaptive sizing; its ≈ 10× needs sub-grids that also hold fast."
-    )
-    rise_t, rise_u = (
-        med("collapse", "aeni-tight", "worst_rise"),
-        med("collapse", "aeni-unguarded", "worst_rise"),
-    )
-    fin_p, fin_t = (
-        med("collapse", "aeni-nugget", "final_mape_pct"),
-        med("collapse", "aeni-tight", "final_mape_pct"),
-    )
-    if rise_t is not None and rise_u is not None:
-        text = (
-            "- **Collapse:** indent-scale texture (0.1 GPa over ~40 µm) is shared by a tight grid's indents, so"
-            " the within-grid spreads miss it and a GP that trusts them must explain the scatter between"
-            " centres with short length-scales. With the guard (floor, prior, keep-last-good) the tight planner's"
-            f" MAPE rises at worst {rise_t:.2f}× over its best, without it {rise_u:.2f}×."
-        )
-        if fin_p is not None and fin_t is not None:
-            text += (
-                " The guard limits the damage but does not remove its cause; `aeni-nugget` learns the scatter as"
-                f" a site-to-site variance (a nugget) and ends at {fin_p:.2f} % against {fin_t:.2f} %."
-            )
-        out.append(text)
-    return "\n".join(out)
 
 
 # -- figures ---------------------------------------------------------------------------------------------
@@ -567,14 +495,15 @@ def _plt() -> Any:
 def figure_curves(records: Sequence[RunRecord], scenario: str, title: str, path: Path) -> None:
     plt = _plt()
     runs = [r for r in records if r.scenario == scenario]
-    policies = [p for p in POLICY_COLORS if any(r.policy == p for r in runs)]
+    names = [r.policy for r in runs]
+    policies = policy_order(names)
     t_max = max(r.instrument_s for r in runs)
     t_grid = np.geomspace(2_000.0, t_max, 300)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.4))
     target = np.median([r.target_mape_pct for r in runs if r.policy == "grid" and r.target_mape_pct])
     for p in policies:
         pr = [r for r in runs if r.policy == p]
-        c = POLICY_COLORS[p]
+        c = policy_color(p, names)
         lo, med, hi = _band(_step_curves(pr, "trajectory", t_grid))
         ax1.plot(t_grid / 3600, med, color=c, label=p, lw=1.8)
         ax1.fill_between(t_grid / 3600, lo, hi, color=c, alpha=0.15, lw=0)
@@ -607,7 +536,8 @@ def figure_maps(records: Sequence[RunRecord], scenario: str, title: str, path: P
     runs = [r for r in records if r.scenario == scenario and r.maps is not None]
     if not runs:
         return False
-    runs.sort(key=lambda r: list(POLICY_COLORS).index(r.policy) if r.policy in POLICY_COLORS else 99)
+    order = policy_order([r.policy for r in runs])
+    runs.sort(key=lambda r: order.index(r.policy))
     fields = (
         ("mean", "mean (GPa)"),
         ("epistemic_sd", "epistemic sd"),
@@ -653,7 +583,8 @@ def figure_costs(records: Sequence[RunRecord], config: BenchConfig, path: Path) 
     fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 3.2 * nrow), squeeze=False)
     summaries = summarise(records)
     for ax, sc in zip(axes.ravel(), scens, strict=False):
-        rows = [s for p in POLICY_COLORS for s in summaries if s.scenario == sc.key and s.policy == p]
+        names = policy_order([s.policy for s in summaries if s.scenario == sc.key])
+        rows = [s for p in names for s in summaries if s.scenario == sc.key and s.policy == p]
         left = np.zeros(len(rows))
         for cat, color in LEDGER_COLORS.items():
             vals = np.array([r.ledger_s.get(cat, 0.0) for r in rows]) / 3600

@@ -38,7 +38,7 @@ def _handler(args: argparse.Namespace) -> int:
             sys.stderr.flush()
 
     with tempfile.TemporaryDirectory(prefix="aeni-bench-") as work:
-        records = run_bench(config, Path(work), progress)
+        records = run_bench(config, Path(work), progress, dask_address=args.dask)
     wall = time.monotonic() - start
     paths = write_report(records, config, out, wall)
     print(
@@ -95,6 +95,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default=None,
         metavar="KEY[,KEY...]",
         help="run only these bench scenarios (keys as in RESULTS.md: ternary, good-drift, film, ...)",
+    )
+    p.add_argument(
+        "--dask",
+        default=None,
+        metavar="ADDRESS",
+        help="run the sweep on a Dask cluster (scheduler address, e.g. tcp://host:8786; the dask extra)",
     )
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

@@ -101,7 +101,7 @@ def register(subparsers: Any) -> None:
         help=f"instrument seconds per wall second (default {DEMO_SPEED:g})",
     )
     demo.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
-    demo.add_argument("--policy", help="planning policy (default cost-aware)")
+    demo.add_argument("--policy", help="planning policy (default aeni, the recommended one)")
     demo.add_argument("--scenario", default="ternary", help="emulator scenario (default ternary)")
     demo.add_argument(
         "--supervision",

@@ -129,10 +129,10 @@ def _handler(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from core.policies.registry import policy_names
+    from core.policies.registry import RECOMMENDED, policy_names
 
     p = sub.add_parser("simulate", help="run one headless emulator campaign")
-    p.add_argument("--policy", choices=policy_names(), default="cost-aware")
+    p.add_argument("--policy", choices=policy_names(), default=RECOMMENDED)
     p.add_argument("--seed", type=seed_arg, default=0)
     p.add_argument("--scenario", default="ternary", help="emulator scenario (see `aeni scenarios`)")
     p.add_argument(

@@ -18,6 +18,7 @@ from core.profile import InstrumentProfile
 
 if TYPE_CHECKING:
     from core.geometry import Calibration, CandidateLattice
+    from core.policies.parts import PolicyParts
     from core.surrogate import Prediction
 
 DEFAULT_PITCH_UM = 5.0
@@ -83,6 +84,7 @@ class PlanContext:
 
 class Policy(Protocol):
     name: str
+    parts: PolicyParts  # what the Campaign builds its model from (a policy that never looks: the defaults)
 
     def propose(self, ctx: PlanContext) -> Decision | None:
         """The next block, or None when the policy has nothing left to do (e.g. the grid is complete)."""

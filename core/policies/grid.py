@@ -7,11 +7,13 @@ from dataclasses import replace
 from core.cost import block_costs_for, grid_baseline_blocks
 from core.plan import Decision
 from core.policies.base import PlanContext
+from core.policies.parts import PolicyParts
 
 
 class GridPolicy:
     def __init__(self, name: str = "grid", n_blocks: int = 9, g: int = 5) -> None:
         self.name = name
+        self.parts = PolicyParts()  # the grid never looks at the model; its map is fitted with the defaults
         self.n_blocks = n_blocks
         self.g = g
 

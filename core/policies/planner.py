@@ -1,22 +1,19 @@
-"""One Bayesian planner whose features switch on one by one, so each idea's contribution is measurable.
+"""The replicate-grid planner: the paper's policies, composed of parts so each idea's contribution is measurable.
 
 ``uncertainty`` is the plain GP baseline (jump to the highest σ after every block, cost ignored);
 ``cost-aware`` ranks σ/cost where staying engaged is cheap and a global jump pays the program overhead;
-``adaptive-grid``, ``meta-grid``, ``adaptive-hold`` add the paper's ideas one at a time, ``aeni`` all of
-them with the real-film phases, and ``aeni-plus`` goes past the paper (integrated variance reduction, sub-grids
-planned jointly so that a jump is priced with the program it opens, bias-aware hold).
+``adaptive-grid``, ``meta-grid``, ``adaptive-hold`` add the paper's ideas one at a time, ``aeni-paper`` all of
+them with the real-film phases. Ablations change one part at a time (Huber centre values, bias-aware hold,
+integrated variance reduction with sub-grids planned jointly so that a jump is priced with its program).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Literal
+from dataclasses import dataclass
 
 import numpy as np
 
 from core.acquisition import ei, ucb, ue
-from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
-from core.estimators import CentreEstimator
 from core.geometry import edge_penalty
 from core.plan import BlockKind, Decision
 from core.policies.base import (
@@ -29,54 +26,15 @@ from core.policies.base import (
     make_block,
     reachable_mask,
 )
-from core.profile import InstrumentProfile
+from core.policies.blocks import ReplicateGrid
+from core.policies.hold import choose_hold
+from core.policies.parts import PolicyParts
+
+__all__ = ["BayesPlanner", "aim_rel_error", "choose_hold", "nearest_lattice"]
 
 G_MIN, G_MAX = 2, 5
-DRIFT_WINDOW = 12  # drift readings whose median the bias-aware hold trusts
 PROGRAM_SUBSET = 300  # sub-grid candidates considered when a program is planned ahead
-PROGRAM_CANDIDATES = 6  # aeni-plus: global centres whose whole program is planned before choosing a jump
-
-
-@dataclass(frozen=True)
-class PlannerFeatures:
-    cost_aware: bool = True  # rank acquisition / block time (off: the acquisition alone, never stay)
-    stay: bool = True  # may continue the engaged program with local blocks (no lift, engage or drift wait)
-    adaptive_grid: bool = False  # g from the predicted noise (SPEC §6.4) instead of fixed_g
-    adaptive_hold: bool = False  # 5 s / 80 s from the last drift rate (SPEC §6.6)
-    edge_penalty: bool = False
-    acquisition: Literal["ue", "ucb", "ei", "ivr"] = "ue"
-    n_seed_blocks: int = 2
-    seed_g: int = 5
-    fixed_g: int = 5
-    local_hop_um: float = 1000.0  # the meta-grid: 500 µm between consecutive sub-grids (safe band always)
-    exploratory_iterations: int = 0  # aeni: the first programs after the seeds allow few local centres
-    exploratory_local_limit: int = 1
-    local_limit: int | None = None  # local centres per program; None: the operator's setting (default 5)
-    joint_program: bool = False  # price a jump with the sub-grids its program will run (planned jointly)
-    bias_aware_hold: bool = False  # fast hold only where its bias is small against the precision aimed at
-    bias_fraction: float = 0.5  # "small": at most this fraction of the grid baseline's map error
-    surrogate_guard: Literal["keep-last-good", "off"] = "keep-last-good"  # read by the Campaign
-    surrogate_nugget: bool = False  # the mean GP learns a site-to-site variance (read by the Campaign)
-    centre_estimator: CentreEstimator = "median"  # one value per grid: the median (SPEC) or Huber's
-    # fast indents corrected with the measured drift rate by Eq. 7 before the centre value (read by the
-    # Campaign; the journal keeps what the instrument reported)
-    drift_correction: bool = False
-    # the length-scale floor (half the candidate pitch) and its prior: with surrogate_guard, the SPEC §5
-    # guard; off only in the unguarded ablation, which is what a plain maximum-likelihood GP does
-    surrogate_floor: bool = True
-
-
-def choose_hold(
-    last_drift_rate_nm_s: float | None,
-    profile: InstrumentProfile,
-    threshold_pct: float = AREA_ERROR_THRESHOLD_PCT,
-) -> tuple[float, float | None]:
-    """SPEC §6.6: the profile's fast hold (5 s) when the last drift rate's area error is below 2 %, else
-    its default hold (80 s)."""
-    if last_drift_rate_nm_s is None:
-        return profile.default_hold_s, None
-    err = area_error_pct(last_drift_rate_nm_s)
-    return (profile.fast_hold_s if err < threshold_pct else profile.default_hold_s), err
+PROGRAM_CANDIDATES = 6  # with joint programs: global centres whose whole program is planned before a jump
 
 
 @dataclass
@@ -91,94 +49,43 @@ class _Scored:
 
 
 class BayesPlanner:
-    def __init__(self, name: str, features: PlannerFeatures) -> None:
+    """Replicate grids at centres chosen by σ (or IVR) per block time, staying in a program or jumping."""
+
+    def __init__(self, name: str, parts: PolicyParts) -> None:
+        if not isinstance(parts.blocks, ReplicateGrid):
+            raise TypeError(f"{name}: BayesPlanner plans replicate grids, not {type(parts.blocks).__name__}")
         self.name = name
-        self.features = features
-        self.surrogate_guard = features.surrogate_guard
-        self.surrogate_nugget = features.surrogate_nugget
-        self.centre_estimator = features.centre_estimator
-        self.drift_correction = features.drift_correction
-        self.surrogate_floor = features.surrogate_floor
+        self.parts = parts
+        self.design: ReplicateGrid = parts.blocks
 
     # -- acquisition ---------------------------------------------------------------------------
     def _acquisition(self, ctx: PlanContext) -> np.ndarray:
         pred = ctx.prediction
         assert pred is not None
-        f = self.features
-        if f.acquisition == "ucb":
+        if self.parts.acquisition.kind == "ucb":
             acq = ucb(pred, ctx.settings.beta)
             acq = acq - float(np.min(acq)) + 1e-9  # shift positive so acquisition / cost ranks sensibly
-        elif f.acquisition == "ei":
+        elif self.parts.acquisition.kind == "ei":
             best = ctx.best_observed_gpa if ctx.best_observed_gpa is not None else float(np.max(pred.mean))
             acq = ei(pred, best) + 1e-12
         else:
             acq = ue(pred)
-        if f.edge_penalty and ctx.settings.edge_penalty > 0:
+        if self.parts.acquisition.edge_penalty and ctx.settings.edge_penalty > 0:
             acq = acq * edge_penalty(ctx.lattice.uv, strength=ctx.settings.edge_penalty)
         return np.asarray(acq, dtype=float)
 
     def _grid_sizes(self, ctx: PlanContext) -> np.ndarray:
         n = len(ctx.lattice.xy_um)
-        if self.features.adaptive_grid and ctx.prediction is not None:
+        if self.design.adaptive_grid and ctx.prediction is not None:
             return grid_size_for_noise(ctx.prediction.noise_sd, ctx.settings.target_sem_gpa, G_MIN, G_MAX)
-        return np.full(n, self.features.fixed_g, dtype=int)
-
-    # -- hold ----------------------------------------------------------------------------------
-    def _hold(self, ctx: PlanContext, map_rel_err: float | None) -> tuple[float, float | None, str]:
-        f = self.features
-        if f.adaptive_hold or ctx.settings.hold_policy == "adaptive":
-            rate = ctx.last_drift_rate_nm_s
-            if f.bias_aware_hold and ctx.recent_drift_rates_nm_s:
-                rate = _robust_rate(ctx.recent_drift_rates_nm_s)
-            fast, slow = ctx.profile.fast_hold_s, ctx.profile.default_hold_s
-            hold, err = choose_hold(rate, ctx.profile)
-            mode = f"adaptive: {'fast' if hold == fast else 'slow'} {hold:g} s"
-            if f.bias_aware_hold and hold == fast and err is not None and map_rel_err is None:
-                # the precision to aim at is not known until the seeds have shaped a model
-                hold = slow
-                mode = f"bias-aware: slow {slow:g} s until a model sets the precision to aim at"
-            elif f.bias_aware_hold and hold == fast and err is not None and map_rel_err is not None:
-                # a fast hold leaves the drift in the hardness (bias ≈ the area error) and bias does not
-                # average out: worth it only where it stays well below the precision the map aims at
-                if err / 100.0 > f.bias_fraction * map_rel_err:
-                    hold = slow
-                    mode = f"bias-aware: slow {slow:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
-                else:
-                    mode = f"bias-aware: fast {fast:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
-            if f.drift_correction and hold < slow:
-                mode += "; drift-corrected"
-            return hold, err, mode
-        hold = ctx.fixed_hold_s
-        return hold, None, f"fixed {hold:g} s"
-
-    def _aim_rel_error(self, ctx: PlanContext) -> float | None:
-        """The map precision aimed at: the operator's σ target if set, else what the 9×9 grid of 5×5
-        baseline would reach on this sample (relative RMS error, from the fitted kernel and noise)."""
-        from core.policies.variance import design_rel_error, median_noise_var, reference_lattice
-
-        pred = ctx.prediction
-        if pred is None:
-            return None
-        ref = reference_lattice()
-        near = _nearest_lattice(ctx.lattice.uv, ref)
-        mu = np.abs(pred.mean[near])
-        if ctx.settings.sigma_target_gpa is not None:
-            return float(ctx.settings.sigma_target_gpa / max(float(np.mean(mu)), 1e-6))
-        if ctx.gp is None:
-            return None
-        axis = np.arange(1, 10) / 10.0
-        du, dv = np.meshgrid(axis, axis)
-        design = np.column_stack([du.ravel(), dv.ravel()])
-        noise = median_noise_var(pred.noise_sd[_nearest_lattice(ctx.lattice.uv, design)], 25)
-        noise = noise + ctx.gp.site_var_gpa2  # the grid's medians carry the site scatter too
-        return design_rel_error(ctx.gp, design, noise, ref, mu)
+        return np.full(n, self.design.fixed_g, dtype=int)
 
     def _jump_overhead_s(self, ctx: PlanContext) -> float:
         p = ctx.profile
         return p.global_jump_s if p.global_jump_s is not None else p.reconfiguration_s
 
     def _local_limit(self, ctx: PlanContext) -> int:
-        f = self.features
+        f = self.design
         limit = ctx.settings.local_center_limit if f.local_limit is None else f.local_limit
         if self._in_exploratory_program(ctx):
             return min(f.exploratory_local_limit, limit)
@@ -186,17 +93,17 @@ class BayesPlanner:
 
     def _exploring(self, ctx: PlanContext) -> bool:
         """The next program would be one of the exploratory iterations after the seeds."""
-        f = self.features
+        f = self.design
         return ctx.globals_done - f.n_seed_blocks < f.exploratory_iterations
 
     def _in_exploratory_program(self, ctx: PlanContext) -> bool:
         """The running program is a seed or an exploratory iteration (few local centres there)."""
-        f = self.features
+        f = self.design
         return ctx.globals_done - f.n_seed_blocks <= f.exploratory_iterations and f.exploratory_iterations > 0
 
     # -- seeds ---------------------------------------------------------------------------------
     def _seed(self, ctx: PlanContext) -> Decision | None:
-        f = self.features
+        f = self.design
         rng = ctx.rng(salt=17)
         mask = base_mask(ctx, (f.seed_g - 1) / 2 * ctx.pitch_um)
         idx = np.flatnonzero(mask)
@@ -228,7 +135,7 @@ class BayesPlanner:
         if mask.any():
             idx = np.flatnonzero(mask)
             cost[idx] = block_costs_s(ctx, ctx.lattice.xy_um[idx], g[idx], hold, kind)
-            score[idx] = acq[idx] / cost[idx] if self.features.cost_aware else acq[idx]
+            score[idx] = acq[idx] / cost[idx] if self.parts.acquisition.cost_aware else acq[idx]
         return _Scored(score, acq, cost, g, hold)
 
     # -- scoring: integrated variance reduction (aeni-plus) --------------------------------------
@@ -245,7 +152,7 @@ class BayesPlanner:
             return None
         lat = ctx.lattice
         ref = reference_lattice()
-        nearest = _nearest_lattice(lat.uv, ref)
+        nearest = nearest_lattice(lat.uv, ref)
         mu = np.maximum(np.abs(pred.mean[nearest]), 1e-6)
         w = 1.0 / mu**2  # relative error: what MAPE counts
         u, v = ctx.calibration.to_uv(ctx.tested_xy_um[:, 0], ctx.tested_xy_um[:, 1])
@@ -254,7 +161,7 @@ class BayesPlanner:
         )
         noise_sd = pred.noise_sd[idx]
         # noise variance of a g×g median at every allowed candidate, one row per g
-        est = self.features.centre_estimator
+        est = self.parts.noise.centre_estimator
         nvar = np.stack([median_noise_var(noise_sd, g * g, est) for g in range(G_MIN, G_MAX + 1)])
         nvar = nvar + ctx.gp.site_var_gpa2
         return model, idx, nvar
@@ -276,12 +183,12 @@ class BayesPlanner:
         score = np.full(n, -np.inf)
         acq = np.zeros(n)
         cost = np.full(n, np.inf)
-        g_out = np.full(n, self.features.fixed_g, dtype=int)
+        g_out = np.full(n, self.design.fixed_g, dtype=int)
         sub = mask[idx]
         if sub.any():
             j = np.flatnonzero(sub)
             xy = ctx.lattice.xy_um[idx[j]]
-            g_choices = range(G_MIN, G_MAX + 1) if self.features.adaptive_grid else [self.features.fixed_g]
+            g_choices = range(G_MIN, G_MAX + 1) if self.design.adaptive_grid else [self.design.fixed_g]
             best = np.full(len(j), -np.inf)
             for g in g_choices:
                 gain = model.gain(nvar[g - G_MIN])[j]
@@ -310,7 +217,7 @@ class BayesPlanner:
         from core.policies.variance import PosteriorCov
 
         assert isinstance(model, PosteriorCov)
-        f = self.features
+        f = self.design
         rates = glob.score.copy()
         limit = ctx.settings.local_center_limit if f.local_limit is None else f.local_limit
         if self._exploring(ctx):  # the program being priced is an exploratory one
@@ -368,7 +275,7 @@ class BayesPlanner:
 
     # -- the decision --------------------------------------------------------------------------
     def propose(self, ctx: PlanContext) -> Decision | None:
-        f = self.features
+        f = self.design
         if ctx.blocks_done < f.n_seed_blocks or ctx.prediction is None:
             return self._seed(ctx)
         xy = ctx.lattice.xy_um
@@ -380,17 +287,20 @@ class BayesPlanner:
 
         ivr = None
         map_rel_err: float | None = None
-        if f.acquisition == "ivr":
+        if self.parts.acquisition.kind == "ivr":
             ivr = self._ivr_model(ctx, allowed)
-        if f.bias_aware_hold:
+        if self.parts.hold.bias_aware:
             # the aim is known once the seeds have shaped a model; the exploratory programs need not hold
             # 80 s where a 5 s hold's bias is already far below it
-            map_rel_err = self._aim_rel_error(ctx)
-        hold, err, hold_mode = self._hold(ctx, map_rel_err)
+            map_rel_err = aim_rel_error(ctx)
+        hold, err, hold_mode = self.parts.hold.choose(ctx, map_rel_err, self.parts.noise.drift_correction)
 
         # where the program may continue, and at which hold (a running program keeps its method)
         may_stay = (
-            f.cost_aware and f.stay and ctx.program_open and ctx.locals_in_program < self._local_limit(ctx)
+            self.parts.acquisition.cost_aware
+            and f.stay
+            and ctx.program_open
+            and ctx.locals_in_program < self._local_limit(ctx)
         )
         prog_hold = ctx.program_hold_s if ctx.program_hold_s is not None else hold
         lmask = (
@@ -449,7 +359,7 @@ class BayesPlanner:
             reason = f"stay: local {what}/cost {stay_score:.3g} ≥ jump {jump_score:.3g}"
         elif stay_score is not None:
             reason = f"jump: global {what}/cost {jump_score:.3g} > local {stay_score:.3g}"
-        elif f.cost_aware:
+        elif self.parts.acquisition.cost_aware:
             reason = f"jump: best {what}/cost {jump_score:.3g} (no local centre available)"
         else:
             reason = f"jump to the highest σ ({chosen.acq[pick]:.3g} GPa), cost ignored"
@@ -473,20 +383,31 @@ class BayesPlanner:
         )
 
 
-def _robust_rate(readings: tuple[float, ...]) -> float:
-    """One drift reading is noisy: the median of the last DRIFT_WINDOW, unless the last reading alone breaks
-    the paper's 2 % rule (an event shows at once; the readings' own noise never sends a quiet run slow)."""
-    window = float(np.median(readings[-DRIFT_WINDOW:]))
-    last = float(readings[-1])
-    return max(window, last) if area_error_pct(last) >= AREA_ERROR_THRESHOLD_PCT else window
+def aim_rel_error(ctx: PlanContext) -> float | None:
+    """The map precision aimed at: the operator's σ target if set, else what the 9×9 grid of 5×5
+    baseline would reach on this sample (relative RMS error, from the fitted kernel and noise)."""
+    from core.policies.variance import design_rel_error, median_noise_var, reference_lattice
+
+    pred = ctx.prediction
+    if pred is None:
+        return None
+    ref = reference_lattice()
+    near = nearest_lattice(ctx.lattice.uv, ref)
+    mu = np.abs(pred.mean[near])
+    if ctx.settings.sigma_target_gpa is not None:
+        return float(ctx.settings.sigma_target_gpa / max(float(np.mean(mu)), 1e-6))
+    if ctx.gp is None:
+        return None
+    axis = np.arange(1, 10) / 10.0
+    du, dv = np.meshgrid(axis, axis)
+    design = np.column_stack([du.ravel(), dv.ravel()])
+    noise = median_noise_var(pred.noise_sd[nearest_lattice(ctx.lattice.uv, design)], 25)
+    noise = noise + ctx.gp.site_var_gpa2  # the grid's medians carry the site scatter too
+    return design_rel_error(ctx.gp, design, noise, ref, mu)
 
 
-def _nearest_lattice(lattice_uv: np.ndarray, pts_uv: np.ndarray) -> np.ndarray:
+def nearest_lattice(lattice_uv: np.ndarray, pts_uv: np.ndarray) -> np.ndarray:
     from scipy.spatial import cKDTree
 
     _, nearest = cKDTree(lattice_uv).query(pts_uv)
     return np.asarray(nearest, dtype=int)
-
-
-def with_features(planner: BayesPlanner, name: str, **changes: object) -> BayesPlanner:
-    return BayesPlanner(name, replace(planner.features, **changes))  # type: ignore[arg-type]

@@ -1,93 +1,165 @@
-"""Policies by name, as the CLI, the config and the bench select them.
+"""Policies by name: the one table the CLI, the run file, the console, the bench and its report read.
 
-Each paper idea has its own name so that its contribution can be measured against its reference:
-``adaptive-grid`` and ``meta-grid`` against ``uncertainty`` (fixed 5×5 grids, a new program every block),
-``adaptive-hold`` against ``cost-aware`` (fixed 80 s) and ``adaptive-hold-corrected`` against
-``adaptive-hold``, ``aeni`` against ``grid`` and ``uncertainty``;
-``aeni-plus`` is the same workflow with the improvements of this product (``aeni-ivr`` adds the
-variance-reduction planner to it); ``aeni-tight`` and ``aeni-unguarded`` are the pair that the length-scale
-collapse provocation compares (the same tight planner with and without the guard).
+``aeni`` is the recommended policy and the default everywhere. The paper's policies stay as references, each
+idea measurable against the one before it (``adaptive-grid`` and ``meta-grid`` against ``uncertainty``,
+``adaptive-hold`` against ``cost-aware``, ``aeni-paper`` against ``grid`` and ``uncertainty``).
+
+Anything else is an ablation: a base name followed by ``+modifier``s, each of which changes one setting of
+one part (``aeni-paper+huber+bias-hold+drift-corr`` is the paper's workflow with Huber centre values, the
+bias-aware hold and drift-corrected fast indents). Ablations are not policies a user is asked to choose from.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from core.errors import InputError
+from core.policies.acquisition import AcquisitionPart
+from core.policies.blocks import ReplicateGrid, ScatteredSingles
+from core.policies.guard import CollapseGuard
+from core.policies.hold import HoldRule
+from core.policies.noise import NoiseModel
+from core.policies.parts import PolicyParts
 
 if TYPE_CHECKING:
     from core.policies.base import Policy
-    from core.policies.planner import PlannerFeatures
+
+RECOMMENDED = "aeni"
 
 POLICY_DESCRIPTIONS: dict[str, str] = {
+    "aeni": "recommended: space-filling start, then scattered single indents placed where the map is least "
+    "known (weighted to its structure), blocks ordered for travel, Student-t noise, drift-aware hold",
     "grid": "fixed 9×9 blocks of 5×5 (the paper's baseline)",
     "uncertainty": "jump to the highest-σ centre after every block, fixed 5×5, cost ignored",
     "cost-aware": "σ/cost with staying engaged priced against a global jump, fixed 5×5",
     "adaptive-grid": "σ/cost, a new program every block, grid size 2×2…5×5 from the noise and the target SEM",
     "meta-grid": "adaptive grid + sub-grids ≤ 500 µm apart in the safe band, stay-vs-jump after each",
     "adaptive-hold": "cost-aware with a drift-aware 5 s / 80 s hold and the g²·(80 − 5) switch rule",
-    "adaptive-hold-corrected": "adaptive-hold whose fast indents are drift-corrected by Eq. 7 (measured drift rate)",
-    "aeni": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
-    "aeni-bias-hold": "aeni with the bias-aware hold of aeni-plus only (ablation: that improvement alone)",
-    "aeni-plus": "aeni with Huber centre values, the bias-aware hold and drift-corrected fast indents",
-    "aeni-nugget": "aeni-plus whose GP learns a site-to-site variance: for indent-scale heterogeneity",
-    "aeni-ivr": "aeni-plus with variance-reduction acquisition and jointly planned programs (ablation)",
-    "aeni-tight": "ablation: aeni with tight 2×2 local grids and no exploratory phase, guard on",
-    "aeni-unguarded": "ablation: aeni-tight with no length-scale floor, prior or collapse guard",
+    "aeni-paper": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
 }
 
+_PAPER_GRID = ReplicateGrid(adaptive_grid=True, local_hop_um=500.0, exploratory_iterations=4)
 
-def _features() -> dict[str, PlannerFeatures]:
-    from core.policies.planner import PlannerFeatures
 
-    aeni = PlannerFeatures(
-        cost_aware=True,
-        stay=True,
-        adaptive_grid=True,
-        adaptive_hold=True,
-        edge_penalty=True,
-        local_hop_um=500.0,
-        exploratory_iterations=4,
-        exploratory_local_limit=1,
-    )
-    from dataclasses import replace
-
-    # what this product adds to the paper's workflow, each measured on its own in the bench
-    plus = replace(aeni, centre_estimator="huber", bias_aware_hold=True, drift_correction=True)
-    # the collapse provocation's planner: many tight local grids from the first program on
-    tight = replace(
-        aeni, exploratory_iterations=0, adaptive_grid=False, fixed_g=2, local_hop_um=60.0, local_limit=20
-    )
+def _parts() -> dict[str, PolicyParts]:
+    fixed = ReplicateGrid()
     return {
-        "uncertainty": PlannerFeatures(cost_aware=False, stay=False),
-        "cost-aware": PlannerFeatures(cost_aware=True, stay=True),
-        "adaptive-grid": PlannerFeatures(cost_aware=True, stay=False, adaptive_grid=True),
-        "meta-grid": PlannerFeatures(cost_aware=True, stay=True, adaptive_grid=True, local_hop_um=500.0),
-        "adaptive-hold": PlannerFeatures(cost_aware=True, stay=True, adaptive_hold=True),
-        "adaptive-hold-corrected": PlannerFeatures(
-            cost_aware=True, stay=True, adaptive_hold=True, drift_correction=True
+        "aeni": PolicyParts(
+            noise=NoiseModel(drift_correction=True, outliers="student-t"),
+            acquisition=AcquisitionPart(kind="ivr"),
+            blocks=ScatteredSingles(),
+            hold=HoldRule(adaptive=True, bias_aware=True),
         ),
-        "aeni": aeni,
-        "aeni-bias-hold": replace(aeni, bias_aware_hold=True),
-        "aeni-plus": plus,
-        "aeni-nugget": replace(plus, surrogate_nugget=True),
-        "aeni-ivr": replace(plus, acquisition="ivr", edge_penalty=False, joint_program=True),
-        "aeni-tight": tight,
-        "aeni-unguarded": replace(tight, surrogate_guard="off", surrogate_floor=False),
+        "uncertainty": PolicyParts(
+            acquisition=AcquisitionPart(cost_aware=False), blocks=replace(fixed, stay=False)
+        ),
+        "cost-aware": PolicyParts(blocks=fixed),
+        "adaptive-grid": PolicyParts(blocks=ReplicateGrid(stay=False, adaptive_grid=True)),
+        "meta-grid": PolicyParts(blocks=ReplicateGrid(adaptive_grid=True, local_hop_um=500.0)),
+        "adaptive-hold": PolicyParts(blocks=fixed, hold=HoldRule(adaptive=True)),
+        "aeni-paper": PolicyParts(
+            acquisition=AcquisitionPart(edge_penalty=True), blocks=_PAPER_GRID, hold=HoldRule(adaptive=True)
+        ),
     }
 
 
+def _grid(parts: PolicyParts, **changes: object) -> PolicyParts:
+    if not isinstance(parts.blocks, ReplicateGrid):
+        raise InputError("--policy", "this modifier changes replicate grids, and the base has none")
+    return replace(parts, blocks=replace(parts.blocks, **changes))  # type: ignore[arg-type]
+
+
+# one setting of one part each; applied left to right after the base name
+MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
+    "drift-corr": (
+        "fast indents drift-corrected by Eq. 7 (noise model)",
+        lambda p: replace(p, noise=replace(p.noise, drift_correction=True)),
+    ),
+    "huber": (
+        "Huber centre values instead of the median (noise model)",
+        lambda p: replace(p, noise=replace(p.noise, centre_estimator="huber")),
+    ),
+    "gaussian": (
+        "no outlier rule: every value trusted as the noise model says (noise model)",
+        lambda p: replace(p, noise=replace(p.noise, outliers="none")),
+    ),
+    "bias-hold": (
+        "fast hold only where its bias is small against the aimed precision (hold rule)",
+        lambda p: replace(p, hold=replace(p.hold, bias_aware=True)),
+    ),
+    "nugget": (
+        "the GP learns a site-to-site variance (surrogate)",
+        lambda p: replace(p, surrogate=replace(p.surrogate, nugget=True)),
+    ),
+    "ivr": (
+        "integrated variance reduction, programs planned jointly (acquisition, block design)",
+        lambda p: _grid(
+            replace(p, acquisition=replace(p.acquisition, kind="ivr", edge_penalty=False)), joint_program=True
+        ),
+    ),
+    "tight": (
+        "many tight 2×2 local grids from the first program on (block design)",
+        lambda p: _grid(
+            p, exploratory_iterations=0, adaptive_grid=False, fixed_g=2, local_hop_um=60.0, local_limit=20
+        ),
+    ),
+    "unguarded": (
+        "no length-scale floor, prior or keep-last-good (collapse guard)",
+        lambda p: replace(p, guard=CollapseGuard(keep_last_good=False, floor=False)),
+    ),
+    "even": (
+        "no weighting to the map's structure: pure variance reduction (block design)",
+        lambda p: _singles(p, structure_weight=0.0),
+    ),
+}
+
+
+def _singles(parts: PolicyParts, **changes: object) -> PolicyParts:
+    if not isinstance(parts.blocks, ScatteredSingles):
+        raise InputError("--policy", "this modifier changes scattered singles, and the base has none")
+    return replace(parts, blocks=replace(parts.blocks, **changes))  # type: ignore[arg-type]
+
+
 def policy_names() -> tuple[str, ...]:
+    """The policies a user chooses from: the recommended one first, then the paper's references."""
     return tuple(POLICY_DESCRIPTIONS)
+
+
+def describe(name: str) -> str:
+    """One line for a policy or an ablation (tables, the report)."""
+    base, *mods = name.split("+")
+    text = POLICY_DESCRIPTIONS.get(base, base)
+    return text if not mods else f"{base} with " + "; ".join(MODIFIERS[m][0] for m in mods if m in MODIFIERS)
+
+
+def policy_parts(name: str) -> PolicyParts:
+    """The parts of a policy or an ablation ``BASE+modifier+...``; an unknown name is a one-line error."""
+    base, *mods = name.split("+")
+    table = _parts()
+    if base == "grid" and not mods:
+        return PolicyParts()
+    if base not in table:
+        raise InputError("--policy", f"unknown policy {base!r} (known: {', '.join(policy_names())})")
+    parts = table[base]
+    for m in mods:
+        if m not in MODIFIERS:
+            raise InputError(
+                "--policy", f"unknown modifier {m!r} in {name!r} (known: {', '.join(MODIFIERS)})"
+            )
+        parts = MODIFIERS[m][1](parts)
+    return parts
 
 
 def make_policy(name: str) -> Policy:
     from core.policies.grid import GridPolicy
     from core.policies.planner import BayesPlanner
+    from core.policies.scattered import ScatteredPlanner
 
+    parts = policy_parts(name)
     if name == "grid":
         return GridPolicy()
-    features = _features()
-    if name in features:
-        return BayesPlanner(name, features[name])
-    raise InputError("--policy", f"unknown policy {name!r} (known: {', '.join(policy_names())})")
+    if isinstance(parts.blocks, ScatteredSingles):
+        return ScatteredPlanner(name, parts)
+    return BayesPlanner(name, parts)

@@ -1,0 +1,40 @@
+"""The block design part: what one block of indents looks like, and how blocks make up programs.
+
+- ``ReplicateGrid`` (the paper): a g×g grid of indents at one centre, collapsed to one robust value; seed
+  grids first, then σ/cost choices between staying in the engaged program and a global jump.
+- ``ScatteredSingles`` (``aeni``): a block is several single indents spread over the area the program can
+  reach, ordered for travel; each indent is its own centre. The oracle study finds single indents about
+  1.7× more informative per indent than replicate grids, and one program serves many of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ReplicateGrid:
+    stay: bool = True  # may continue the engaged program with local blocks (no lift, engage or drift wait)
+    adaptive_grid: bool = False  # g from the predicted noise (SPEC §6.4) instead of fixed_g
+    n_seed_blocks: int = 2
+    seed_g: int = 5
+    fixed_g: int = 5
+    local_hop_um: float = 1000.0  # the meta-grid: 500 µm between consecutive sub-grids (safe band always)
+    exploratory_iterations: int = 0  # aeni-paper: the first programs after the seeds allow few local centres
+    exploratory_local_limit: int = 1
+    local_limit: int | None = None  # local centres per program; None: the operator's setting (default 5)
+    joint_program: bool = False  # price a jump with the sub-grids its program will run (planned jointly)
+
+
+@dataclass(frozen=True)
+class ScatteredSingles:
+    indents_per_block: int = 16  # singles per block: a refit after each block
+    # the space-filling start: this many singles on a low-discrepancy sequence before the model places any
+    space_filling_indents: int = 64
+    min_spacing_um: float = 15.0  # no two indents closer than this (site texture is shared below it)
+    # adaptive placement weighs the map where the model shows structure (its mean's gradient) up to this
+    # factor over flat parts; 0 is pure variance reduction (an even design under a stationary kernel)
+    structure_weight: float = 1.0
+
+
+BlockDesign = ReplicateGrid | ScatteredSingles

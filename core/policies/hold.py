@@ -1,0 +1,79 @@
+"""The hold rule part: fixed, or the paper's drift-aware 5 s / 80 s switch, optionally bias-aware.
+
+SPEC §6.6: a fast hold when the drift rate's area error is below 2 %. The bias-aware rule goes further: a
+fast hold leaves the drift in the hardness as a bias that more indents do not average out, so it is used
+only where that bias stays well below the map precision aimed at.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
+from core.profile import InstrumentProfile
+
+if TYPE_CHECKING:
+    from core.policies.base import PlanContext
+
+DRIFT_WINDOW = 12  # drift readings whose median the bias-aware hold trusts
+
+
+def choose_hold(
+    last_drift_rate_nm_s: float | None,
+    profile: InstrumentProfile,
+    threshold_pct: float = AREA_ERROR_THRESHOLD_PCT,
+) -> tuple[float, float | None]:
+    """SPEC §6.6: the profile's fast hold (5 s) when the last drift rate's area error is below 2 %, else
+    its default hold (80 s)."""
+    if last_drift_rate_nm_s is None:
+        return profile.default_hold_s, None
+    err = area_error_pct(last_drift_rate_nm_s)
+    return (profile.fast_hold_s if err < threshold_pct else profile.default_hold_s), err
+
+
+def robust_rate(readings: tuple[float, ...]) -> float:
+    """One drift reading is noisy: the median of the last DRIFT_WINDOW, unless the last reading alone breaks
+    the paper's 2 % rule (an event shows at once; the readings' own noise never sends a quiet run slow)."""
+    window = float(np.median(readings[-DRIFT_WINDOW:]))
+    last = float(readings[-1])
+    return max(window, last) if area_error_pct(last) >= AREA_ERROR_THRESHOLD_PCT else window
+
+
+@dataclass(frozen=True)
+class HoldRule:
+    adaptive: bool = False  # fast / slow from the drift rate (also when the operator sets hold_policy)
+    bias_aware: bool = False  # fast hold only where its bias is small against the precision aimed at
+    bias_fraction: float = 0.5  # "small": at most this fraction of the aimed map error
+
+    def choose(
+        self, ctx: PlanContext, map_rel_err: float | None, drift_corrected: bool = False
+    ) -> tuple[float, float | None, str]:
+        """(hold s, area error % or None, the hold mode shown in the console); ``drift_corrected``: the noise
+        model corrects fast indents by Eq. 7 (the mode says so). Holds are the profile's."""
+        if not (self.adaptive or ctx.settings.hold_policy == "adaptive"):
+            hold = ctx.fixed_hold_s
+            return hold, None, f"fixed {hold:g} s"
+        rate = ctx.last_drift_rate_nm_s
+        if self.bias_aware and ctx.recent_drift_rates_nm_s:
+            rate = robust_rate(ctx.recent_drift_rates_nm_s)
+        fast, slow = ctx.profile.fast_hold_s, ctx.profile.default_hold_s
+        hold, err = choose_hold(rate, ctx.profile)
+        mode = f"adaptive: {'fast' if hold == fast else 'slow'} {hold:g} s"
+        if self.bias_aware and hold == fast and err is not None and map_rel_err is None:
+            # the precision to aim at is not known until the seeds have shaped a model
+            hold = slow
+            mode = f"bias-aware: slow {slow:g} s until a model sets the precision to aim at"
+        elif self.bias_aware and hold == fast and err is not None and map_rel_err is not None:
+            # a fast hold leaves the drift in the hardness (bias ≈ the area error) and bias does not
+            # average out: worth it only where it stays well below the precision the map aims at
+            if err / 100.0 > self.bias_fraction * map_rel_err:
+                hold = slow
+                mode = f"bias-aware: slow {slow:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
+            else:
+                mode = f"bias-aware: fast {fast:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
+        if drift_corrected and hold < slow:
+            mode += "; drift-corrected"
+        return hold, err, mode

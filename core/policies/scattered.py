@@ -1,0 +1,301 @@
+"""The scattered-singles planner (``aeni``): blocks of single indents, each its own centre, ordered for travel.
+
+Why singles: the oracle study (benchmarks/oracle_bound.py) finds evenly spread single indents about 1.7×
+more informative per indent than replicate grids, because a grid spends g² indents on one point of a smooth
+map. One program (lift, engage, drift settle) then serves many singles: the only per-indent costs left are
+the indent, its hold and a short move.
+
+How a block is chosen:
+
+- a space-filling start: until ``space_filling_indents`` singles are in, each next indent is the candidate
+  farthest from every earlier one (a greedy maximin design), since a model fitted on a handful of points
+  cannot yet say where the map is unknown;
+- then integrated variance reduction of the relative map error (what MAPE counts) under the fitted kernel,
+  picked greedily with the posterior conditioned on the earlier picks, so one block spreads out by itself.
+  The reference points are weighted by 1/μ² and, where the fitted mean shows structure (a steep gradient),
+  up to ``1 + structure_weight`` times more: on a flat map that is an even design, on a structured one it
+  places more indents where the map bends;
+- every block is priced twice: staying in the engaged program (the safe band it can reach without a lift)
+  and opening a new one around the best candidate anywhere; the better gain per second wins;
+- the indents of a block stay within a box small enough that no hop needs a reconfiguration, and are
+  visited in a nearest-neighbour order improved by 2-opt.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from core.cost import block_costs_for
+from core.plan import Alternative, Block, BlockKind, Decision, IndentSpec
+from core.policies.base import PlanContext, alternatives, base_mask, block_costs_s, reachable_mask
+from core.policies.blocks import ScatteredSingles
+from core.policies.parts import PolicyParts
+from core.policies.planner import aim_rel_error
+from core.policies.variance import PosteriorCov
+
+MAX_CANDIDATES = 2500  # candidates scored per decision (a large lattice is thinned evenly)
+REFERENCE_N = 24  # reference points per side on which the relative map error is integrated
+FULL_WEIGHT_REL_SLOPE = 2.0  # a relative slope (per side of the area) that gets the full structure weight
+BOX_FRACTION = 0.45  # a block's indents lie within ± this × the reconfiguration threshold of its anchor
+
+
+class ScatteredPlanner:
+    """Blocks of scattered single indents (see the module docstring)."""
+
+    def __init__(self, name: str, parts: PolicyParts) -> None:
+        if not isinstance(parts.blocks, ScatteredSingles):
+            raise TypeError(
+                f"{name}: ScatteredPlanner plans scattered singles, not {type(parts.blocks).__name__}"
+            )
+        self.name = name
+        self.parts = parts
+        self.design: ScatteredSingles = parts.blocks
+
+    def propose(self, ctx: PlanContext) -> Decision | None:
+        d = self.design
+        allowed = base_mask(ctx, 0.0)
+        if not allowed.any():
+            return None
+        cand = np.flatnonzero(allowed)
+        if len(cand) > MAX_CANDIDATES:
+            cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
+        map_rel_err = aim_rel_error(ctx) if self.parts.hold.bias_aware else None
+        hold, err, hold_mode = self.parts.hold.choose(ctx, map_rel_err, self.parts.noise.drift_correction)
+        exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
+        value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
+        xy = ctx.lattice.xy_um[cand]
+        box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
+        options: list[tuple[BlockKind, list[int], float, float]] = []  # kind, picks, hold, gain
+        prog_hold = ctx.program_hold_s
+        if (
+            ctx.program_open
+            and ctx.program_center_um is not None
+            and prog_hold is not None
+            and prog_hold >= hold
+        ):
+            # a running program keeps its hold; one slower than needed may still be worth staying in
+            here = ctx.position_um
+            band = reachable_mask(ctx, ctx.program_center_um, here, 0.0, math.inf, idx=cand)
+            band &= _in_box(xy, here, box)
+            if band.any():
+                picks, gain = self._batch(value, xy, band, None, ctx)
+                options.append(("local", picks, prog_hold, gain))
+        alts = self._alternatives(ctx, cand, value.gains(), hold)
+        first = value.best(np.ones(len(cand), dtype=bool))
+        anchor = (float(xy[first, 0]), float(xy[first, 1]))
+        band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
+        band[first] = True
+        picks, gain = self._batch(value, xy, band, first, ctx)
+        options.append(("global", picks, hold, gain))
+
+        best: tuple[float, Block, float, BlockKind, float] | None = None
+        rates: dict[str, float] = {}
+        for kind, idx, h, gain in options:
+            block = self._block(ctx, kind, xy[idx], h, anchor if kind == "global" else None)
+            cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
+            rate = gain / cost if cost > 0 else 0.0
+            rates[kind] = rate
+            if best is None or rate > best[0]:
+                best = (rate, block, cost, kind, gain)
+        assert best is not None
+        rate, block, cost, kind, gain = best
+        what = "maximin spacing" if exploring else "IVR"
+        if kind == "local":
+            reason = f"stay: {block.n_indents} singles, {what}/cost {rate:.3g} ≥ jump {rates['global']:.3g}"
+        elif "local" in rates:
+            reason = f"jump: {block.n_indents} singles, {what}/cost {rate:.3g} > stay {rates['local']:.3g}"
+        else:
+            reason = f"new program: {block.n_indents} singles around the best candidate ({what})"
+        return Decision(
+            block=block,
+            policy=self.name,
+            acquisition=gain,
+            score=rate,
+            predicted_cost_s=cost,
+            stay_score=rates.get("local"),
+            jump_score=rates.get("global"),
+            alternatives=alts,
+            reason=reason,
+            phase="explore" if exploring else "exploit",
+            hold_mode=hold_mode if kind == "global" else f"program hold {block.hold_s:g} s",
+            area_error_pct=err,
+        )
+
+    def _alternatives(
+        self, ctx: PlanContext, cand: np.ndarray, gain: np.ndarray, hold_s: float
+    ) -> tuple[Alternative, ...]:
+        """Other places to open the next program, by the gain of one indent there (what a veto moves to);
+        the cost shown is that of opening a program there for one indent."""
+        n = len(ctx.lattice.xy_um)
+        score = np.full(n, -np.inf)
+        score[cand] = gain
+        cost = np.full(n, np.inf)
+        cost[cand] = block_costs_s(ctx, ctx.lattice.xy_um[cand], 1, hold_s, "global")
+        order = np.argsort(-score, kind="stable")[: len(cand)]
+        return alternatives(ctx, order, score, score, cost, np.full(n, "global"), skip=1)
+
+    def _batch(
+        self, value: _Value, xy: np.ndarray, mask: np.ndarray, first: int | None, ctx: PlanContext
+    ) -> tuple[list[int], float]:
+        """Greedy picks (each conditioned on the earlier ones) within ``mask``, kept apart by the spacing."""
+        free = mask.copy()
+        picks: list[int] = []
+        gain = 0.0
+        spacing = max(self.design.min_spacing_um, ctx.r_excl_um)
+        for _ in range(self.design.indents_per_block):
+            j = first if first is not None and not picks else value.best(free)
+            if j is None:
+                break
+            gain += value.take(j)
+            picks.append(j)
+            free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
+            if not free.any():
+                break
+        return picks, gain
+
+    def _block(
+        self,
+        ctx: PlanContext,
+        kind: BlockKind,
+        pts: np.ndarray,
+        hold_s: float,
+        centre: tuple[float, float] | None,
+    ) -> Block:
+        start = ctx.position_um if kind == "local" else (centre if centre is not None else ctx.position_um)
+        order = travel_order(pts, start, ctx)
+        if kind == "global" and centre is not None:
+            # the program is engaged at its first indent: the anchor, where the safe band is centred
+            k = int(np.argmin(np.hypot(pts[order, 0] - centre[0], pts[order, 1] - centre[1])))
+            order = order[k:] + order[:k] if k else order
+        p = pts[order]
+        cx, cy = centre if centre is not None else (float(p[0, 0]), float(p[0, 1]))
+        if kind == "local" and ctx.program_center_um is not None:
+            cx, cy = ctx.program_center_um
+        return Block(
+            block_id=ctx.block_id,
+            kind=kind,
+            center_x_um=float(cx),
+            center_y_um=float(cy),
+            grid_g=1,
+            pitch_um=ctx.pitch_um,
+            hold_s=hold_s,
+            indents=tuple(IndentSpec(float(x), float(y), hold_s) for x, y in p),
+        )
+
+
+def _in_box(xy: np.ndarray, at: tuple[float, float], half_um: float) -> np.ndarray:
+    return np.asarray((np.abs(xy[:, 0] - at[0]) < half_um) & (np.abs(xy[:, 1] - at[1]) < half_um))
+
+
+def travel_order(pts: np.ndarray, start: tuple[float, float], ctx: PlanContext) -> list[int]:
+    """A short path through ``pts`` from ``start``: nearest neighbour, then 2-opt, on the stage's move times."""
+    n = len(pts)
+    if n <= 1:
+        return list(range(n))
+    move = ctx.profile.move.axis_s_array
+    allp = np.vstack([np.asarray(start, dtype=float)[None, :], pts])
+    dist = move(allp[:, None, 0] - allp[None, :, 0]) + move(allp[:, None, 1] - allp[None, :, 1])
+    route = [0]
+    left = set(range(1, n + 1))
+    while left:
+        last = route[-1]
+        nxt = min(left, key=lambda j: dist[last, j])
+        route.append(nxt)
+        left.remove(nxt)
+    improved = True
+    while improved:
+        improved = False
+        for i in range(1, n):
+            for k in range(i + 1, n + 1):
+                a, b = route[i - 1], route[i]
+                c = route[k]
+                e = route[k + 1] if k + 1 <= n else None
+                before = dist[a, b] + (dist[c, e] if e is not None else 0.0)
+                after = dist[a, c] + (dist[b, e] if e is not None else 0.0)
+                if after < before - 1e-9:
+                    route[i : k + 1] = route[i : k + 1][::-1]
+                    improved = True
+    return [j - 1 for j in route[1:]]
+
+
+class _Value:
+    """What one more single indent at candidate j adds; ``take`` commits it so the next pick sees it."""
+
+    def best(self, mask: np.ndarray) -> int | None:
+        raise NotImplementedError
+
+    def gains(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def take(self, j: int) -> float:
+        raise NotImplementedError
+
+
+class _Maximin(_Value):
+    """Distance (in u, v) to the nearest earlier indent: the greedy space-filling design."""
+
+    def __init__(self, ctx: PlanContext, cand: np.ndarray) -> None:
+        self.uv = ctx.lattice.uv[cand]
+        done = ctx.indents_xy_um
+        if len(done):
+            u, v = ctx.calibration.to_uv(done[:, 0], done[:, 1])
+            done_uv = np.column_stack([u, v])
+            self.d = np.min(np.hypot(*(self.uv[:, None, :] - done_uv[None, :, :]).transpose(2, 0, 1)), axis=1)
+        else:
+            # nothing yet: start from the candidate nearest the area's centre
+            self.d = 1.0 - np.hypot(self.uv[:, 0] - 0.5, self.uv[:, 1] - 0.5)
+
+    def best(self, mask: np.ndarray) -> int | None:
+        if not mask.any():
+            return None
+        return int(np.flatnonzero(mask)[np.argmax(self.d[mask])])
+
+    def gains(self) -> np.ndarray:
+        return np.asarray(self.d, dtype=float).copy()
+
+    def take(self, j: int) -> float:
+        gain = float(self.d[j])
+        self.d = np.minimum(self.d, np.hypot(self.uv[:, 0] - self.uv[j, 0], self.uv[:, 1] - self.uv[j, 1]))
+        return gain
+
+
+class _Ivr(_Value):
+    """Integrated variance reduction of the relative map error under the fitted kernel (y-free but for
+    the weights, which the fitted mean sets)."""
+
+    def __init__(self, ctx: PlanContext, cand: np.ndarray, structure_weight: float) -> None:
+        pred, gp = ctx.prediction, ctx.gp
+        assert pred is not None and gp is not None and ctx.tested_noise_var_gpa2 is not None
+        lat = ctx.lattice
+        n = lat.n
+        step = max(1, n // REFERENCE_N)
+        rows = np.arange(step // 2, n, step)
+        ref_idx = (rows[:, None] * n + rows[None, :]).ravel()
+        mu = np.maximum(np.abs(pred.mean[ref_idx]), 1e-6)
+        w = 1.0 / mu**2  # relative error: what MAPE counts
+        if structure_weight > 0:
+            # relative slope of the fitted mean per unit of (u, v): 0 on a flat map, ≥ 1 where it bends hard
+            grad_v, grad_u = np.gradient(pred.mean.reshape(n, n), lat.pitch_uv[0])
+            rel = np.hypot(grad_u, grad_v).ravel()[ref_idx] / mu
+            w = w * (1.0 + structure_weight * np.minimum(rel / FULL_WEIGHT_REL_SLOPE, 1.0))
+        u, v = ctx.calibration.to_uv(ctx.tested_xy_um[:, 0], ctx.tested_xy_um[:, 1])
+        self.model = PosteriorCov.build(
+            gp, np.column_stack([u, v]), ctx.tested_noise_var_gpa2, lat.uv[cand], lat.uv[ref_idx], w
+        )
+        self.noise_var = pred.noise_sd[cand] ** 2 + gp.site_var_gpa2  # one indent: no estimator loss
+
+    def best(self, mask: np.ndarray) -> int | None:
+        if not mask.any():
+            return None
+        gain = self.model.gain(self.noise_var)
+        return int(np.flatnonzero(mask)[np.argmax(gain[mask])])
+
+    def gains(self) -> np.ndarray:
+        return self.model.gain(self.noise_var)
+
+    def take(self, j: int) -> float:
+        gain = float(self.model.gain(self.noise_var)[j])
+        self.model = self.model.condition_on(j, float(self.noise_var[j]))
+        return gain

@@ -143,7 +143,8 @@ def test_detached_engine_outlives_its_launcher_and_obeys_abort(tmp_path: Path) -
     journal = tmp_path / "runs" / "bg.sqlite"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     argv = [sys.executable, "-m", "aeni_console.cli", "run", "--detach", "--journal", str(journal), "--speed", "500",
-            "--lattice-n", "30", "--budget-s", "30000", "--seed", "5"]  # fmt: skip
+            "--lattice-n", "30", "--budget-s", "30000", "--seed", "5",
+            "--policy", "cost-aware"]  # 5×5 blocks: an abort lands inside the first ones  # fmt: skip
     out = subprocess.run(argv, capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert f"journal {journal}" in out.stdout

@@ -21,7 +21,7 @@ def _handler(args: argparse.Namespace) -> int:
     if args.render_from is not None:
         return _render(Path(args.render_from), out)
     config = BenchConfig.make(quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios)
-    n_runs = sum(len(s.policies) for s in config.scenarios) * config.seeds
+    n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()
     done = 0
 

@@ -10,3 +10,7 @@ class InputError(ValueError):
         self.source = source
         self.problem = problem
         super().__init__(f"{source}: {problem}")
+
+    def __reduce__(self) -> tuple[type[InputError], tuple[str, str]]:
+        # picklable with its two fields: a worker process (the bench's) can hand it back
+        return (type(self), (self.source, self.problem))

@@ -127,9 +127,11 @@ def test_failed_and_not_run_indents_are_journaled_as_such(tmp_path: Path) -> Non
 def test_the_campaign_learns_only_from_measured_indents(tmp_path: Path) -> None:
     from drivers.sim.scenarios import make_scenario
 
+    # a replicate-grid policy: each block is one centre (aeni would make one centre per indent)
     scenario = make_scenario("ternary", 4)
     campaign = Campaign(
-        make_campaign_config(seed=4, lattice_n=12, settings={"budget_s": 1e6}), scenario.sample
+        make_campaign_config(policy="cost-aware", seed=4, lattice_n=12, settings={"budget_s": 1e6}),
+        scenario.sample,
     )
     driver = scenario.make_driver(campaign.profile)
 

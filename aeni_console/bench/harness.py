@@ -237,6 +237,12 @@ def _set_threads() -> None:
     torch.set_num_threads(1)
 
 
+def _is_robust(name: str) -> bool:
+    from drivers.sim.robust_fields import ROBUST_FIELDS
+
+    return name in ROBUST_FIELDS
+
+
 def _scenario(spec: RunSpec, driver_options: dict[str, Any]) -> Any:
     """The simulated instrument's scenario (sample + truth) of a bench scenario: built in, or a
     robustness field."""
@@ -262,7 +268,8 @@ def run_one(spec: RunSpec) -> RunRecord:
     cfg = make_campaign_config(
         f"bench-{scen.key}-{spec.policy}-{spec.seed}",
         policy=spec.policy,
-        scenario=scen.scenario,
+        # a robustness field stands on the ternary library's stage (its Scenario is passed below)
+        scenario="ternary" if _is_robust(scen.scenario) else scen.scenario,
         truth_csv=spec.truth_csv,
         seed=spec.seed,
         lattice_n=spec.lattice_n,

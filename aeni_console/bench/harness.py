@@ -87,6 +87,7 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
         "Quaternary film, film profile with the 520 s jump, good drift (paper Figs 7, 8)",
         ("grid", "aeni-paper", "aeni"),
         maps_for=("aeni-paper", "aeni"),
+        max_seeds=SUITE_SEEDS,
     ),
     BenchScenario(
         "good-drift",
@@ -153,10 +154,32 @@ class BenchConfig:
 
     @classmethod
     def make(
-        cls, quick: bool, seeds: int | None = None, jobs: int = 2, only: str | None = None
+        cls,
+        quick: bool,
+        seeds: int | None = None,
+        jobs: int = 2,
+        only: str | None = None,
+        policies: str | None = None,
     ) -> BenchConfig:
-        """``only``: a comma-separated subset of the scenario keys (an unknown key is an error)."""
+        """``only``: a comma-separated subset of the scenario keys (an unknown key is an error);
+        ``policies``: only these policies (and the grid, which sets every target) on each scenario."""
         config = cls._make(quick, seeds, jobs)
+        if policies is not None:
+            from core.policies.registry import policy_parts
+
+            keep = [p.strip() for p in policies.split(",") if p.strip()]
+            for p in keep:
+                try:
+                    policy_parts(p)
+                except InputError as exc:
+                    raise InputError("--policies", exc.problem) from None
+            config = replace(
+                config,
+                scenarios=tuple(
+                    replace(sc, policies=tuple(p for p in sc.policies if p == "grid" or p in keep))
+                    for sc in config.scenarios
+                ),
+            )
         if only is None:
             return config
         keys = [k.strip() for k in only.split(",") if k.strip()]

@@ -20,7 +20,9 @@ def _handler(args: argparse.Namespace) -> int:
         raise InputError(str(out), "--out must be a folder, and this is a file")
     if args.render_from is not None:
         return _render(Path(args.render_from), out)
-    config = BenchConfig.make(quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios)
+    config = BenchConfig.make(
+        quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios, policies=args.policies
+    )
     n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()
     done = 0
@@ -95,6 +97,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default=None,
         metavar="KEY[,KEY...]",
         help="run only these bench scenarios (keys as in RESULTS.md: ternary, good-drift, film, ...)",
+    )
+    p.add_argument(
+        "--policies",
+        default=None,
+        metavar="P[,P...]",
+        help="score only these policies (the grid always runs: it sets every target)",
     )
     p.add_argument(
         "--dask",

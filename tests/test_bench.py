@@ -222,9 +222,9 @@ def test_render_from_results_json_gives_the_same_report(
     assert "rendered" in capsys.readouterr().out
     old = (out / "RESULTS.md").read_text(encoding="utf-8").splitlines()
     new = (again / "RESULTS.md").read_text(encoding="utf-8").splitlines()
-    assert "Rendered again from the run's `results.json`" in new[4]
+    assert "Rendered again from the run's `results.json`" in new[6]
     # the tables come from the stored runs; the map drawn by the run is kept
-    assert new[:4] + new[6:] == old
+    assert new[:6] + new[8:] == old
     # not bench output: one line, exit 2
     bad = tmp_path / "bad.json"
     bad.write_text('{"runs": []}', encoding="utf-8")

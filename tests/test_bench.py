@@ -290,9 +290,8 @@ def test_robustness_fields_have_the_character_they_are_named_for() -> None:
 
 
 def test_an_indent_on_a_pore_reads_half_and_the_scenario_keeps_the_ternary_stage() -> None:
-    from core.emulator import make_scenario
-
     from drivers.sim.robust_fields import robust_scenario
+    from drivers.sim.scenarios import make_scenario
 
     s = robust_scenario("outliers", 3)
     base = make_scenario("ternary", 3)

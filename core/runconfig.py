@@ -281,6 +281,8 @@ def load_run_config(path: str | Path | None = None, overrides: dict[str, Any] | 
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(src, "no such config file") from None
+    except IsADirectoryError:
+        raise InputError(src, "is a folder, not a config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(src, f"cannot read config ({exc})") from None
     try:

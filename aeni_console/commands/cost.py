@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-from pathlib import Path
 
-from aeni_console.commands.common import dumps, ledger_table, positive_float, whole_number
+from aeni_console.commands.common import dumps, input_file, ledger_table, positive_float, whole_number
 from core.cost import CostLedger, grid_baseline_blocks, price_sequence
 from core.errors import InputError
 from core.plan import Block, IndentSpec
@@ -42,9 +41,7 @@ def _grid(args: argparse.Namespace) -> int:
 
 
 def _read_path(path: str, default_hold_s: float, allowed: tuple[float, ...]) -> list[IndentSpec]:
-    src = Path(path)
-    if not src.is_file():
-        raise InputError(path, "no such file")
+    src = input_file(path)
     try:
         text = src.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -93,7 +90,7 @@ def _path(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    fit = fit_move_model(args.file)
+    fit = fit_move_model(input_file(args.file))
     m = fit.model
     text = (
         "[move]\n"

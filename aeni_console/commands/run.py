@@ -20,7 +20,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from aeni_console.commands.common import positive_float
+from aeni_console.commands.common import (
+    check_new_journal,
+    check_out_folder,
+    check_resumable_journal,
+    positive_float,
+)
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
 
@@ -84,10 +89,7 @@ def start_engine_process(
     the Popen handle, or with ``detach`` the PID of a process in its own session that survives the
     caller's terminal closing. InputError when the engine exits before creating its journal.
     """
-    journal = Path(journal_path)
-    if journal.exists():
-        raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
-    journal.parent.mkdir(parents=True, exist_ok=True)
+    journal = check_new_journal(journal_path)
     log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
     with open(log, "ab") as fh:
         proc = subprocess.Popen(
@@ -212,6 +214,7 @@ def run_engine(
         if row.get("completed"):
             _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
             return 0
+        check_resumable_journal(path)
         try:
             config = campaign_config_from_dict(meta["config"])
         except InputError as exc:
@@ -274,6 +277,8 @@ def resolve_run(arg: str, runs_dir: str | Path = "runs") -> Path:
     p = Path(arg)
     if p.is_file():
         return p
+    if p.is_dir():
+        raise InputError(arg, "is a folder, not a journal file (`aeni runs FOLDER` lists the runs in it)")
     d = Path(runs_dir)
     matches = sorted(d.glob(f"*{arg}*.sqlite")) if d.is_dir() and "/" not in arg else []
     if len(matches) == 1:
@@ -323,8 +328,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     journal = (
         Path(options.journal) if options.journal else default_journal_path(config.name, options.runs_dir)
     )
-    if journal.exists():
-        raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
+    check_new_journal(journal)
     if args.detach:
         pid = start_engine_process(
             config,
@@ -351,6 +355,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
     if args.detach:
         with JournalReader(path):
             pass  # refuse a bad journal here, not in the log of a detached process
+        check_resumable_journal(path)
         argv = [sys.executable, "-m", ENGINE_MODULE, "resume", str(path), "--quiet"]
         if args.speed is not None:
             argv += ["--speed", repr(args.speed)]
@@ -563,6 +568,7 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
 
 def _cmd_export(args: argparse.Namespace) -> int:
     path = resolve_run(args.run)
+    check_out_folder(args.out)
     written = export_run(path, args.out, args.format)
     print(f"wrote {len(written)} tables to {args.out}: {', '.join(p.name for p in written)}")
     return 0

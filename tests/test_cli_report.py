@@ -1,0 +1,124 @@
+"""`aeni report RUN`: a finished supervised demo run gives figures that show what happened, and a summary."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeni_console.cli import main
+from core.campaign import Campaign, CampaignConfig
+from core.engine import Engine
+from core.journal import Journal, send_command
+from core.plan import PlannerSettings
+from core.runview import Command, CommandKind, EngineState
+
+pytest.importorskip("matplotlib")
+
+FIGURES = ("maps.png", "time.png", "uncertainty.png", "drift.png", "decisions.png")
+
+
+def _demo_run(tmp_path: Path) -> Path:
+    """A short supervised emulator run (the demo's config) where the operator vetoes one jump, approves the rest."""
+    config = CampaignConfig(
+        policy="cost-aware",
+        scenario="ternary",
+        seed=0,
+        name="demo",
+        settings=PlannerSettings(budget_s=14_000),
+    )
+    campaign = Campaign(config)
+    path = tmp_path / "demo.sqlite"
+    journal = Journal.create(
+        path,
+        config,
+        campaign.profile,
+        campaign.calibration.to_dict(),
+        supervision="supervised",
+        grid_baseline_s=campaign.grid_baseline_s,
+        stage_bounds_um=campaign.stage_bounds_um,
+        name="demo",
+    )
+    answers = [CommandKind.VETO, CommandKind.APPROVE]
+    engine: Engine | None = None
+
+    def operator(_s: float) -> None:
+        assert engine is not None
+        if engine.state == EngineState.AWAITING_APPROVAL:
+            kind = answers.pop(0) if answers else CommandKind.APPROVE
+            send_command(path, Command(kind, author="tester"))
+
+    engine = Engine(journal, campaign, campaign.make_sim_driver(), "supervised", poll_s=0.01, sleep=operator)
+    try:
+        assert engine.run() == EngineState.STOPPED
+    finally:
+        journal.close()
+    return path
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _demo_run(tmp_path_factory.mktemp("report"))
+
+
+def _image(path: Path) -> np.ndarray:
+    import matplotlib.image as mpimg
+
+    return np.asarray(mpimg.imread(path))
+
+
+def test_report_writes_figures_with_content(demo_run: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = demo_run.parent / "notebook"
+    assert main(["report", str(demo_run), "--out", str(out)]) == 0
+    assert "wrote 6 files" in capsys.readouterr().out
+    for name in FIGURES:
+        img = _image(out / name)
+        h, w = img.shape[:2]
+        assert w >= 600 and h >= 300, f"{name} is {w}×{h}"
+        rgb = img[..., :3]
+        assert rgb.std() > 0.05, f"{name} is blank"
+        # more than a frame and some text: a figure with data has many distinct colours
+        assert len(np.unique((rgb * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 40, name
+    # the maps are drawn with the viridis map of the GP mean: its dark-purple end and its yellow end are there
+    maps = _image(out / "maps.png")[..., :3]
+    purple = (np.abs(maps - np.array([0.27, 0.0, 0.33])).sum(axis=-1) < 0.12).sum()
+    yellow = (np.abs(maps - np.array([0.99, 0.91, 0.14])).sum(axis=-1) < 0.12).sum()
+    assert purple > 200 and yellow > 200
+
+
+def test_report_summary_names_what_happened(demo_run: Path) -> None:
+    from aeni_console.runreport import read_run, truth_mape_pct
+
+    out = demo_run.parent / "summary-check"
+    assert main(["report", str(demo_run), "--out", str(out)]) == 0
+    text = (out / "summary.md").read_text(encoding="utf-8")
+    data = read_run(demo_run)
+    statuses = {d.status for d in data.decisions}
+    assert {"vetoed", "approved"} <= statuses
+    assert f"{len(data.indents)} indents" in text
+    assert "vetoed" in text and "approved" in text
+    mape = truth_mape_pct(data)
+    assert mape is not None and f"MAPE {mape[0]:.2f} %" in text
+    # the report's MAPE, on the stored map, agrees with the one the engine recorded on its own lattice
+    assert data.recorded_mape_pct is not None
+    assert mape[0] == pytest.approx(data.recorded_mape_pct, rel=0.25)
+    for name in FIGURES:
+        assert f"]({name})" in text
+
+
+def test_report_of_a_real_run_claims_no_truth(demo_run: Path) -> None:
+    from aeni_console.runreport import read_run, summary_markdown, truth_mape_pct
+
+    data = read_run(demo_run)
+    data.driver = "kla"
+    assert truth_mape_pct(data) is None
+    assert "not known (a real sample has no ground truth)" in summary_markdown(data, [], None)
+
+
+def test_report_refuses_a_file_as_out_folder(demo_run: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = demo_run.parent / "a-file"
+    blocker.write_text("x", encoding="utf-8")
+    assert main(["report", str(demo_run), "--out", str(blocker)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a-file" in err and "is a file" in err

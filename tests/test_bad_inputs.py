@@ -282,6 +282,7 @@ def test_bad_input(
         code = int(exc.code or 0)
     out, err = capsys.readouterr()
     assert code == 2, f"exit {code}; stderr: {err!r}"
+    assert out == "", f"stdout: {out!r}"
     assert "Traceback" not in err
     assert err.count("\n") == 1 and err.startswith("aeni: "), err
     for needle in case.needles:

@@ -624,8 +624,40 @@ def _cmd_send(args: argparse.Namespace) -> int:
         with JournalReader(path) as reader:
             payload = check_adjust(payload, reader.profile.allowed_holds_s)
     cid = send_command(path, Command(CommandKind(args.kind), author=getpass.getuser(), payload=payload))
-    print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")
-    return 0
+    if args.no_wait:
+        print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")
+        return 0
+    verdict = wait_for_verdict(path, cid, args.wait_s)
+    if verdict is None:
+        print(
+            f"command {cid} ({args.kind}) queued; no verdict within {args.wait_s:g} s (the engine answers "
+            f"at its next checkpoint, after the indent in progress): see `aeni status {path}`"
+        )
+        return SEND_NO_VERDICT
+    outcome, reason = verdict
+    print(f"command {cid} ({args.kind}) {outcome}" + (f": {reason}" if reason else ""))
+    return 0 if outcome == "accepted" else SEND_REJECTED
+
+
+SEND_REJECTED = 1  # the engine refused the command (bad input refused before queueing exits 2)
+SEND_NO_VERDICT = 3  # still queued: the engine did not answer within the wait
+
+
+def wait_for_verdict(
+    path: Path, command_id: int, wait_s: float, poll_s: float = 0.05
+) -> tuple[str, str] | None:
+    """The engine's (outcome, reason) for a queued command, or None when it has not answered within wait_s."""
+    from core.journal import JournalReader
+
+    deadline = time.monotonic() + wait_s
+    with JournalReader(path) as reader:
+        while True:
+            row = next((c for c in reader.commands() if c["command_id"] == command_id), None)
+            if row is not None and row["processed"]:
+                return str(row["outcome"]), str(row["reason"] or "")
+            if time.monotonic() >= deadline:
+                return None
+            time.sleep(poll_s)
 
 
 def register(subparsers: Any) -> None:
@@ -675,7 +707,8 @@ def register(subparsers: Any) -> None:
     send = subparsers.add_parser(
         "send",
         help="send an operator command to a running engine (owner only)",
-        description="Queue an operator command in the run's journal; the engine applies it at its next checkpoint.",
+        description="Queue an operator command in the run's journal, wait (bounded) for the engine's verdict and "
+        "print it. Exit 0 accepted, 1 rejected by the engine, 2 refused before queueing, 3 no verdict yet.",
     )
     send.add_argument("run", metavar="RUN")
     send.add_argument(
@@ -690,6 +723,19 @@ def register(subparsers: Any) -> None:
         nargs="*",
         metavar="FIELD=VALUE",
         help="adjust: settings to change; veto: hold_blocks=N; confirm/report/skip: the token or site",
+    )
+    send.add_argument(
+        "--no-wait",
+        dest="no_wait",
+        action="store_true",
+        help="only queue the command; do not wait for the verdict",
+    )
+    send.add_argument(
+        "--wait-s",
+        dest="wait_s",
+        type=positive_float("--wait-s"),
+        default=5.0,
+        help="how long to wait for the engine's verdict (default 5 s; exit 3 when it has not answered)",
     )
     send.set_defaults(func=_cmd_send)
 

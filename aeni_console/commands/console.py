@@ -2,12 +2,14 @@
 
 The console attaches to the journal, never to the engine process: leaving it (``q``) never stops the
 run, and any number of consoles may watch (only the owner's may command). ``aeni demo`` starts an
-emulator run as a detached engine process, slowed to a watchable pace, and attaches to it.
+emulator run as a detached engine process, slowed to a watchable pace, and attaches to it; when that
+console quits, the demo's engine is stopped too (``--stay`` keeps it), so demos never pile up.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +41,9 @@ def leave_message(journal: Path, pid: int | None = None) -> str:
     return "\n".join(lines)
 
 
-def run_console(journal: Path, replay: bool = False, pid: int | None = None, **app_kwargs: Any) -> int:
+def run_console(
+    journal: Path, replay: bool = False, pid: int | None = None, *, leave: bool = True, **app_kwargs: Any
+) -> int:
     from aeni_console.app import ConsoleApp
     from aeni_console.journal_source import JournalReplay, JournalSource
 
@@ -48,9 +52,35 @@ def run_console(journal: Path, replay: bool = False, pid: int | None = None, **a
         ConsoleApp(source, replay=replay, **app_kwargs).run()
     finally:
         source.close()
-    if not replay:
+    if not replay and leave:
         print(leave_message(journal, pid))
     return 0
+
+
+def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
+    """Stop an engine process as Ctrl-C would (finish the indent, lift, stop; the journal stays resumable).
+
+    SIGTERM first; SIGKILL only if it has not ended after ``grace_s`` (every finished indent is already in
+    the journal, so even that loses nothing). Returns what happened, in words.
+    """
+    import os
+    import signal
+    import time
+
+    from core.journal import engine_running
+
+    try:
+        os.kill(pid, signal.SIGTERM)
+    except ProcessLookupError:
+        return "the engine had already ended"
+    deadline = time.monotonic() + grace_s
+    while engine_running(journal) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if engine_running(journal):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+        return f"the engine (PID {pid}) did not stop within {grace_s:g} s and was killed"
+    return f"the demo's engine (PID {pid}) stopped"
 
 
 def _cmd_console(args: argparse.Namespace) -> int:
@@ -75,7 +105,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     )
     pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)
     assert isinstance(pid, int)
-    return run_console(journal, pid=pid)
+    if args.stay:
+        return run_console(journal, pid=pid)
+    try:
+        run_console(journal, pid=pid, leave=False)
+    finally:
+        print(f"{stop_engine(pid, journal)}; step through the run: aeni console --replay {journal}")
+    return 0
 
 
 def register(subparsers: Any) -> None:
@@ -110,5 +146,10 @@ def register(subparsers: Any) -> None:
         help="auto | supervised (default: global jumps wait) | step (every block waits)",
     )
     demo.add_argument("--journal", help="journal path (default ./runs/<UTC time>-demo.sqlite)")
+    demo.add_argument(
+        "--stay",
+        action="store_true",
+        help="keep the engine running after the console quits (default: quitting stops the demo's engine)",
+    )
     demo.add_argument("--runs-dir", dest="runs_dir", default="runs", help=argparse.SUPPRESS)
     demo.set_defaults(func=_cmd_demo)

@@ -8,58 +8,19 @@ import numpy as np
 import pytest
 
 from aeni_console.cli import main
-from core.campaign import Campaign, CampaignConfig
-from core.engine import Engine
-from core.journal import Journal, send_command
-from core.plan import PlannerSettings
-from core.runview import Command, CommandKind, EngineState
 
 pytest.importorskip("matplotlib")
 
 FIGURES = ("maps.png", "time.png", "uncertainty.png", "drift.png", "decisions.png")
 
 
-def _demo_run(tmp_path: Path) -> Path:
-    """A short supervised emulator run (the demo's config) where the operator vetoes one jump, approves the rest."""
-    config = CampaignConfig(
-        policy="cost-aware",
-        scenario="ternary",
-        seed=0,
-        name="demo",
-        settings=PlannerSettings(budget_s=14_000),
-    )
-    campaign = Campaign(config)
-    path = tmp_path / "demo.sqlite"
-    journal = Journal.create(
-        path,
-        config,
-        campaign.profile,
-        campaign.calibration.to_dict(),
-        supervision="supervised",
-        grid_baseline_s=campaign.grid_baseline_s,
-        stage_bounds_um=campaign.stage_bounds_um,
-        name="demo",
-    )
-    answers = [CommandKind.VETO, CommandKind.APPROVE]
-    engine: Engine | None = None
-
-    def operator(_s: float) -> None:
-        assert engine is not None
-        if engine.state == EngineState.AWAITING_APPROVAL:
-            kind = answers.pop(0) if answers else CommandKind.APPROVE
-            send_command(path, Command(kind, author="tester"))
-
-    engine = Engine(journal, campaign, campaign.make_sim_driver(), "supervised", poll_s=0.01, sleep=operator)
-    try:
-        assert engine.run() == EngineState.STOPPED
-    finally:
-        journal.close()
-    return path
-
-
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _demo_run(tmp_path_factory.mktemp("report"))
+    """A finished demo run (supervised) where the operator vetoes the first jump and approves the rest."""
+    from aeni_console.scripted import run_supervised
+
+    path = tmp_path_factory.mktemp("report") / "demo.sqlite"
+    return run_supervised(path, {"name": "demo", "planner.budget_s": 14_000}, answers=("veto", "approve"))
 
 
 def _image(path: Path) -> np.ndarray:

@@ -38,7 +38,7 @@ MEANINGS: dict[str, str] = {
     "planner.hold_policy": "fixed holds, or adaptive holds from the measured drift",
     "planner.fixed_hold_s": "the hold of every indent with the fixed hold policy",
     "planner.local_center_limit": "local centres after a global jump before the planner must jump again",
-    "planner.edge_penalty": "acquisition multiplier near the edges (1 = no penalty)",
+    "planner.edge_penalty": "how strongly the acquisition is damped near the sample's edges",
     "planner.budget_s": "stop before the instrument time would pass this (default: the grid baseline's time)",
     "planner.indent_budget": "stop before the number of indents would pass this",
     "planner.sigma_target_gpa": "stop when the mean epistemic sd falls below this",
@@ -100,7 +100,7 @@ def _custom_rule(model: type[BaseModel], name: str) -> str:
     except ValidationError as exc:
         for err in exc.errors():
             if tuple(err["loc"]) == (name,) and err["type"] == "value_error":
-                return str(err["msg"]).replace("Value error, ", "")
+                return str(err["msg"]).replace("Value error, ", "").removeprefix("expected ")
     return ""
 
 
@@ -115,6 +115,25 @@ def _default(field: Any) -> str:
     return f"`{field.default!r}`".replace("'", '"')
 
 
+def _setting_rule(name: str) -> Any | None:
+    from core.settings import RULE_BY_NAME
+
+    return RULE_BY_NAME.get(name)
+
+
+def _rule_row(dotted: str, rule: Any, meaning: str) -> tuple[str, str, str, str, str]:
+    """A planner knob from its rule (core.settings) and the PlannerSettings default."""
+    from core.plan import PlannerSettings
+
+    kind = {"number": "number", "whole": "whole number", "choice": "text", "hold": "number"}[rule.kind]
+    default = getattr(PlannerSettings(), rule.name)
+    shown = "none" if default is None else f"`{default!r}`".replace("'", '"')
+    if default is None and rule.kind == "hold":
+        shown = "the profile's default hold"
+    optional = " (optional)" if rule.optional else ""
+    return (dotted, kind + optional, shown, rule.allowed(None), meaning)
+
+
 def field_rows(model: type[BaseModel], prefix: str = "") -> list[tuple[str, str, str, str, str]]:
     """(dotted name, type, default, allowed, meaning) for every leaf field, in the model's order."""
     rows: list[tuple[str, str, str, str, str]] = []
@@ -123,6 +142,10 @@ def field_rows(model: type[BaseModel], prefix: str = "") -> list[tuple[str, str,
         ann = field.annotation
         if isinstance(ann, type) and issubclass(ann, BaseModel):
             rows += field_rows(ann, dotted + ".")
+            continue
+        rule = _setting_rule(name) if ann is Any else None
+        if rule is not None:  # a planner knob: its one rule lives in core.settings
+            rows.append(_rule_row(dotted, rule, field.description or MEANINGS.get(dotted, "")))
             continue
         literals = _literal_values(ann)
         allowed = [", ".join(f"`{v}`" for v in literals)] if literals else []

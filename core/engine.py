@@ -34,7 +34,7 @@ from core.journal import DriverState, Journal, user_name
 from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.runview import CommandKind, EngineState, MapFields
-from core.settings import coerce_supervision
+from core.settings import check_veto, coerce_supervision
 
 if TYPE_CHECKING:
     from core.surrogate import FitReport  # the refit's report (torch stays out of the engine's import)
@@ -468,9 +468,10 @@ class Engine:
         if stale:
             return "rejected", stale
         did, decision, _ = self._pending
-        hold = payload.get("hold_blocks")
-        if hold is not None and (isinstance(hold, bool) or not isinstance(hold, int) or hold < 1):
-            return "rejected", f"hold_blocks {hold!r} is not allowed: expected a whole number ≥ 1"
+        try:
+            hold = check_veto(payload)
+        except InputError as exc:
+            return "rejected", str(exc)
         if hold is None:
             self.campaign.veto(decision)
         else:

@@ -226,6 +226,17 @@ CASES: tuple[Case, ...] = (
     Case("send-no-equals", ("send", "{run}", "adjust", "beta"), ("beta", "field=value")),
     Case("send-kind", ("send", "{run}", "explode"), ("explode",)),
     Case("send-finished", ("send", "{run}", "pause"), ("no engine is running",)),
+    Case(
+        "send-edge-penalty", ("send", "{run}", "adjust", "edge_penalty=0.99"), ("edge_penalty", "0 to 0.95")
+    ),
+    Case(
+        "send-adjust-unknown", ("send", "{run}", "adjust", "speed=2"), ("speed", "not an adjustable setting")
+    ),
+    Case("send-adjust-hold", ("send", "{run}", "adjust", "fixed_hold_s=30"), ("fixed_hold_s", "0, 5, 80")),
+    Case("send-beta-text", ("send", "{run}", "adjust", "beta=high"), ("beta",)),
+    Case("send-veto-hold", ("send", "{run}", "veto", "hold_blocks=0"), ("hold_blocks", "whole number ≥ 1")),
+    Case("send-pause-field", ("send", "{run}", "pause", "now=1"), ("now", "is not a field of pause")),
+    Case("send-wait-zero", ("send", "{run}", "pause", "--wait-s", "0"), ("--wait-s",)),
     Case("console-missing", ("console", "{t}/gone.sqlite"), ("gone.sqlite",)),
     Case("demo-speed", ("demo", "--speed", "0"), ("--speed",)),
     Case("demo-seed", ("demo", "--seed", "x"), ("--seed",)),

@@ -623,6 +623,17 @@ def _cmd_send(args: argparse.Namespace) -> int:
 
         with JournalReader(path) as reader:
             payload = check_adjust(payload, reader.profile.allowed_holds_s)
+    # the other commands' fields, by the same rules the engine applies: nothing the engine must reject is queued
+    allowed = {"veto": ("hold_blocks", "decision_id"), "approve": ("decision_id",), "step": ("decision_id",)}
+    if args.kind != "adjust":
+        extra = [k for k in payload if k not in allowed.get(args.kind, ())]
+        if extra:
+            takes = ", ".join(allowed.get(args.kind, ())) or "no fields"
+            raise InputError(extra[0], f"is not a field of {args.kind} (it takes {takes})")
+    if args.kind == "veto":
+        from core.settings import check_veto
+
+        check_veto(payload)
     cid = send_command(path, Command(CommandKind(args.kind), author=getpass.getuser(), payload=payload))
     if args.no_wait:
         print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")

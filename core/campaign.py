@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from core.cost import CostLedger
+from core.cost import CostLedger, indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency
@@ -157,6 +157,7 @@ class Campaign:
         self._last_fit: FitReport | None = None
         self.last_score: MapScore | None = None
         self.last_stop_reason: str | None = None
+        self.budget_note = ""  # how the last block was sized to fit a budget, for the stop reason
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
@@ -207,10 +208,11 @@ class Campaign:
 
     def stop_reason(self, clock_s: float) -> str | None:
         s = self.settings
+        note = f"; {self.budget_note}" if self.budget_note else ""
         if s.budget_s is not None and clock_s >= s.budget_s:
-            return f"instrument-time budget reached ({clock_s:,.0f} s ≥ {s.budget_s:,.0f} s)"
+            return f"instrument-time budget reached ({clock_s:,.0f} s of {s.budget_s:,.0f} s){note}"
         if s.indent_budget is not None and len(self.indents_xy) >= s.indent_budget:
-            return f"indent budget reached ({len(self.indents_xy)} indents)"
+            return f"indent budget reached ({len(self.indents_xy)} of {s.indent_budget} indents){note}"
         if s.sigma_target_gpa is not None and self.prediction is not None:
             mean_sd = float(np.mean(self.prediction.epistemic_sd))
             if mean_sd < s.sigma_target_gpa:
@@ -269,15 +271,56 @@ class Campaign:
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
             return None
+        return self._fit_budgets(decision, clock_s, position_um, program_open)
+
+    def _fit_budgets(
+        self, decision: Decision, clock_s: float, position_um: tuple[float, float], program_open: bool
+    ) -> Decision | None:
+        """Budgets are never exceeded: the next block keeps only the indents that both budgets can pay for.
+
+        The time budget pays for the block's steps and the closing comeback to the lens; when not even its
+        first indent fits, the run stops here and the stop reason says so.
+        """
         s = self.settings
-        if s.budget_s is not None and clock_s + decision.predicted_cost_s > s.budget_s * 1.02:
-            # do not start a block the budget cannot pay for
-            self.last_stop_reason = (
-                f"instrument-time budget: the next block ({decision.predicted_cost_s:,.0f} s) would pass "
-                f"{s.budget_s:,.0f} s at {clock_s:,.0f} s"
-            )
-            return None
-        return decision
+        block = decision.block
+        keep = block.n_indents
+        if s.indent_budget is not None:
+            keep = min(keep, s.indent_budget - len(self.indents_xy))
+        if s.budget_s is not None:
+            left_s = s.budget_s - clock_s - self.profile.comeback_s
+            spent, pos, fits = 0.0, position_um, 0
+            for i in range(keep):
+                spent += sum(st.seconds for st in indent_steps(self.profile, block, i, pos, program_open))
+                if spent > left_s + 1e-9:
+                    break
+                fits, pos = i + 1, (block.indents[i].x_um, block.indents[i].y_um)
+            if fits == 0:
+                self.last_stop_reason = (
+                    f"instrument-time budget: {max(left_s, 0.0):,.0f} s left of {s.budget_s:,.0f} s after the "
+                    f"comeback, not enough for one more indent (the next block needs "
+                    f"{decision.predicted_cost_s:,.0f} s){'; ' + self.budget_note if self.budget_note else ''}"
+                )
+                return None
+            keep = fits
+        if keep >= block.n_indents:
+            return decision
+        which = (
+            "indent"
+            if s.indent_budget is not None and keep == s.indent_budget - len(self.indents_xy)
+            else "time"
+        )
+        self.budget_note = f"the last block was cut to {keep} of its {block.n_indents} indents to stay within the {which} budget"
+        cut = dataclasses.replace(block, indents=block.indents[:keep])
+        pos, cost = position_um, 0.0
+        for i in range(keep):
+            cost += sum(st.seconds for st in indent_steps(self.profile, cut, i, pos, program_open))
+            pos = (cut.indents[i].x_um, cut.indents[i].y_um)
+        return dataclasses.replace(
+            decision,
+            block=cut,
+            predicted_cost_s=cost,
+            reason=f"{decision.reason}; {self.budget_note}" if decision.reason else self.budget_note,
+        )
 
     def veto(self, decision: Decision, hold_blocks: int = VETO_HOLD_BLOCKS) -> None:
         b = decision.block
@@ -490,5 +533,7 @@ def run_headless(
     for event in driver.end_program():
         result.ledger.add(event)
     result.instrument_s = driver.clock_s()
-    result.stop_reason = early or campaign.stop_reason(driver.clock_s()) or "policy finished"
+    result.stop_reason = (
+        early or campaign.stop_reason(driver.clock_s()) or campaign.last_stop_reason or "policy finished"
+    )
     return result

@@ -3,7 +3,8 @@
 A truth file written in MPa under ``hardness_gpa``, or a path in nm under ``x_um``, parses as numbers and
 would run; these checks stop it before anything is computed, with one line that says what the value
 would be in the unit that was probably meant. The hardness and modulus limits are physics (nothing is
-harder or stiffer than diamond); the stage's travel is the instrument profile's.
+harder or stiffer than diamond); the stage limit is generous on purpose (a sample file's own
+``stage_rect_um`` says where a particular stage may go).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from core.errors import InputError
 # Diamond, the hardest and stiffest material known: ~70–150 GPa hardness, ~1,050–1,220 GPa modulus.
 MAX_HARDNESS_GPA = 150.0
 MAX_MODULUS_GPA = 1_250.0
+# No nanoindenter stage reaches further than ±200 mm from its origin (the iMicro's exports sit at 40–130 mm).
+MAX_STAGE_UM = 200_000.0
 
 _UNIT_GUESSES_GPA = (("MPa", 1e-3), ("kPa", 1e-6), ("Pa", 1e-9))
 _UNIT_GUESSES_UM = (("nm", 1e-3), ("Å", 1e-4), ("pm", 1e-6), ("mm", 1e3), ("m", 1e6))
@@ -64,7 +67,7 @@ def check_noise_sd_gpa(source: str, value: float, hardness_gpa: float, name: str
 
 
 def check_stage_um(
-    source: str, name: str, value: float, lo_um: float, hi_um: float, what: str = "the stage's travel"
+    source: str, name: str, value: float, lo_um: float, hi_um: float, what: str = "the reach of any stage"
 ) -> float:
     """A stage coordinate in µm within [lo_um, hi_um]; outside, say which unit would put it inside."""
     if not math.isfinite(value):

@@ -158,7 +158,7 @@ CASES: tuple[Case, ...] = (
     ),
     # ---- simulate -------------------------------------------------------------------------------
     Case("sim-truth-missing", ("simulate", "--truth", "{t}/t.csv"), ("t.csv",)),
-    Case("sim-truth-folder", ("simulate", "--truth", "{t}/t"), ("t",), {"t": DIR}),
+    Case("sim-truth-folder", ("simulate", "--truth", "{t}/t"), ("t", "is a folder"), {"t": DIR}),
     Case(
         "sim-truth-columns",
         ("simulate", "--truth", "{t}/t.csv"),
@@ -182,6 +182,38 @@ CASES: tuple[Case, ...] = (
         ("simulate", "--truth", "{t}/t.csv"),
         ("t.csv",),
         {"t.csv": LATTICE_CSV.replace("4.5", "-4.5")},
+    ),
+    Case(
+        "sim-truth-in-mpa",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "line 2", "hardness_gpa 3000 GPa is impossible", "looks like MPa"),
+        {"t.csv": LATTICE_CSV.replace("0,0,3", "0,0,3000")},
+    ),
+    Case(
+        "sim-truth-noise-in-mpa",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "line 2", "noise_sd_gpa 80 GPa", "MPa"),
+        {
+            "t.csv": "x_um,y_um,hardness_gpa,noise_sd_gpa\n0,0,3,80\n1000,0,4,0.1\n0,1000,5,0.1\n1000,1000,6,0.1\n"
+        },
+    ),
+    Case(
+        "sim-truth-in-nm",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "x_um 1e+06 µm", "looks like nm"),
+        {"t.csv": LATTICE_CSV.replace("1000,", "1000000,")},
+    ),
+    Case(
+        "path-far-away",
+        ("cost", "path", "{t}/p.csv"),
+        ("p.csv", "line 3: x_um 1e+12 µm"),
+        {"p.csv": "x_um,y_um\n0,0\n1e12,0\n"},
+    ),
+    Case(
+        "path-in-nm",
+        ("cost", "path", "{t}/p.csv"),
+        ("p.csv", "looks like nm"),
+        {"p.csv": "x_um,y_um\n50000000,0\n"},
     ),
     Case("sim-scenario", ("simulate", "--scenario", "ternery"), ("ternery",)),
     Case("sim-seed-neg", ("simulate", "--seed", "-1"), ("--seed",)),
@@ -244,7 +276,7 @@ CASES: tuple[Case, ...] = (
     Case("kla-not-excel", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx",), {"e.xlsx": "test,h\n1,2\n"}),
     Case("kla-missing", ("kla", "read", "{t}/e.xls"), ("e.xls",)),
     Case("kla-empty", ("kla", "read", "{t}/e.xls"), ("e.xls",), {"e.xls": b""}),
-    Case("kla-folder", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx",), {"e.xlsx": DIR}),
+    Case("kla-folder", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx", "is a folder"), {"e.xlsx": DIR}),
     # ---- the command line itself ----------------------------------------------------------------
     Case("no-command", (), ("COMMAND",)),
     Case("unknown-command", ("indent",), ("indent",)),

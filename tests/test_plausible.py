@@ -44,9 +44,11 @@ def test_noise_as_large_as_the_value_is_refused() -> None:
 
 
 def test_stage_coordinates_name_the_unit() -> None:
-    with pytest.raises(InputError, match=r"x_um 5e\+07 µm is outside the stage's travel .*looks like nm"):
+    with pytest.raises(InputError, match=r"x_um 5e\+07 µm is outside the reach of any stage .*looks like nm"):
         check_stage_um("p.csv: line 4", "x_um", 5e7, 0.0, 100_000.0)
-    with pytest.raises(InputError, match=r"x_um 1e\+12 µm is outside the stage's travel \(0 to 100000 µm\)$"):
+    with pytest.raises(
+        InputError, match=r"x_um 1e\+12 µm is outside the reach of any stage \(0 to 100000 µm\)$"
+    ):
         check_stage_um("p.csv", "x_um", 1e12, 0.0, 100_000.0)
     with pytest.raises(InputError, match="not a finite number"):
         check_stage_um("p.csv", "y_um", float("nan"), 0.0, 100_000.0)

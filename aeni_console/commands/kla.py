@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.commands.common import dumps, positive_float, seed_arg, write_atomic
+from aeni_console.commands.common import dumps, input_file, positive_float, seed_arg, write_atomic
 from core.errors import InputError
 
 if TYPE_CHECKING:
@@ -81,7 +81,7 @@ def register(subparsers: Any) -> None:
 def _read(args: argparse.Namespace) -> int:
     from drivers.kla.export import read_kla_export, records  # pandas/scipy load only when used
 
-    export = read_kla_export(args.file)
+    export = read_kla_export(input_file(args.file, "export file"))
     if args.csv is not None:
         write_csv_atomic(export, args.csv)
     for note in export.warnings:

@@ -49,6 +49,7 @@ MEANINGS: dict[str, str] = {
     "run.journal": "journal path (default: a new file in runs_dir)",
     "run.speed": "simulated instrument speed-up over real time (default: as fast as possible)",
     "run.runs_dir": "the folder for new journals",
+    "run.group": "the OS group that may watch the run (journal 0640; only the owner commands): docs/security.md",
 }
 
 

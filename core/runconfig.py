@@ -106,6 +106,7 @@ class RunSection(_Strict):
     journal: str | None = None
     speed: float | None = Field(default=None, gt=0)
     runs_dir: str = "runs"
+    group: str | None = Field(default=None, min_length=1)
 
     @field_validator("supervision")
     @classmethod
@@ -134,6 +135,7 @@ class RunOptions:
     speed: float | None = None  # None: as fast as possible; f: f× faster than the real instrument
     runs_dir: str = "runs"
     exchange: str | None = None  # driver kla: the exchange folder
+    group: str | None = None  # the OS group that may watch the run (its journal is 0640); None: the owner's
 
 
 @dataclass(frozen=True)
@@ -241,6 +243,10 @@ def parse_run_config(
         sample=sample,
         driver_options=driver_options,
     )
+    if r.group is not None:
+        from core.access import journal_gid
+
+        journal_gid(r.group, f"{source}: field run.group")  # an unusable group is refused before the run
     options = RunOptions(
         driver=r.driver,
         supervision=r.supervision,
@@ -248,6 +254,7 @@ def parse_run_config(
         speed=r.speed,
         runs_dir=r.runs_dir,
         exchange=exchange,
+        group=r.group,
     )
     return RunConfig(campaign=campaign, options=options)
 

@@ -26,6 +26,7 @@ from aeni_console.commands.common import (
     check_resumable_journal,
     positive_float,
 )
+from core.access import journal_gid, protect
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
 
@@ -52,6 +53,7 @@ def engine_argv(
     speed: float | None = None,
     driver: str = "sim",
     exchange: str | None = None,
+    group: str | None = None,
 ) -> list[str]:
     """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
     from core.campaign import campaign_config_to_dict
@@ -68,6 +70,8 @@ def engine_argv(
         argv += ["--speed", repr(float(speed))]
     if exchange is not None:
         argv += ["--exchange", str(exchange)]
+    if group is not None:
+        argv += ["--group", group]
     return argv
 
 
@@ -82,6 +86,7 @@ def start_engine_process(
     wait_s: float = 60.0,
     driver: str = "sim",
     exchange: str | None = None,
+    group: str | None = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -92,8 +97,9 @@ def start_engine_process(
     journal = check_new_journal(journal_path)
     log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
     with open(log, "ab") as fh:
+        protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
-            engine_argv(config, journal, supervision, speed, driver, exchange),
+            engine_argv(config, journal, supervision, speed, driver, exchange, group=group),
             stdin=subprocess.DEVNULL,
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -155,7 +161,13 @@ def _print(line: str) -> None:
 
 
 def create_run_journal(
-    path: Path, config: Any, campaign: Any, supervision: str, driver: str = "sim", speed: float | None = None
+    path: Path,
+    config: Any,
+    campaign: Any,
+    supervision: str,
+    driver: str = "sim",
+    speed: float | None = None,
+    group: str | None = None,
 ) -> Any:
     """A new journal for ``campaign``'s run (the engine process, and the console tests' engine)."""
     from core.campaign import campaign_config_to_dict
@@ -172,6 +184,7 @@ def create_run_journal(
         grid_baseline_s=campaign.grid_baseline_s,
         stage_bounds_um=campaign.stage_bounds_um,
         name=config.name,
+        group_gid=journal_gid(group),
     )
 
 
@@ -204,7 +217,7 @@ def run_engine(
             config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
         campaign = Campaign(with_sample(config, options.driver))
         journal = create_run_journal(
-            path, config, campaign, options.supervision, options.driver, options.speed
+            path, config, campaign, options.supervision, options.driver, options.speed, group=options.group
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
     else:
@@ -303,6 +316,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "run.supervision": args.supervision,
         "run.journal": args.journal,
         "run.speed": args.speed,
+        "run.group": args.group,
     }
 
 
@@ -338,6 +352,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             detach=True,
             driver=options.driver,
             exchange=options.exchange,
+            group=options.group,
         )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
@@ -689,6 +704,7 @@ def register(subparsers: Any) -> None:
     run.add_argument("--supervision", help="auto | supervised | step")
     run.add_argument("--journal", help="journal path (default ./runs/<UTC time>-<name>.sqlite)")
     run.add_argument("--speed", help="simulated instrument speed-up (default: as fast as possible)")
+    run.add_argument("--group", help="OS group that may watch the run (journal 0640); see docs/security.md")
     run.add_argument("--name", help="run name")
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")

@@ -185,10 +185,22 @@ def _stage_axes(ax: Any, data: RunData) -> None:
 def _overlay(ax: Any, data: RunData, indents: bool = True) -> None:
     closed = np.vstack([data.outline_xy_um, data.outline_xy_um[:1]])
     ax.plot(closed[:, 0], closed[:, 1], color="black", lw=1.2, label="sample outline")
-    if indents and data.indents:
-        xs = [r.actual_x_um for r in data.indents]
-        ys = [r.actual_y_um for r in data.indents]
+    measured = [r for r in data.indents if r.measured]
+    missing = [r for r in data.indents if not r.measured]
+    if indents and measured:
+        xs = [r.actual_x_um for r in measured]
+        ys = [r.actual_y_um for r in measured]
         ax.scatter(xs, ys, s=4, c="white", edgecolors="black", linewidths=0.3, label="indents", zorder=3)
+    if indents and missing:  # where they were commanded: the instrument reported no value there
+        ax.scatter(
+            [r.commanded_x_um for r in missing],
+            [r.commanded_y_um for r in missing],
+            s=14,
+            marker="x",
+            c="tab:orange",
+            label="failed or not run",
+            zorder=4,
+        )
     if data.avoid_centers_um:
         ax_x, ax_y = zip(*data.avoid_centers_um, strict=True)
         ax.scatter(ax_x, ax_y, s=60, marker="x", c="tab:red", label="excluded centres", zorder=4)
@@ -264,7 +276,9 @@ def _uncertainty_figure(plt: Any, data: RunData, out: Path) -> Path:
 def _drift_figure(plt: Any, data: RunData, out: Path) -> Path:
     fig, ax = plt.subplots(figsize=(8, 4.2), constrained_layout=True)
     pts = [
-        (r.t_s / 3600, r.drift_rate_nm_s, r.hold_s) for r in data.indents if math.isfinite(r.drift_rate_nm_s)
+        (r.t_s / 3600, r.drift_rate_nm_s, r.hold_s)
+        for r in data.indents
+        if math.isfinite(r.drift_rate_nm_s) and math.isfinite(r.t_s)
     ]
     if pts:
         t, rate, hold = zip(*pts, strict=True)
@@ -331,7 +345,9 @@ def _save(fig: Any, plt: Any, target: Path) -> Path:
 
 
 def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int] | None) -> str:
-    hard = [r.hardness_gpa for r in data.indents if math.isfinite(r.hardness_gpa)]
+    hard = [r.hardness_gpa for r in data.indents if r.measured]
+    n_failed = sum(1 for r in data.indents if r.status == "failed")
+    n_not_run = sum(1 for r in data.indents if r.status == "not_run")
     ops = [c for c in data.commands if c.get("kind") in ("approve", "veto", "adjust")]
     counts: dict[str, int] = defaultdict(int)
     for d in data.decisions:
@@ -346,7 +362,12 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         f"supervision `{data.supervision}`",
         f"- instrument time {data.instrument_s:,.0f} s ({data.instrument_s / 3600:.2f} h)"
         + (f"; the grid baseline would take {data.grid_baseline_s:,.0f} s" if data.grid_baseline_s else ""),
-        f"- {len(data.indents)} indents in {len({r.block_id for r in data.indents})} blocks",
+        f"- {len(hard)} indents measured in {len({r.block_id for r in data.indents})} blocks"
+        + (
+            f"; {n_failed} failed and {n_not_run} not run (no value, never learnt from)"
+            if n_failed + n_not_run
+            else ""
+        ),
     ]
     if hard:
         lines.append(
@@ -382,10 +403,15 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
 
 def write_report(path: str | Path, out_dir: str | Path) -> list[Path]:
     """Write maps.png, time.png, uncertainty.png, drift.png, decisions.png and summary.md to ``out_dir``."""
+    _pyplot()  # before reading anything: a missing matplotlib is said at once
+    return render_report(read_run(path), out_dir)
+
+
+def render_report(data: RunData, out_dir: str | Path) -> list[Path]:
+    """The figures and the summary of a run already read."""
     from aeni_console.commands.common import check_out_folder, write_atomic
 
     plt = _pyplot()
-    data = read_run(path)
     out = check_out_folder(out_dir)
     figures = [
         _map_figure(plt, data, out),

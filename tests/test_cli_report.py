@@ -69,12 +69,25 @@ def test_report_summary_names_what_happened(demo_run: Path) -> None:
 
 
 def test_report_of_a_real_run_claims_no_truth(demo_run: Path) -> None:
-    from aeni_console.runreport import read_run, summary_markdown, truth_mape_pct
+    import dataclasses
+    import math
+
+    from aeni_console.runreport import read_run, render_report, summary_markdown, truth_mape_pct
 
     data = read_run(demo_run)
     data.driver = "kla"
     assert truth_mape_pct(data) is None
     assert "not known (a real sample has no ground truth)" in summary_markdown(data, [], None)
+    # an instrument that reported no value: counted, never a number
+    nan = math.nan
+    data.indents[0] = dataclasses.replace(
+        data.indents[0], status="failed", hardness_gpa=nan, modulus_gpa=nan, note="surface not found"
+    )
+    text = summary_markdown(data, [], None)
+    assert f"{len(data.indents) - 1} indents measured" in text and "1 failed and 0 not run" in text
+    assert "nan" not in text.lower()
+    written = render_report(data, demo_run.parent / "with-a-failed-indent")  # and the figures still draw
+    assert len(written) == 6 and all(p.stat().st_size > 1_000 for p in written)
 
 
 def test_report_refuses_a_file_as_out_folder(demo_run: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -83,3 +96,34 @@ def test_report_refuses_a_file_as_out_folder(demo_run: Path, capsys: pytest.Capt
     assert main(["report", str(demo_run), "--out", str(blocker)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "a-file" in err and "is a file" in err
+
+
+def test_report_of_a_running_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A run whose engine is still going (here: waiting for approval) gets a report too, said to be a snapshot."""
+    import time
+
+    from aeni_console.commands.run import start_engine_process
+    from core.journal import JournalReader
+    from core.runconfig import load_run_config
+    from core.runview import EngineState
+
+    rc = load_run_config(None, {"name": "live", "planner.budget_s": 200_000})
+    journal = tmp_path / "live.sqlite"
+    proc = start_engine_process(rc.campaign, journal, "supervised", speed=1e5)
+    assert not isinstance(proc, int)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            with JournalReader(journal) as r:
+                if r.state()[0] == EngineState.AWAITING_APPROVAL:
+                    break
+            time.sleep(0.1)
+        assert main(["report", str(journal)]) == 0
+    finally:
+        proc.terminate()
+        proc.wait(timeout=60)
+    out_dir = journal.with_name("live.report")
+    text = (out_dir / "summary.md").read_text(encoding="utf-8")
+    assert "awaiting-approval (the engine is still running; a snapshot)" in text
+    for name in FIGURES:
+        assert (out_dir / name).stat().st_size > 5_000

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import grp
 import os
+import pwd
 import shutil
 import stat
 import subprocess
@@ -60,14 +61,23 @@ def _start(tmp_path: Path, group: str | None = None) -> tuple[Path, object]:
     raise TimeoutError("engine never waited for approval")
 
 
-@pytest.fixture
-def live(tmp_path: Path) -> Iterator[Path]:
-    journal, proc = _start(tmp_path)
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One supervised engine waiting for approval, shared by the tests that look at or command it.
+
+    Its folder is one other users may enter (pytest's own are 0700), so a test can try it as nobody.
+    """
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix="aeni-security-"))
+    folder.chmod(0o755)
+    journal, proc = _start(folder)
     try:
         yield journal
     finally:
         proc.terminate()  # type: ignore[attr-defined]
         proc.wait(timeout=60)  # type: ignore[attr-defined]
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def test_journal_and_its_side_files_are_0640(live: Path) -> None:
@@ -120,22 +130,14 @@ def test_an_unknown_group_is_refused_before_the_run(
 
 
 @pytest.mark.skipif(os.getuid() != 0 or shutil.which("setpriv") is None, reason="needs root and setpriv")
-def test_another_user_can_neither_command_nor_forge() -> None:
+def test_another_user_can_neither_command_nor_forge(live: Path) -> None:
     """nobody runs `aeni send`: one line, exit 2, and no row reaches the journal."""
-    import tempfile
-
-    folder = Path(tempfile.mkdtemp(prefix="aeni-security-"))  # a folder others may enter (pytest's may not)
-    folder.chmod(0o755)
-    live, engine = _start(folder)
-    try:
-        _send_as_nobody(live)
-    finally:
-        engine.terminate()  # type: ignore[attr-defined]
-        engine.wait(timeout=60)  # type: ignore[attr-defined]
-        shutil.rmtree(folder)
+    _send_as_nobody(live)
 
 
 def _send_as_nobody(live: Path) -> None:
+    with JournalReader(live) as r:
+        before = r.commands()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(
         ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-m",
@@ -144,6 +146,7 @@ def _send_as_nobody(live: Path) -> None:
     )  # fmt: skip
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1
-    assert "only the run's owner root may command it" in proc.stderr
+    owner = pwd.getpwuid(live.stat().st_uid).pw_name
+    assert f"only the run's owner {owner} may command it" in proc.stderr
     with JournalReader(live) as r:
-        assert r.commands() == []
+        assert r.commands() == before

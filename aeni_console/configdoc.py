@@ -1,16 +1,21 @@
 """docs/config.md, generated from the validators themselves so that it cannot drift from them.
 
-Every field, its type, its default and what is allowed come from the pydantic models that validate the
-run file; where a field is checked by a custom validator (a policy or a scenario name), the allowed
-values are that validator's own answer to a value it must refuse. Only the one-line meanings are
-written here, and a test fails when a field has none or when a meaning names a field that is gone.
+The run file: every field, its type, its default and what is allowed come from the pydantic models that
+validate it; where a field is checked by a custom validator (a policy name), the allowed values are that
+validator's own answer to a value it must refuse. The sample file: its fields are what its validator
+names when it refuses an unknown one, its defaults are what the validator fills in for a minimal
+sample, and the meanings are the comments of the template that ``aeni sample new`` writes. Only the
+meanings the template lacks are written here, and a test fails when a field has none or when a meaning
+names a field that is gone.
 
 Regenerate with ``python -m aeni_console.configdoc`` (``--check`` exits 1 when the file is stale).
 """
 
 from __future__ import annotations
 
+import re
 import sys
+import tomllib
 import types
 import typing
 from pathlib import Path
@@ -50,6 +55,25 @@ MEANINGS: dict[str, str] = {
     "run.speed": "simulated instrument speed-up over real time (default: as fast as possible)",
     "run.runs_dir": "the folder for new journals",
     "run.group": "the OS group that may watch the run (journal 0640; only the owner commands): docs/security.md",
+    "sample.file": "the sample file the run indents (default: the simulated scenario's built-in sample)",
+}
+
+# What the sample template's comments do not say (dotted name: one line).
+SAMPLE_MEANINGS: dict[str, str] = {
+    "name": "the sample's name, shown in the console and the report",
+    "corners.tl": "top-left corner { x_um, y_um, z_um } as read on the instrument",
+    "corners.tr": "top-right corner",
+    "corners.br": "bottom-right corner",
+    "corners.bl": "bottom-left corner (the origin of the sample's unit square)",
+    "exclusions": "a list of regions no indent may enter, each one [[exclusions]] table",
+    "exclusions[].circle_um": "a round region: [x, y, radius] in µm",
+    "exclusions[].polygon_um": "a polygonal region: [[x, y], ...] in µm, at least 3 vertices",
+    "earlier": "indents of earlier work on this sample, kept r_excl_um away from",
+    "earlier.indents_um": "earlier indents listed inline: [[x, y], ...] in µm",
+    "earlier.indents_csv": "a CSV of earlier indents (x_um, y_um), relative to the sample file",
+    "earlier.journals": "journals (.sqlite) of earlier runs on this sample",
+    "corners": "the four calibrated corners",
+    "safety": "the distances a run keeps",
 }
 
 
@@ -167,9 +191,83 @@ def _table(rows: list[tuple[str, str, str, str, str]]) -> list[str]:
     return out
 
 
+def _refusal(data: dict[str, Any]) -> str:
+    """The sample validator's one line for ``data`` (which must be refused)."""
+    from core.errors import InputError
+    from core.sample import parse_sample
+
+    try:
+        parse_sample(data, "probe")
+    except InputError as exc:
+        return exc.problem
+    raise AssertionError(f"the sample validator accepted {data!r}")
+
+
+def _allowed_keys(data: dict[str, Any]) -> list[str]:
+    """The field names the sample validator lists when it refuses an unknown one."""
+    found = re.search(r"\(allowed: ([^)]*)\)", _refusal(data))
+    if found is None:
+        raise AssertionError(f"the sample validator no longer lists the allowed fields: {_refusal(data)!r}")
+    return [k.strip() for k in found.group(1).split(",")]
+
+
+def _template_comments(template: str) -> dict[str, str]:
+    """``key = value  # comment`` lines of the template, by dotted key (section headers included)."""
+    out: dict[str, str] = {}
+    section = ""
+    for line in template.splitlines():
+        head = re.match(r"^\[+([a-z_]+)\]+\s*(?:#\s*(.*))?$", line.strip())
+        if head:
+            section = head.group(1)
+            if head.group(2):
+                out[section] = head.group(2).strip()
+            continue
+        m = re.match(r"^#?\s*([a-z_]+)\s*=.*?#\s*(.+)$", line.strip())
+        if m:
+            out[f"{section}.{m.group(1)}" if section else m.group(1)] = m.group(2).strip()
+    return out
+
+
+def sample_rows() -> list[tuple[str, str, str]]:
+    """(dotted name, default, meaning) for every field the sample validator accepts."""
+    from core.sample import SAMPLE_TEMPLATE, parse_sample
+
+    example = tomllib.loads(SAMPLE_TEMPLATE)
+    minimal = {"name": "probe", "corners": example["corners"]}
+    filled = parse_sample(minimal, "probe")  # what the validator fills in when a field is left out
+    defaults = {
+        "profile": filled.profile,
+        "lattice_n": filled.lattice_n,
+        "safety.dz_safe_um": filled.dz_safe_um,
+        "safety.r_excl_um": filled.r_excl_um,
+        "safety.edge_band_um": filled.edge_band_um,
+        "safety.stage_rect_um": list(filled.stage_rect_um),
+    }
+    comments = _template_comments(SAMPLE_TEMPLATE)
+    names: list[str] = []
+    for top in _allowed_keys({**minimal, "zzz_unknown": 1}):
+        names.append(top)
+        if top in ("safety", "earlier"):
+            names += [f"{top}.{k}" for k in _allowed_keys({**minimal, top: {"zzz_unknown": 1}})]
+        elif top == "corners":
+            names += [f"corners.{k}" for k in example["corners"]]
+        elif top == "exclusions":
+            names += [f"exclusions[].{k}" for k in ("circle_um", "polygon_um")]
+    rows = []
+    for name in names:
+        default = defaults.get(name)
+        shown = "required" if name in ("name", "corners") or name.startswith("corners.") else "—"
+        if default is not None:
+            shown = f"`{default!r}`".replace("'", '"')
+        meaning = comments.get(name) or SAMPLE_MEANINGS.get(name, "")
+        rows.append((name, shown, meaning))
+    return rows
+
+
 def render() -> str:
     """The whole of docs/config.md."""
     from core.runconfig import RunFile
+    from core.sample import SAMPLE_TEMPLATE
 
     rows = field_rows(RunFile)
     sections: dict[str, list[tuple[str, str, str, str, str]]] = {}
@@ -201,6 +299,26 @@ def render() -> str:
     for head, part in sections.items():
         lines += ["", f"### {f'[{head}]' if head else 'top level'}", ""]
         lines += _table(part)
+    lines += [
+        "",
+        "## The sample file (`sample.toml`: `aeni sample new` writes one, `aeni sample check` draws it)",
+        "",
+        "What is on the stage: its four corners as read on the instrument, the distances a run keeps, and",
+        "what no indent may touch. Every coordinate is in stage µm; the validator refuses values that look like",
+        "mm. A run names it in its run file (`[sample] file = ...`).",
+        "",
+        "| field | default | meaning |",
+        "| --- | --- | --- |",
+    ]
+    lines += [f"| `{n}` | {d} | {m} |" for n, d, m in sample_rows()]
+    lines += [
+        "",
+        "The template, which is itself a valid sample file:",
+        "",
+        "```toml",
+        SAMPLE_TEMPLATE.rstrip(),
+        "```",
+    ]
     return "\n".join(lines) + "\n"
 
 

@@ -45,6 +45,8 @@ class RunData:
     reverse_x: bool
     outline_xy_um: np.ndarray  # (4, 2) corners TL, TR, BR, BL
     avoid_centers_um: list[tuple[float, float]]
+    exclusions: tuple[Any, ...]  # the sample's CircleExclusion / PolygonExclusion regions
+    earlier_indents_um: list[tuple[float, float]]  # indents of earlier runs the sample file names
     indents: list[Any]  # IndentResult
     ledger_s: dict[str, float]
     instrument_s: float
@@ -97,6 +99,7 @@ def read_run(path: str | Path) -> RunData:
         else:
             x0, x1, y0, y1 = snap.stage_bounds_um
             outline = np.array([[x0, y1], [x1, y1], [x1, y0], [x0, y0]], dtype=float)
+        sample = _sample(meta)
         data = RunData(
             path=p,
             name=snap.run_name,
@@ -110,6 +113,8 @@ def read_run(path: str | Path) -> RunData:
             reverse_x=snap.reverse_x,
             outline_xy_um=outline,
             avoid_centers_um=[(float(x), float(y)) for x, y in snap.settings.avoid_centers_um],
+            exclusions=tuple(sample.exclusions) if sample is not None else (),
+            earlier_indents_um=[(float(x), float(y)) for x, y in sample.earlier_indents_um] if sample else [],
             indents=r.results(),
             ledger_s=dict(snap.ledger),
             instrument_s=snap.instrument_s,
@@ -125,6 +130,14 @@ def read_run(path: str | Path) -> RunData:
     return data
 
 
+def _sample(meta: dict[str, Any]) -> Any | None:
+    """The Sample the run indented, as its journal holds it (None for a journal without one)."""
+    from core.sample import sample_from_dict
+
+    raw = (meta.get("config") or {}).get("sample")
+    return None if raw is None else sample_from_dict(raw, "journal sample")
+
+
 # --------------------------------------------------------------------------------------------------
 # truth (simulated runs only)
 
@@ -133,20 +146,15 @@ def truth_mape_pct(data: RunData) -> tuple[float, int] | None:
     """MAPE (%) of the last stored mean map against the simulated truth at the same points, and their count.
 
     None for a run that is not simulated or has no map yet. The truth is rebuilt from the run's
-    configuration (scenario, seed, noise, truth file), exactly as the simulated instrument built it.
+    configuration (the driver's options, the seed and the sample), as the simulated instrument built it.
     """
     if data.driver != "sim" or data.final_map is None:
         return None
-    from core.emulator import make_scenario
+    from core.campaign import campaign_config_from_dict
+    from drivers.registry import sim_scenario
 
-    cfg = data.config
-    scenario = make_scenario(
-        str(cfg.get("scenario", "ternary")),
-        int(cfg.get("seed", 0)),
-        noise=cfg.get("noise"),
-        drift=cfg.get("drift"),
-        truth_csv=cfg.get("truth_csv"),
-    )
+    cfg = campaign_config_from_dict(data.config)
+    scenario = sim_scenario(cfg.driver_options, cfg.seed, cfg.sample)
     mf = data.final_map
     gx, gy = np.meshgrid(mf.x_um, mf.y_um)
     truth = np.asarray(scenario.truth.hardness_gpa(gx, gy), dtype=float)
@@ -183,6 +191,8 @@ def _stage_axes(ax: Any, data: RunData) -> None:
 
 
 def _overlay(ax: Any, data: RunData, indents: bool = True) -> None:
+    from matplotlib.patches import Circle, Polygon
+
     closed = np.vstack([data.outline_xy_um, data.outline_xy_um[:1]])
     ax.plot(closed[:, 0], closed[:, 1], color="black", lw=1.2, label="sample outline")
     measured = [r for r in data.indents if r.measured]
@@ -201,6 +211,17 @@ def _overlay(ax: Any, data: RunData, indents: bool = True) -> None:
             label="failed or not run",
             zorder=4,
         )
+    for i, region in enumerate(data.exclusions):
+        label = "sample exclusions" if i == 0 else None
+        if hasattr(region, "radius_um"):
+            patch: Any = Circle((region.x_um, region.y_um), region.radius_um)
+        else:
+            patch = Polygon(np.asarray(region.vertices_um, dtype=float), closed=True)
+        patch.set(facecolor=(0.8, 0.1, 0.1, 0.25), edgecolor="tab:red", hatch="//", label=label, zorder=3)
+        ax.add_patch(patch)
+    if data.earlier_indents_um:
+        ex, ey = zip(*data.earlier_indents_um, strict=True)
+        ax.scatter(ex, ey, s=6, marker="s", c="0.4", label="earlier runs' indents", zorder=3)
     if data.avoid_centers_um:
         ax_x, ax_y = zip(*data.avoid_centers_um, strict=True)
         ax.scatter(ax_x, ax_y, s=60, marker="x", c="tab:red", label="excluded centres", zorder=4)

@@ -53,3 +53,27 @@ def test_check_mode_reports_a_stale_file(tmp_path, monkeypatch, capsys) -> None:
     assert configdoc.main(["--check"]) == 1
     assert "stale" in capsys.readouterr().err
     assert configdoc.main([]) == 0 and configdoc.main(["--check"]) == 0
+
+
+def test_every_sample_field_is_documented_from_its_validator() -> None:
+    rows = configdoc.sample_rows()
+    names = [r[0] for r in rows]
+    assert [r[0] for r in rows if not r[2]] == []
+    assert set(configdoc.SAMPLE_MEANINGS) <= set(names), set(configdoc.SAMPLE_MEANINGS) - set(names)
+    for must in ("name", "corners.tl", "safety.r_excl_um", "safety.stage_rect_um", "exclusions[].circle_um"):
+        assert must in names
+    defaults = {r[0]: r[1] for r in rows}
+    from core.sample import Sample
+
+    assert (
+        defaults["safety.r_excl_um"] == f"`{Sample.r_excl_um!r}`"
+    )  # the dataclass default the validator uses
+
+
+def test_the_sample_template_in_the_doc_is_a_valid_sample_file() -> None:
+    from core.sample import SAMPLE_TEMPLATE, parse_sample
+
+    text = configdoc.DOC_PATH.read_text(encoding="utf-8")
+    assert SAMPLE_TEMPLATE.rstrip() in text
+    sample = parse_sample(tomllib.loads(SAMPLE_TEMPLATE), "template")
+    assert len(sample.exclusions) == 2

@@ -190,7 +190,7 @@ def test_simulate_json_stdout_is_only_json_even_when_libraries_warn(tmp_path: Pa
 
 
 def test_scenarios_exists_and_simulate_help_points_to_it(capsys: pytest.CaptureFixture[str]) -> None:
-    from core.emulator import SCENARIOS
+    from drivers.sim.scenarios import SCENARIOS
 
     code, out, _ = _run(capsys, "simulate", "--help")
     assert code == 0 and "aeni scenarios" in out

@@ -10,7 +10,7 @@ from aeni_console.commands.common import dumps
 
 def scenario_table() -> list[dict[str, str]]:
     """Every scenario name with its one-line description, in the registry's order."""
-    from core.emulator import SCENARIOS
+    from drivers.sim.scenarios import SCENARIOS
 
     return [{"name": name, "description": text} for name, text in SCENARIOS.items()]
 

@@ -28,6 +28,7 @@ class Case:
     files: dict[str, object] = field(default_factory=dict)  # name: text, bytes or DIR
 
 
+SAMPLE = 'name = "s"\n[corners]\ntl = { x_um = 0.0, y_um = 1000.0, z_um = 10.0 }\ntr = { x_um = 1000.0, y_um = 1000.0, z_um = 10.0 }\nbr = { x_um = 1000.0, y_um = 0.0, z_um = 10.0 }\nbl = { x_um = 0.0, y_um = 0.0, z_um = 10.0 }\n'
 LATTICE_CSV = "x_um,y_um,hardness_gpa\n0,0,3\n1000,0,4\n0,1000,5\n1000,1000,6\n500,500,4.5\n"
 
 CASES: tuple[Case, ...] = (
@@ -114,6 +115,32 @@ CASES: tuple[Case, ...] = (
         {"f": "a file, not a folder"},
     ),
     Case("journal-exists", ("run", "--journal", "{run}"), ("aeni resume",)),
+    # ---- sample files ---------------------------------------------------------------------------
+    Case("sample-missing", ("run", "--sample", "{t}/s.toml", "--journal", "{t}/j.sqlite"), ("s.toml",)),
+    Case(
+        "sample-folder",
+        ("run", "--sample", "{t}/s", "--journal", "{t}/j.sqlite"),
+        ("s",),
+        {"s": DIR},
+    ),
+    Case(
+        "sample-in-mm",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "mm"),
+        {"s.toml": SAMPLE.replace("1000.0", "1.0")},
+    ),
+    Case(
+        "sample-no-corner",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "corners.bl"),
+        {"s.toml": SAMPLE.rsplit("bl =", 1)[0]},
+    ),
+    Case(
+        "sample-typo",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "safty"),
+        {"s.toml": SAMPLE + "[safty]\nr_excl_um = 20\n"},
+    ),
     # ---- cost -----------------------------------------------------------------------------------
     Case(
         "path-no-columns", ("cost", "path", "{t}/p.csv"), ("p.csv", "missing column"), {"p.csv": "x,y\n1,2\n"}

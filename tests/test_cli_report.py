@@ -127,3 +127,26 @@ def test_report_of_a_running_run(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "awaiting-approval (the engine is still running; a snapshot)" in text
     for name in FIGURES:
         assert (out_dir / name).stat().st_size > 5_000
+
+
+def test_report_draws_the_samples_exclusions_and_earlier_indents(tmp_path: Path) -> None:
+    """On a sample file with a clamp, a particle and an earlier test: the map shows all three."""
+    from aeni_console.commands.run import run_engine
+    from aeni_console.runreport import read_run, render_report
+    from core.runconfig import load_run_config
+
+    root = Path(__file__).resolve().parents[1]
+    rc = load_run_config(
+        None,
+        {"sample.file": str(root / "docs/examples/NiTiCu-library-07.toml"), "planner.indent_budget": 25},
+    )
+    journal = tmp_path / "sample.sqlite"
+    assert run_engine(journal, create=(rc.campaign, rc.options), quiet=True) == 0
+    data = read_run(journal)
+    assert len(data.exclusions) == 2 and len(data.earlier_indents_um) == 40
+    with_them = render_report(data, tmp_path / "with")
+    data.exclusions, data.earlier_indents_um = (), []
+    without = render_report(data, tmp_path / "without")
+    a, b = _image(with_them[0]), _image(without[0])
+    assert a.shape == b.shape
+    assert (np.abs(a - b).sum(axis=-1) > 0.1).sum() > 500  # the regions and the earlier indents are drawn

@@ -258,3 +258,15 @@ def test_write_atomic_gives_the_usual_file_mode(tmp_path: Path) -> None:
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~umask
+
+
+def test_xlrd_file_warnings_stay_off_stdout(
+    tmp_path: Path, kla_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """xlrd prints file-format complaints to stdout by default; they must not break `--json`."""
+    odd = tmp_path / "odd.xls"
+    odd.write_bytes((kla_dir / "Example.xls").read_bytes() + b"abc")  # not a whole number of sectors
+    code, out, err = _run(capsys, "kla", "read", str(odd), "--json")
+    assert code == 0
+    assert len(json.loads(out)) == 16
+    assert "aeni: warning: UserWarning: odd.xls: WARNING *** file size" in err

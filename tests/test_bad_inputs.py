@@ -299,6 +299,13 @@ CASES: tuple[Case, ...] = (
     Case("console-missing", ("console", "{t}/gone.sqlite"), ("gone.sqlite",)),
     Case("demo-speed", ("demo", "--speed", "0"), ("--speed",)),
     Case("demo-seed", ("demo", "--seed", "x"), ("--seed",)),
+    Case(
+        "demo-journal-text",
+        ("demo", "--journal", "{t}/n.txt"),
+        ("n.txt", "not a journal"),
+        {"n.txt": "notes"},
+    ),
+    Case("demo-policy", ("demo", "--policy", "fastest", "--journal", "{t}/d.sqlite"), ("policy", "fastest")),
     # ---- KLA exports ----------------------------------------------------------------------------
     Case("kla-not-excel", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx",), {"e.xlsx": "test,h\n1,2\n"}),
     Case("kla-missing", ("kla", "read", "{t}/e.xls"), ("e.xls",)),

@@ -13,7 +13,7 @@ import contextlib
 from pathlib import Path
 from typing import Any
 
-from aeni_console.commands.common import positive_float, seed_arg
+from aeni_console.commands.common import check_new_journal, positive_float, seed_arg
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
 
@@ -98,6 +98,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         "demo", source="command line", policy=args.policy, scenario=args.scenario, seed=args.seed
     )
     journal = Path(args.journal) if args.journal else default_journal_path("demo", args.runs_dir)
+    check_new_journal(journal)  # a bad --journal is refused before anything is said or started
     print(
         f"starting an emulator run ({config.policy}, {args.scenario}, seed {config.seed}, "
         f"{args.supervision}, ×{args.speed:g}) → {journal}",

@@ -101,7 +101,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     check_new_journal(journal)  # a bad --journal is refused before anything is said or started
     print(
         f"starting an emulator run ({config.policy}, {args.scenario}, seed {config.seed}, "
-        f"{args.supervision}, ×{args.speed:g}) → {journal}",
+        f"{args.supervision}, ×{args.speed:g}) → {journal}"
+        + (
+            ""
+            if args.stay
+            else "\nleaving this console (q) stops the demo's engine; `aeni demo --stay` keeps it"
+        ),
         flush=True,
     )
     pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)

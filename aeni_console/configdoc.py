@@ -54,6 +54,7 @@ MEANINGS: dict[str, str] = {
     "run.journal": "journal path (default: a new file in runs_dir)",
     "run.speed": "simulated instrument speed-up over real time (default: as fast as possible)",
     "run.runs_dir": "the folder for new journals",
+    "run.exchange": "driver kla: the folder shared with the instrument PC (InView's array import and export)",
     "run.group": "the OS group that may watch the run (journal 0640; only the owner commands): docs/security.md",
     "sample.file": "the sample file the run indents (default: the simulated scenario's built-in sample)",
 }

@@ -640,7 +640,7 @@ def _cmd_send(args: argparse.Namespace) -> int:
             payload = check_adjust(payload, reader.profile.allowed_holds_s)
     # the other commands' fields, by the same rules the engine applies: nothing the engine must reject is queued
     allowed = {"veto": ("hold_blocks", "decision_id"), "approve": ("decision_id",), "step": ("decision_id",)}
-    if args.kind != "adjust":
+    if args.kind != "adjust" and args.kind not in _INSTRUMENT_REPORTS:
         extra = [k for k in payload if k not in allowed.get(args.kind, ())]
         if extra:
             takes = ", ".join(allowed.get(args.kind, ())) or "no fields"

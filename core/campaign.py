@@ -152,6 +152,8 @@ class Campaign:
         self.blocks: list[Block] = []
         self.indents_xy: list[tuple[float, float]] = []
         self.drift_rates: list[float] = []
+        # measured depths at maximum load, one per learned indent (NaN where the instrument reported none)
+        self.depths_nm: list[float] = []
         self.vetoes: list[_Veto] = []
         self.prediction: Prediction | None = None
         self._last_fit: FitReport | None = None
@@ -254,6 +256,7 @@ class Campaign:
             avoid_xy_um=avoid + tuple(self.settings.avoid_centers_um),
             globals_done=sum(1 for b in self.blocks if b.kind == "global"),
             recent_drift_rates_nm_s=tuple(self.drift_rates[-25:]),
+            recent_depths_nm=tuple(self.depths_nm[-25:]),
             tested_noise_var_gpa2=self._tested_noise_var() if self._needs_covariance else None,
             gp=self._gp_summary() if self._needs_covariance else None,
             dz_safe_um=self.sample.dz_safe_um,
@@ -348,6 +351,8 @@ class Campaign:
                 smoothed_drift_rates_nm_s(np.array([r.drift_rate_nm_s for r in results])),
                 np.array([r.hold_s for r in results]),
                 full_hold_s=max(self.profile.allowed_holds_s),
+                depth_nm=np.array([r.depth_nm for r in results]),
+                t_measure_s=self.profile.drift_segment_s,
                 floor_nm_s=self.profile.drift_noise_floor_nm_s,
             )
         xs = np.array([r.actual_x_um for r in results])
@@ -367,6 +372,7 @@ class Campaign:
         self.blocks.append(block)
         self.indents_xy.extend(zip(xs.tolist(), ys.tolist(), strict=True))
         self.drift_rates.extend(r.drift_rate_nm_s for r in results)
+        self.depths_nm.extend(r.depth_nm for r in results)
 
     def observations(self) -> Observations:
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])

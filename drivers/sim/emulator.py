@@ -684,6 +684,7 @@ class Measurement:
     hardness_gpa: float
     modulus_gpa: float
     drift_rate_nm_s: float
+    depth_at_max_load_nm: float  # the test runs to its nominal depth, as measured (drift included)
 
 
 def modulus_from_hardness_gpa(h_gpa: ArrayLike) -> FloatArray:
@@ -796,6 +797,7 @@ class Emulator:
             hardness_gpa=h_noisy * shrink**2,
             modulus_gpa=max(e_true * (1.0 + rel), 1e-3) * shrink,
             drift_rate_nm_s=max(reading, 0.0),
+            depth_at_max_load_nm=depth,
         )
 
 

@@ -33,6 +33,7 @@ from core.settings import adjust_settings, check_holds, settings_from_dict, sett
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
 VETO_HOLD_BLOCKS = 3
+DEFAULT_HORIZON_SLACK = 1.02  # the default time budget over the grid baseline's priced time
 UNGUARDED_FLOOR_UV = 0.001  # 1 µm on the 1000 µm square: a floor in name only (the unguarded ablation)
 
 
@@ -134,8 +135,11 @@ class Campaign:
         if self.settings.fixed_hold_s is None:
             self.settings = dataclasses.replace(self.settings, fixed_hold_s=self.profile.default_hold_s)
         if self.settings.budget_s is None and self.settings.indent_budget is None:
-            # default horizon: the instrument time of the full grid baseline on this area
-            self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
+            # default horizon: the full grid baseline's time on this area, priced from its own start, plus 2 % for
+            # the path from wherever the stage starts (so the grid itself runs all its indents under it)
+            self.settings = dataclasses.replace(
+                self.settings, budget_s=math.ceil(DEFAULT_HORIZON_SLACK * self.grid_baseline_s)
+            )
         pitch_uv = min(self.lattice.pitch_uv)
         floor = bool(getattr(self.policy, "surrogate_floor", True))
         self.centre_estimator: CentreEstimator = getattr(self.policy, "centre_estimator", "median")

@@ -50,3 +50,11 @@ def test_a_budget_too_small_for_one_indent_stops_before_any() -> None:
 def test_both_budgets_the_tighter_wins() -> None:
     indents, instrument_s, _ = _run("cost-aware", budget_s=9_000.0, indent_budget=40)
     assert indents <= 40 and instrument_s <= 9_000.0
+
+
+def test_the_default_horizon_lets_the_grid_baseline_run_all_its_indents() -> None:
+    """With no budget set, the horizon is the grid baseline's time: the grid itself must not be cut short."""
+    indents, instrument_s, reason = _run("grid")
+    assert indents == 2025  # SPEC §3: 9×9 blocks of 5×5
+    assert instrument_s == pytest.approx(286_392, rel=0.002)  # SPEC §3, from the sample's centre
+    assert "nothing left to propose" in reason

@@ -1,23 +1,34 @@
 """The ``aeni`` command: one entry point, subcommands registered by small modules.
 
-Bad input ends in one line on stderr and exit code 2, never a traceback.
+Bad input ends in one line on stderr and exit code 2, never a traceback: an :class:`InputError` says
+what is wrong with which file, field or flag, and an OS error (a folder that cannot be created, a
+file where a folder is expected, permission denied) is reported with the path it concerns. Library
+warnings go to stderr as one line each, so stdout stays clean for ``--json`` and tables.
+Set ``AENI_TRACEBACK=1`` to see the traceback of an OS error when debugging.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import Any, TextIO
 
+from aeni_console.commands.common import os_error_line
 from core.errors import InputError
 
 # Each module exposes register(subparsers); its handlers return an exit code.
 COMMAND_MODULES: tuple[str, ...] = (
     "aeni_console.commands.cost",
     "aeni_console.commands.simulate",
+    "aeni_console.commands.scenarios",
     "aeni_console.commands.kla",
     "aeni_console.commands.run",
+    "aeni_console.commands.runs",
+    "aeni_console.commands.report",
     "aeni_console.commands.console",
     "aeni_console.commands.bench",
     "aeni_console.commands.sample",
@@ -38,17 +49,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warning_line(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """A library warning as one line on stderr (never stdout, never the source line that raised it)."""
+    text = " ".join(str(message).split())
+    print(f"aeni: warning: {category.__name__}: {text}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous: Any = warnings.showwarning
+    warnings.showwarning = _warning_line
     try:
         code = int(args.func(args) or 0)
     except InputError as exc:
         print(f"aeni: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the environment refused: a path that cannot be made, read or written
+        if os.environ.get("AENI_TRACEBACK"):
+            raise
+        print(f"aeni: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("aeni: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = previous
     return code
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from core.cost import CostLedger
+from core.cost import CostLedger, indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.geometry import CandidateLattice
@@ -33,6 +33,7 @@ from core.surrogate import FitReport, HeteroskedasticGP, Observations, Predictio
 
 VETO_HOLD_BLOCKS = 3
 OUTLIER_REFIT_INFLATION = 4.0  # a value whose noise the outlier rule inflates this much is refitted at once
+DEFAULT_HORIZON_SLACK = 1.02  # the default time budget over the grid baseline's priced time
 
 
 @dataclass(frozen=True)
@@ -132,8 +133,11 @@ class Campaign:
         if self.settings.fixed_hold_s is None:
             self.settings = dataclasses.replace(self.settings, fixed_hold_s=self.profile.default_hold_s)
         if self.settings.budget_s is None and self.settings.indent_budget is None:
-            # default horizon: the instrument time of the full grid baseline on this area
-            self.settings = dataclasses.replace(self.settings, budget_s=round(self.grid_baseline_s))
+            # default horizon: the full grid baseline's time on this area, priced from its own start, plus 2 % for
+            # the path from wherever the stage starts (so the grid itself runs all its indents under it)
+            self.settings = dataclasses.replace(
+                self.settings, budget_s=math.ceil(DEFAULT_HORIZON_SLACK * self.grid_baseline_s)
+            )
         self.surrogate: HeteroskedasticGP = parts.surrogate.build(
             parts.guard, min(self.lattice.pitch_uv), config.seed
         )
@@ -142,11 +146,14 @@ class Campaign:
         self.blocks: list[Block] = []
         self.indents_xy: list[tuple[float, float]] = []
         self.drift_rates: list[float] = []
+        # measured depths at maximum load, one per learned indent (NaN where the instrument reported none)
+        self.depths_nm: list[float] = []
         self.vetoes: list[_Veto] = []
         self.prediction: Prediction | None = None
         self._last_fit: FitReport | None = None
         self.last_score: MapScore | None = None
         self.last_stop_reason: str | None = None
+        self.budget_note = ""  # how the last block was sized to fit a budget, for the stop reason
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
@@ -198,10 +205,11 @@ class Campaign:
 
     def stop_reason(self, clock_s: float) -> str | None:
         s = self.settings
+        note = f"; {self.budget_note}" if self.budget_note else ""
         if s.budget_s is not None and clock_s >= s.budget_s:
-            return f"instrument-time budget reached ({clock_s:,.0f} s ≥ {s.budget_s:,.0f} s)"
+            return f"instrument-time budget reached ({clock_s:,.0f} s of {s.budget_s:,.0f} s){note}"
         if s.indent_budget is not None and len(self.indents_xy) >= s.indent_budget:
-            return f"indent budget reached ({len(self.indents_xy)} indents)"
+            return f"indent budget reached ({len(self.indents_xy)} of {s.indent_budget} indents){note}"
         if s.sigma_target_gpa is not None and self.prediction is not None:
             mean_sd = float(np.mean(self.prediction.epistemic_sd))
             if mean_sd < s.sigma_target_gpa:
@@ -243,6 +251,7 @@ class Campaign:
             avoid_xy_um=avoid + tuple(self.settings.avoid_centers_um),
             globals_done=sum(1 for b in self.blocks if b.kind == "global"),
             recent_drift_rates_nm_s=tuple(self.drift_rates[-25:]),
+            recent_depths_nm=tuple(self.depths_nm[-25:]),
             tested_noise_var_gpa2=self._tested_noise_var() if self._needs_covariance else None,
             gp=self._gp_summary() if self._needs_covariance else None,
             dz_safe_um=self.sample.dz_safe_um,
@@ -260,15 +269,56 @@ class Campaign:
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
             return None
+        return self._fit_budgets(decision, clock_s, position_um, program_open)
+
+    def _fit_budgets(
+        self, decision: Decision, clock_s: float, position_um: tuple[float, float], program_open: bool
+    ) -> Decision | None:
+        """Budgets are never exceeded: the next block keeps only the indents that both budgets can pay for.
+
+        The time budget pays for the block's steps and the closing comeback to the lens; when not even its
+        first indent fits, the run stops here and the stop reason says so.
+        """
         s = self.settings
-        if s.budget_s is not None and clock_s + decision.predicted_cost_s > s.budget_s * 1.02:
-            # do not start a block the budget cannot pay for
-            self.last_stop_reason = (
-                f"instrument-time budget: the next block ({decision.predicted_cost_s:,.0f} s) would pass "
-                f"{s.budget_s:,.0f} s at {clock_s:,.0f} s"
-            )
-            return None
-        return decision
+        block = decision.block
+        keep = block.n_indents
+        if s.indent_budget is not None:
+            keep = min(keep, s.indent_budget - len(self.indents_xy))
+        if s.budget_s is not None:
+            left_s = s.budget_s - clock_s - self.profile.comeback_s
+            spent, pos, fits = 0.0, position_um, 0
+            for i in range(keep):
+                spent += sum(st.seconds for st in indent_steps(self.profile, block, i, pos, program_open))
+                if spent > left_s + 1e-9:
+                    break
+                fits, pos = i + 1, (block.indents[i].x_um, block.indents[i].y_um)
+            if fits == 0:
+                self.last_stop_reason = (
+                    f"instrument-time budget: {max(left_s, 0.0):,.0f} s left of {s.budget_s:,.0f} s after the "
+                    f"comeback, not enough for one more indent (the next block needs "
+                    f"{decision.predicted_cost_s:,.0f} s){'; ' + self.budget_note if self.budget_note else ''}"
+                )
+                return None
+            keep = fits
+        if keep >= block.n_indents:
+            return decision
+        which = (
+            "indent"
+            if s.indent_budget is not None and keep == s.indent_budget - len(self.indents_xy)
+            else "time"
+        )
+        self.budget_note = f"the last block was cut to {keep} of its {block.n_indents} indents to stay within the {which} budget"
+        cut = dataclasses.replace(block, indents=block.indents[:keep])
+        pos, cost = position_um, 0.0
+        for i in range(keep):
+            cost += sum(st.seconds for st in indent_steps(self.profile, cut, i, pos, program_open))
+            pos = (cut.indents[i].x_um, cut.indents[i].y_um)
+        return dataclasses.replace(
+            decision,
+            block=cut,
+            predicted_cost_s=cost,
+            reason=f"{decision.reason}; {self.budget_note}" if decision.reason else self.budget_note,
+        )
 
     def veto(self, decision: Decision, hold_blocks: int = VETO_HOLD_BLOCKS) -> None:
         b = decision.block
@@ -296,6 +346,8 @@ class Campaign:
                 smoothed_drift_rates_nm_s(np.array([r.drift_rate_nm_s for r in results])),
                 np.array([r.hold_s for r in results]),
                 full_hold_s=max(self.profile.allowed_holds_s),
+                depth_nm=np.array([r.depth_nm for r in results]),
+                t_measure_s=self.profile.drift_segment_s,
                 floor_nm_s=self.profile.drift_noise_floor_nm_s,
             )
         xs = np.array([r.actual_x_um for r in results])
@@ -320,6 +372,7 @@ class Campaign:
         self.blocks.append(block)
         self.indents_xy.extend(zip(xs.tolist(), ys.tolist(), strict=True))
         self.drift_rates.extend(r.drift_rate_nm_s for r in results)
+        self.depths_nm.extend(r.depth_nm for r in results)
 
     def observations(self) -> Observations:
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])
@@ -519,5 +572,7 @@ def run_headless(
     for event in driver.end_program():
         result.ledger.add(event)
     result.instrument_s = driver.clock_s()
-    result.stop_reason = early or campaign.stop_reason(driver.clock_s()) or "policy finished"
+    result.stop_reason = (
+        early or campaign.stop_reason(driver.clock_s()) or campaign.last_stop_reason or "policy finished"
+    )
     return result

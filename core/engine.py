@@ -19,6 +19,7 @@ import traceback
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
+from core.access import command_channel_problem
 from core.driver import (
     Driver,
     DriverAborted,
@@ -34,7 +35,7 @@ from core.journal import DriverState, Journal, user_name
 from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.runview import CommandKind, EngineState, MapFields
-from core.settings import coerce_supervision
+from core.settings import check_veto, coerce_supervision
 
 if TYPE_CHECKING:
     from core.surrogate import FitReport  # the refit's report (torch stays out of the engine's import)
@@ -374,10 +375,16 @@ class Engine:
             self.journal.log(
                 "command", "abort requested by a signal: finishing the indent, lifting, stopping"
             )
-        for sc in self.journal.q.unprocessed_commands():
+        commands = self.journal.q.unprocessed_commands()
+        # trust rests on who the OS lets write the journal, not on the uid a row claims (core.access)
+        untrusted = command_channel_problem(self.journal.path, self.owner_uid) if commands else ""
+        for sc in commands:
             before = self.state
             try:
-                outcome, reason = self._apply(sc.kind, sc.author, sc.uid, sc.payload, sc.command_id)
+                if untrusted:
+                    outcome, reason = "rejected", untrusted
+                else:
+                    outcome, reason = self._apply(sc.kind, sc.author, sc.uid, sc.payload, sc.command_id)
             except InputError as exc:
                 outcome, reason = "rejected", str(exc)
             self.journal.note_clock(self._clock())
@@ -468,9 +475,10 @@ class Engine:
         if stale:
             return "rejected", stale
         did, decision, _ = self._pending
-        hold = payload.get("hold_blocks")
-        if hold is not None and (isinstance(hold, bool) or not isinstance(hold, int) or hold < 1):
-            return "rejected", f"hold_blocks {hold!r} is not allowed: expected a whole number ≥ 1"
+        try:
+            hold = check_veto(payload)
+        except InputError as exc:
+            return "rejected", str(exc)
         if hold is None:
             self.campaign.veto(decision)
         else:
@@ -775,6 +783,8 @@ class Engine:
             return
         try:
             while not self._watch_stop.wait(self.watch_s):
+                if command_channel_problem(self.journal.path, self.owner_uid):
+                    continue  # the checkpoint rejects them, with the reason
                 if watch.poll():
                     self.driver.abort()
         finally:

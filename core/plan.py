@@ -95,6 +95,9 @@ class IndentResult:
     t_s: float  # instrument clock when the indent finished
     status: IndentStatus = "measured"
     note: str = ""
+    # displacement at maximum load (nm): the depth Eq. 7's drift error is relative to; None where the
+    # instrument did not report it (the drift rules then assume the nominal depth)
+    depth_at_max_load_nm: float | None = None
 
     def __post_init__(self) -> None:
         if self.status == "measured" and not math.isfinite(self.hardness_gpa):
@@ -102,6 +105,11 @@ class IndentResult:
                 f"block {self.block_id} indent {self.indent_index}: a measured indent needs a finite hardness "
                 f"(got {self.hardness_gpa!r}); report it as failed"
             )
+
+    @property
+    def depth_nm(self) -> float:
+        """The reported depth at maximum load, NaN when there is none."""
+        return math.nan if self.depth_at_max_load_nm is None else self.depth_at_max_load_nm
 
     @property
     def measured(self) -> bool:

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from core.drift import DRIFT_READING_FLOOR_NM_S
+from core.drift import DRIFT_READING_FLOOR_NM_S, DRIFT_SEGMENT_S
 from core.errors import InputError
 
 BUILTIN_PROFILES = ("kla-imicro", "kla-imicro-film")
@@ -100,6 +100,8 @@ class InstrumentProfile:
     max_tilt_um_per_mm: float = 50.0
     # drift readings below this are the meter's noise, not drift: the correction leaves them alone
     drift_noise_floor_nm_s: float = DRIFT_READING_FLOOR_NM_S
+    # the test method's drift segment (s): the time over which Eq. 7's drift displaces the measured depth
+    drift_segment_s: float = DRIFT_SEGMENT_S
     inview: InViewSettings = InViewSettings()
 
     @property
@@ -254,10 +256,11 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
     drift = data.get("drift", {})
     if not isinstance(drift, dict):
         raise InputError(source, "[drift] must be a table")
+    drift_fields = {"noise_floor_nm_s": "drift_noise_floor_nm_s", "segment_s": "drift_segment_s"}
     for key, value in drift.items():
-        if key != "noise_floor_nm_s":
-            raise InputError(source, f"unknown field drift.{key} (allowed: noise_floor_nm_s)")
-        updates["drift_noise_floor_nm_s"] = _number(source, f"drift.{key}", value)
+        if key not in drift_fields:
+            raise InputError(source, f"unknown field drift.{key} (allowed: {', '.join(drift_fields)})")
+        updates[drift_fields[key]] = _number(source, f"drift.{key}", value, positive=key == "segment_s")
     if "inview" in data:
         updates["inview"] = _inview(base.inview, data["inview"], source)
     profile = replace(base, **updates)

@@ -63,8 +63,11 @@ class CampaignSection(_Strict):
     @classmethod
     def _policy(cls, v: str) -> str:
         from core.errors import InputError
-        from core.policies.registry import policy_parts
+        from core.policies.registry import policy_names, policy_parts
 
+        names = policy_names()
+        if v.split("+")[0] not in names:
+            raise ValueError(f"must be one of {', '.join(names)} (an ablation adds +modifiers)")
         try:
             policy_parts(v)  # a registered policy, or an ablation BASE+modifier (the bench's)
         except InputError as exc:
@@ -108,6 +111,7 @@ class RunSection(_Strict):
     journal: str | None = None
     speed: float | None = Field(default=None, gt=0)
     runs_dir: str = "runs"
+    group: str | None = Field(default=None, min_length=1)
 
     @field_validator("supervision")
     @classmethod
@@ -136,6 +140,7 @@ class RunOptions:
     speed: float | None = None  # None: as fast as possible; f: f× faster than the real instrument
     runs_dir: str = "runs"
     exchange: str | None = None  # driver kla: the exchange folder
+    group: str | None = None  # the OS group that may watch the run (its journal is 0640); None: the owner's
 
 
 @dataclass(frozen=True)
@@ -243,6 +248,10 @@ def parse_run_config(
         sample=sample,
         driver_options=driver_options,
     )
+    if r.group is not None:
+        from core.access import journal_gid
+
+        journal_gid(r.group, f"{source}: field run.group")  # an unusable group is refused before the run
     options = RunOptions(
         driver=r.driver,
         supervision=r.supervision,
@@ -250,6 +259,7 @@ def parse_run_config(
         speed=r.speed,
         runs_dir=r.runs_dir,
         exchange=exchange,
+        group=r.group,
     )
     return RunConfig(campaign=campaign, options=options)
 
@@ -283,6 +293,8 @@ def load_run_config(path: str | Path | None = None, overrides: dict[str, Any] | 
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(src, "no such config file") from None
+    except IsADirectoryError:
+        raise InputError(src, "is a folder, not a config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(src, f"cannot read config ({exc})") from None
     try:

@@ -143,6 +143,17 @@ def check_adjust(changes: Mapping[str, Any], allowed_holds_s: Sequence[float] | 
     }
 
 
+def check_veto(payload: Mapping[str, Any]) -> int | None:
+    """A veto's ``hold_blocks`` (how many blocks to avoid the vetoed centre), or None for the default.
+
+    What ``aeni send veto`` checks before it queues, and what the engine applies.
+    """
+    hold = payload.get("hold_blocks")
+    if hold is not None and (isinstance(hold, bool) or not isinstance(hold, int) or hold < 1):
+        raise InputError("hold_blocks", f"{hold!r} is not allowed: expected a whole number ≥ 1")
+    return hold
+
+
 def adjust_settings(
     settings: PlannerSettings, changes: Mapping[str, Any], allowed_holds_s: Sequence[float] | None
 ) -> PlannerSettings:

@@ -150,7 +150,8 @@ def test_demo_starts_a_detached_engine_and_leaving_keeps_it_running(
             time.sleep(0.1)
 
     monkeypatch.setattr(ConsoleApp, "run", fake_console_run)
-    code = cli_main(["demo", "--journal", str(journal), "--speed", "1000", "--seed", "1"])
+    # --stay: without it, quitting the demo's console stops its engine (tests/test_cli_demo.py)
+    code = cli_main(["demo", "--journal", str(journal), "--speed", "1000", "--seed", "1", "--stay"])
     out = capsys.readouterr().out
     pid_match = re.search(r"PID (\d+)", out)
     assert pid_match, out

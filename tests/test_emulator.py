@@ -192,9 +192,7 @@ def test_area_error_pct_by_hand() -> None:
     # the 2 % threshold sits at DR = (100 − 100/√1.02)/40 ≈ 0.0246 nm/s
     dr = (100 - 100 / math.sqrt(1.02)) / 40
     assert area_error_pct(dr) == pytest.approx(2.0)
-    assert area_error_pct(0.2, nominal_depth_nm=200.0, t_measure_s=10.0) == pytest.approx(
-        (200**2 / 198**2 - 1) * 100
-    )
+    assert area_error_pct(0.2, depth_nm=200.0, t_measure_s=10.0) == pytest.approx((200**2 / 198**2 - 1) * 100)
 
 
 def test_drift_scenarios() -> None:

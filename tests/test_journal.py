@@ -287,7 +287,7 @@ def test_unknown_schema_version_is_refused(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(InputError) as info:
         JournalReader(path)
-    assert "schema version 1 is not supported (this program reads version 2" in str(info.value)
+    assert "schema version 1 is not supported (this program reads version 3" in str(info.value)
     assert "docs/journal.md" in str(info.value) and "\n" not in str(info.value)
 
 

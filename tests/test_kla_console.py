@@ -14,6 +14,7 @@ import pytest
 from aeni_console.app import ConsoleApp
 from aeni_console.journal_source import JournalSource
 from aeni_console.testing import wait_until, widget_text
+from aeni_console.widgets.help import INSTRUMENT_KEYS, HelpScreen, help_text
 from aeni_console.widgets.ticket import AskScreen
 from core.profile import load_profile
 from core.runview import EngineState
@@ -38,7 +39,7 @@ def kla_engine(tmp_path: Path) -> Iterator[tuple[Path, Path, Path]]:
     profile = tmp_path / "fast.toml"
     profile.write_text(FAST_PROFILE)
     journal = tmp_path / "kla.sqlite"
-    config = CampaignConfig(name="kla", seed=3, lattice_n=30, profile=str(profile))
+    config = CampaignConfig(name="kla", policy="cost-aware", seed=3, lattice_n=30, profile=str(profile))
     proc = start_engine_process(config, journal, "auto", 1e6, driver="kla", exchange=str(exchange))
     assert isinstance(proc, subprocess.Popen)
     try:
@@ -73,6 +74,17 @@ async def test_ticket_panel_token_confirmation_and_skip_at_80x24(kla_engine: tup
         assert not app.decision_panel.display and "WAITING FOR INSTRUMENT" in widget_text(app.status_bar)
         token = ExchangeFolder(exchange, journal.stem, load_profile(profile).inview).read_ticket(0).token  # type: ignore[union-attr]
         assert token not in panel  # read on the ticket at the instrument, typed here
+        # the keys this state offers are the ones the help lists for it, and the help opens here
+        assert {k: app.active_bindings[k].binding.action for k, _ in INSTRUMENT_KEYS} == {
+            "c": "confirm_start",
+            "a": "report_aborted",
+            "f": "report_no_surface",
+            "k": "skip_site",
+        }
+        await pilot.press("question_mark")
+        await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), 5, "help")
+        await pilot.press("escape")
+        await wait_until(pilot, lambda: not isinstance(app.screen, HelpScreen), 5, "help closed")
         # a wrong token is refused by the engine, and journaled
         await pilot.press("c")
         await wait_until(pilot, lambda: isinstance(app.screen, AskScreen), 5, "token prompt")
@@ -133,3 +145,17 @@ async def test_ticket_panel_token_confirmation_and_skip_at_80x24(kla_engine: tup
         thread.join()
         assert app.feed is not None
         app.feed.stop()  # leave without a snapshot arriving mid-exit
+
+
+def test_help_lists_the_ticket_keys_of_the_waiting_state() -> None:
+    import re
+
+    from rich.console import Console
+
+    console = Console(width=100, record=True)
+    console.print(help_text())
+    text = console.export_text()
+    section = text[text.index("in WAITING FOR INSTRUMENT") : text.index("Panels")]
+    for key, what in INSTRUMENT_KEYS:
+        assert re.search(rf"^\s*{key}\s+{re.escape(what[:30])}", section, re.M), key
+    assert "Ticket" in text[text.index("Panels") :]

@@ -15,7 +15,7 @@ def centre_value(tmp_path: Path, floor_nm_s: float) -> float:
     profile = tmp_path / f"floor-{floor_nm_s}.toml"
     profile.write_text(f'extends = "kla-imicro"\n[drift]\nnoise_floor_nm_s = {floor_nm_s}\n')
     campaign = Campaign(
-        CampaignConfig(policy="adaptive-hold-corrected", profile=str(profile), lattice_n=20),
+        CampaignConfig(policy="adaptive-hold+drift-corr", profile=str(profile), lattice_n=20),
         make_scenario("ternary", 0).sample,
     )
     assert campaign.profile.drift_noise_floor_nm_s == floor_nm_s

@@ -105,6 +105,9 @@ def test_normal_block_measures_what_the_sim_measures(exchange: Path, tmp_path: P
     for r, h in zip(results, expect, strict=True):
         if r.measured:
             assert r.hardness_gpa == pytest.approx(h)
+    # the export's "Displacement at Max Load" reaches the drift rules; a 1.797e308 row reports no depth
+    assert {r.depth_at_max_load_nm for r in results if r.measured} == {100.0}
+    assert {r.depth_at_max_load_nm for r in results if not r.measured} == {None}
     assert (
         waits
         and waits[0].block_id == 0

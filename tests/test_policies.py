@@ -444,13 +444,13 @@ def test_tight_and_unguarded_differ_only_in_the_guard() -> None:
 def test_bias_aware_drift_estimate_ignores_the_reading_noise_but_not_an_event() -> None:
     rng = np.random.default_rng(0)
     quiet = tuple(np.maximum(0.002 * rng.standard_normal(25), 0.0).tolist())  # no drift, noisy readings
-    assert robust_rate(quiet) < 0.0015
+    assert robust_rate(quiet, 100.0, 40.0) < 0.0015
     # an event shows in the very next reading: the paper's 2 % rule fires on it at once
     event = (*quiet, 0.3)
-    assert robust_rate(event) == pytest.approx(0.3)
+    assert robust_rate(event, 100.0, 40.0) == pytest.approx(0.3)
     # a fall is trusted only once the window's median has come down
     after = (*([0.2] * 11), 0.0)
-    assert robust_rate(after) == pytest.approx(0.2)
+    assert robust_rate(after, 100.0, 40.0) == pytest.approx(0.2)
 
 
 # -- aeni: scattered singles ----------------------------------------------------------------------------

@@ -1,17 +1,24 @@
-"""Small helpers the CLI commands share: JSON output, ledger tables, atomic writes."""
+"""Small helpers the CLI commands share: JSON output, ledger tables, atomic writes, path checks.
+
+The path checks turn what the OS would say with a traceback (a folder where a file is expected, a file
+in the way of a folder, permission denied) into one line naming the path, before anything is written.
+"""
 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from core.cost import CostLedger
+from core.errors import InputError
 
 
 def _clean(obj: Any) -> Any:
@@ -45,6 +52,9 @@ def write_atomic(path: str | Path, text: str) -> None:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the file gets the mode any new file would
         os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -82,3 +92,104 @@ def whole_number(flag: str, lo: int, hi: int) -> Callable[[str], int]:
 
 
 seed_arg = whole_number("--seed", 0, 2**32 - 1)
+
+
+# --------------------------------------------------------------------------------------------------
+# paths: one line naming the path and what is wrong, before anything is written
+
+_ERRNO_TEXT = {
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.ENOENT: "no such file or folder",
+    errno.EEXIST: "already exists",
+    errno.ENOTDIR: "a file is in the way (a folder was expected)",
+    errno.EISDIR: "is a folder, not a file",
+    errno.EROFS: "read-only file system",
+    errno.ENOSPC: "no space left on the device",
+}
+
+
+def os_error_line(exc: OSError) -> str:
+    """``path: what is wrong`` for an OS error, in the CLI's one-line style."""
+    what = _ERRNO_TEXT.get(exc.errno or 0) or (exc.strerror or str(exc)).lower()
+    if exc.filename is not None:
+        return f"{exc.filename}: {what}"
+    return str(exc) if not exc.strerror else what
+
+
+def input_file(path: str | Path, what: str = "file") -> Path:
+    """An existing, readable regular file, or InputError saying which of those it is not."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(str(p), f"is a folder, not a {what}")
+    if not p.exists():
+        raise InputError(str(p), f"no such {what}")
+    if not p.is_file():
+        raise InputError(str(p), f"is not a regular file (a {what} was expected)")
+    if not os.access(p, os.R_OK):
+        raise InputError(str(p), f"cannot read the {what}: permission denied")
+    return p
+
+
+def make_folder(path: str | Path, what: str = "folder") -> Path:
+    """Create a folder (and its parents) or say, naming it, why it cannot be created."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(str(p), f"is a file; the {what} must be a folder")
+    blocker = next((a for a in (p, *p.parents) if a.exists() and not a.is_dir()), None)
+    if blocker is not None:
+        raise InputError(str(p), f"cannot create the {what}: {blocker} is a file")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(str(p), f"cannot create the {what}: {os_error_line(exc)}") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InputError(str(p), f"cannot write in the {what}: permission denied")
+    return p
+
+
+def _is_sqlite(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(16) == b"SQLite format 3\x00"
+    except OSError:
+        return False
+
+
+def check_new_journal(path: str | Path) -> Path:
+    """A path where a new journal can be created: nothing there yet, and a folder that can hold it."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(str(p), "is a folder; --journal takes a file path such as DIR/run.sqlite")
+    if p.exists() or p.is_symlink():
+        if _is_sqlite(p):
+            raise InputError(str(p), "journal already exists; use `aeni resume` to continue it")
+        raise InputError(str(p), "a file that is not a journal is already there; choose another path")
+    make_folder(p.parent if str(p.parent) else Path("."), "journal's folder")
+    return p
+
+
+def check_resumable_journal(path: str | Path) -> Path:
+    """A journal the engine may write again: not marked read-only, in a folder it can write its lock in."""
+    p = Path(path)
+    mode = p.stat().st_mode
+    if not mode & stat.S_IWUSR or not os.access(p, os.W_OK):
+        raise InputError(
+            str(p),
+            f"journal is read-only (mode {stat.S_IMODE(mode):04o}); a resumed engine must write it "
+            "(chmod u+w to allow that)",
+        )
+    folder = p.parent if str(p.parent) else Path(".")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(
+            str(folder), "cannot write in the journal's folder (the engine keeps its lock there)"
+        )
+    return p
+
+
+def check_out_folder(path: str | Path) -> Path:
+    """An output folder (``--out``): created when missing, refused when a file is already there."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(str(p), "is a file; --out takes a folder (it is created when missing)")
+    return make_folder(p, "output folder")

@@ -2,16 +2,25 @@
 
 The console attaches to the journal, never to the engine process: leaving it (``q``) never stops the
 run, and any number of consoles may watch (only the owner's may command). ``aeni demo`` starts an
-emulator run as a detached engine process, slowed to a watchable pace, and attaches to it.
+emulator run as a detached engine process, slowed to a watchable pace, and attaches to it; when that
+console quits, the demo's engine is stopped too (``--stay`` keeps it), so demos never pile up. ``aeni demo
+--driver kla`` runs the KLA driver instead, against a fake InView process on a temporary exchange folder:
+that instrument belongs to the demo, so leaving the console always stops it, and the run with it.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from aeni_console.commands.common import positive_float, seed_arg
+from aeni_console.commands.common import check_new_journal, positive_float, seed_arg
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
 
@@ -39,7 +48,9 @@ def leave_message(journal: Path, pid: int | None = None) -> str:
     return "\n".join(lines)
 
 
-def run_console(journal: Path, replay: bool = False, pid: int | None = None, **app_kwargs: Any) -> int:
+def run_console(
+    journal: Path, replay: bool = False, pid: int | None = None, *, leave: bool = True, **app_kwargs: Any
+) -> int:
     from aeni_console.app import ConsoleApp
     from aeni_console.journal_source import JournalReplay, JournalSource
 
@@ -48,9 +59,35 @@ def run_console(journal: Path, replay: bool = False, pid: int | None = None, **a
         ConsoleApp(source, replay=replay, **app_kwargs).run()
     finally:
         source.close()
-    if not replay:
+    if not replay and leave:
         print(leave_message(journal, pid))
     return 0
+
+
+def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
+    """Stop an engine process as Ctrl-C would (finish the indent, lift, stop; the journal stays resumable).
+
+    SIGTERM first; SIGKILL only if it has not ended after ``grace_s`` (every finished indent is already in
+    the journal, so even that loses nothing). Returns what happened, in words.
+    """
+    import os
+    import signal
+    import time
+
+    from core.journal import engine_running
+
+    try:
+        os.kill(pid, signal.SIGTERM)
+    except ProcessLookupError:
+        return "the engine had already ended"
+    deadline = time.monotonic() + grace_s
+    while engine_running(journal) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if engine_running(journal):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+        return f"the engine (PID {pid}) did not stop within {grace_s:g} s and was killed"
+    return f"the demo's engine (PID {pid}) stopped"
 
 
 def _cmd_console(args: argparse.Namespace) -> int:
@@ -68,14 +105,95 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         "demo", source="command line", policy=args.policy, scenario=args.scenario, seed=args.seed
     )
     journal = Path(args.journal) if args.journal else default_journal_path("demo", args.runs_dir)
+    check_new_journal(journal)  # a bad --journal is refused before anything is said or started
+    kla = args.driver == "kla"
+    if kla and args.stay:
+        raise InputError(
+            "--stay", "a KLA demo's fake InView stops with its console; --stay needs --driver sim"
+        )
+    what = "a KLA run against a fake InView" if kla else "an emulator run"
     print(
-        f"starting an emulator run ({config.policy}, {args.scenario}, seed {config.seed}, "
-        f"{args.supervision}, ×{args.speed:g}) → {journal}",
+        f"starting {what} ({config.policy}, {args.scenario}, seed {config.seed}, "
+        f"{args.supervision}, ×{args.speed:g}) → {journal}"
+        + (
+            ""
+            if args.stay
+            else "\nleaving this console (q) stops the demo's engine"
+            + (" and its fake InView" if kla else "; `aeni demo --stay` keeps it")
+        ),
         flush=True,
     )
+    if kla:
+        with kla_demo(config, journal, args.supervision, args.speed) as (_, engine, _):
+            run_console(journal, pid=engine.pid, leave=False)
+        print(
+            f"The demo's engine and fake InView stopped; step through the run: aeni console --replay {journal}"
+        )
+        return 0
     pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)
     assert isinstance(pid, int)
-    return run_console(journal, pid=pid)
+    if args.stay:
+        return run_console(journal, pid=pid)
+    try:
+        run_console(journal, pid=pid, leave=False)
+    finally:
+        print(f"{stop_engine(pid, journal)}; step through the run: aeni console --replay {journal}")
+    return 0
+
+
+def _stop(proc: subprocess.Popen[bytes], wait_s: float = 30.0) -> None:
+    """SIGTERM (the engine aborts after the current indent, at once while it waits for the instrument;
+    the fake InView ends like Ctrl-C), then SIGKILL if it does not end in time."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
+@contextlib.contextmanager
+def kla_demo(
+    config: Any, journal: Path, supervision: str, speed: float
+) -> Iterator[tuple[Path, subprocess.Popen[bytes], subprocess.Popen[bytes]]]:
+    """A fake InView process on a temporary exchange folder and an engine with the KLA driver beside it:
+    yields (exchange, engine, fake InView). On leaving, the engine is stopped (its journal keeps every
+    measured indent), then the fake InView, and the exchange folder is removed (the accepted exports are
+    archived next to the journal)."""
+    from aeni_console.commands.run import _child_env, start_engine_process
+
+    options = config.driver_options
+    exchange = Path(tempfile.mkdtemp(prefix="aeni-demo-exchange-"))
+    journal.parent.mkdir(parents=True, exist_ok=True)
+    argv = [
+        sys.executable, "-m", "aeni_console.cli", "kla", "fake-inview",
+        "--exchange", str(exchange), "--speed", repr(float(speed)),
+        "--scenario", str(options.get("scenario", "ternary")), "--seed", str(config.seed),
+    ]  # fmt: skip
+    for key in ("noise", "drift"):  # the fake InView plays the run's scenario as the run names it
+        if options.get(key) is not None:
+            argv += [f"--{key}", str(options[key])]
+    if config.profile is not None:
+        argv += ["--profile", str(config.profile)]
+    try:
+        with open(journal.with_name(journal.name + ".fake-inview.log"), "ab") as log:
+            fake = subprocess.Popen(
+                argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=_child_env()
+            )
+        try:
+            engine = start_engine_process(
+                config, journal, supervision, speed, driver="kla", exchange=str(exchange)
+            )
+            assert isinstance(engine, subprocess.Popen)
+            try:
+                yield exchange, engine, fake
+            finally:
+                _stop(engine)
+        finally:
+            _stop(fake)
+    finally:
+        shutil.rmtree(exchange, ignore_errors=True)
 
 
 def register(subparsers: Any) -> None:
@@ -109,6 +227,17 @@ def register(subparsers: Any) -> None:
         default="supervised",
         help="auto | supervised (default: global jumps wait) | step (every block waits)",
     )
+    demo.add_argument(
+        "--driver",
+        choices=("sim", "kla"),
+        default="sim",
+        help="sim (default) | kla: the KLA driver against a fake InView on a temporary exchange folder",
+    )
     demo.add_argument("--journal", help="journal path (default ./runs/<UTC time>-demo.sqlite)")
+    demo.add_argument(
+        "--stay",
+        action="store_true",
+        help="keep the engine running after the console quits (default: quitting stops the demo's engine)",
+    )
     demo.add_argument("--runs-dir", dest="runs_dir", default="runs", help=argparse.SUPPRESS)
     demo.set_defaults(func=_cmd_demo)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-from pathlib import Path
 
-from aeni_console.commands.common import dumps, ledger_table, positive_float, whole_number
+from aeni_console.commands.common import dumps, input_file, ledger_table, positive_float, whole_number
 from core.cost import CostLedger, grid_baseline_blocks, price_sequence
 from core.errors import InputError
 from core.plan import Block, IndentSpec
+from core.plausible import MAX_STAGE_UM, check_stage_um
 from core.profile import fit_move_model, load_profile
 
 
@@ -42,9 +42,7 @@ def _grid(args: argparse.Namespace) -> int:
 
 
 def _read_path(path: str, default_hold_s: float, allowed: tuple[float, ...]) -> list[IndentSpec]:
-    src = Path(path)
-    if not src.is_file():
-        raise InputError(path, "no such file")
+    src = input_file(path)
     try:
         text = src.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -69,6 +67,8 @@ def _read_path(path: str, default_hold_s: float, allowed: tuple[float, ...]) -> 
             raise InputError(path, f"line {lineno}: x_um, y_um and hold_s must be numbers") from None
         if not all(math.isfinite(v) for v in (x, y, hold)):
             raise InputError(path, f"line {lineno}: values must be finite")
+        for axis, value in (("x_um", x), ("y_um", y)):
+            check_stage_um(path, f"line {lineno}: {axis}", value, -MAX_STAGE_UM, MAX_STAGE_UM)
         if not any(math.isclose(hold, h) for h in allowed):
             raise InputError(
                 path, f"line {lineno}: hold_s {hold:g} is not one of {', '.join(f'{h:g}' for h in allowed)}"
@@ -93,7 +93,7 @@ def _path(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    fit = fit_move_model(args.file)
+    fit = fit_move_model(input_file(args.file))
     m = fit.model
     text = (
         "[move]\n"

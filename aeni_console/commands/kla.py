@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.commands.common import dumps, positive_float, seed_arg, write_atomic
+from aeni_console.commands.common import dumps, input_file, positive_float, seed_arg, write_atomic
 from core.errors import InputError
 
 if TYPE_CHECKING:
@@ -48,6 +48,9 @@ def register(subparsers: Any) -> None:
     fake.add_argument("--seed", type=seed_arg, default=0, help="emulator seed (the run's)")
     fake.add_argument("--noise", default=None, help="noise override (the run's)")
     fake.add_argument("--drift", default=None, help="drift override (the run's)")
+    fake.add_argument(
+        "--sample", default=None, metavar="FILE", help="the run's sample file: the scenario is laid onto it"
+    )
     fake.add_argument("--profile", default=None, help="instrument profile (default: the scenario's)")
     fake.add_argument("--format", dest="fmt", choices=("xlsx", "csv"), default="xlsx", help="export format")
     fake.add_argument(
@@ -81,7 +84,7 @@ def register(subparsers: Any) -> None:
 def _read(args: argparse.Namespace) -> int:
     from drivers.kla.export import read_kla_export, records  # pandas/scipy load only when used
 
-    export = read_kla_export(args.file)
+    export = read_kla_export(input_file(args.file, "export file"))
     if args.csv is not None:
         write_csv_atomic(export, args.csv)
     for note in export.warnings:
@@ -150,6 +153,10 @@ def _fake_inview(args: argparse.Namespace) -> int:
         raise InputError("--invalid-rate", f"must be from 0 to 1, got {args.invalid_rate}")
     faults = tuple(parse_fault(f) for f in args.fault)
     scenario = make_scenario(args.scenario, args.seed, noise=args.noise, drift=args.drift)
+    if args.sample is not None:  # the scenario's truth on the run's sample, as the sim driver lays it
+        from core.sample import load_sample
+
+        scenario = scenario.on_sample(load_sample(args.sample))
     profile = load_profile(args.profile or scenario.profile_name)
     fake = FakeInView(
         args.exchange,

@@ -20,7 +20,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from aeni_console.commands.common import positive_float
+from aeni_console.commands.common import (
+    check_new_journal,
+    check_out_folder,
+    check_resumable_journal,
+    positive_float,
+)
+from core.access import journal_gid, protect
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
 
@@ -47,6 +53,7 @@ def engine_argv(
     speed: float | None = None,
     driver: str = "sim",
     exchange: str | None = None,
+    group: str | None = None,
 ) -> list[str]:
     """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
     from core.campaign import campaign_config_to_dict
@@ -63,6 +70,8 @@ def engine_argv(
         argv += ["--speed", repr(float(speed))]
     if exchange is not None:
         argv += ["--exchange", str(exchange)]
+    if group is not None:
+        argv += ["--group", group]
     return argv
 
 
@@ -77,6 +86,7 @@ def start_engine_process(
     wait_s: float = 60.0,
     driver: str = "sim",
     exchange: str | None = None,
+    group: str | None = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -84,14 +94,12 @@ def start_engine_process(
     the Popen handle, or with ``detach`` the PID of a process in its own session that survives the
     caller's terminal closing. InputError when the engine exits before creating its journal.
     """
-    journal = Path(journal_path)
-    if journal.exists():
-        raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
-    journal.parent.mkdir(parents=True, exist_ok=True)
+    journal = check_new_journal(journal_path)
     log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
     with open(log, "ab") as fh:
+        protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
-            engine_argv(config, journal, supervision, speed, driver, exchange),
+            engine_argv(config, journal, supervision, speed, driver, exchange, group=group),
             stdin=subprocess.DEVNULL,
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -153,7 +161,13 @@ def _print(line: str) -> None:
 
 
 def create_run_journal(
-    path: Path, config: Any, campaign: Any, supervision: str, driver: str = "sim", speed: float | None = None
+    path: Path,
+    config: Any,
+    campaign: Any,
+    supervision: str,
+    driver: str = "sim",
+    speed: float | None = None,
+    group: str | None = None,
 ) -> Any:
     """A new journal for ``campaign``'s run (the engine process, and the console tests' engine)."""
     from core.campaign import campaign_config_to_dict
@@ -170,6 +184,7 @@ def create_run_journal(
         grid_baseline_s=campaign.grid_baseline_s,
         stage_bounds_um=campaign.stage_bounds_um,
         name=config.name,
+        group_gid=journal_gid(group),
     )
 
 
@@ -202,7 +217,7 @@ def run_engine(
             config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
         campaign = Campaign(with_sample(config, options.driver))
         journal = create_run_journal(
-            path, config, campaign, options.supervision, options.driver, options.speed
+            path, config, campaign, options.supervision, options.driver, options.speed, group=options.group
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
     else:
@@ -212,6 +227,7 @@ def run_engine(
         if row.get("completed"):
             _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
             return 0
+        check_resumable_journal(path)
         try:
             config = campaign_config_from_dict(meta["config"])
         except InputError as exc:
@@ -274,6 +290,8 @@ def resolve_run(arg: str, runs_dir: str | Path = "runs") -> Path:
     p = Path(arg)
     if p.is_file():
         return p
+    if p.is_dir():
+        raise InputError(arg, "is a folder, not a journal file (`aeni runs FOLDER` lists the runs in it)")
     d = Path(runs_dir)
     matches = sorted(d.glob(f"*{arg}*.sqlite")) if d.is_dir() and "/" not in arg else []
     if len(matches) == 1:
@@ -298,6 +316,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "run.supervision": args.supervision,
         "run.journal": args.journal,
         "run.speed": args.speed,
+        "run.group": args.group,
     }
 
 
@@ -323,8 +342,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     journal = (
         Path(options.journal) if options.journal else default_journal_path(config.name, options.runs_dir)
     )
-    if journal.exists():
-        raise InputError(str(journal), "journal already exists; use `aeni resume` to continue it")
+    check_new_journal(journal)
     if args.detach:
         pid = start_engine_process(
             config,
@@ -334,6 +352,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             detach=True,
             driver=options.driver,
             exchange=options.exchange,
+            group=options.group,
         )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
@@ -351,6 +370,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
     if args.detach:
         with JournalReader(path):
             pass  # refuse a bad journal here, not in the log of a detached process
+        check_resumable_journal(path)
         argv = [sys.executable, "-m", ENGINE_MODULE, "resume", str(path), "--quiet"]
         if args.speed is not None:
             argv += ["--speed", repr(args.speed)]
@@ -563,6 +583,7 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
 
 def _cmd_export(args: argparse.Namespace) -> int:
     path = resolve_run(args.run)
+    check_out_folder(args.out)
     written = export_run(path, args.out, args.format)
     print(f"wrote {len(written)} tables to {args.out}: {', '.join(p.name for p in written)}")
     return 0
@@ -617,9 +638,52 @@ def _cmd_send(args: argparse.Namespace) -> int:
 
         with JournalReader(path) as reader:
             payload = check_adjust(payload, reader.profile.allowed_holds_s)
+    # the other commands' fields, by the same rules the engine applies: nothing the engine must reject is queued
+    allowed = {"veto": ("hold_blocks", "decision_id"), "approve": ("decision_id",), "step": ("decision_id",)}
+    if args.kind != "adjust" and args.kind not in _INSTRUMENT_REPORTS:
+        extra = [k for k in payload if k not in allowed.get(args.kind, ())]
+        if extra:
+            takes = ", ".join(allowed.get(args.kind, ())) or "no fields"
+            raise InputError(extra[0], f"is not a field of {args.kind} (it takes {takes})")
+    if args.kind == "veto":
+        from core.settings import check_veto
+
+        check_veto(payload)
     cid = send_command(path, Command(CommandKind(args.kind), author=getpass.getuser(), payload=payload))
-    print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")
-    return 0
+    if args.no_wait:
+        print(f"command {cid} ({args.kind}) queued for {path}; the engine answers at its next checkpoint")
+        return 0
+    verdict = wait_for_verdict(path, cid, args.wait_s)
+    if verdict is None:
+        print(
+            f"command {cid} ({args.kind}) queued; no verdict within {args.wait_s:g} s (the engine answers "
+            f"at its next checkpoint, after the indent in progress): see `aeni status {path}`"
+        )
+        return SEND_NO_VERDICT
+    outcome, reason = verdict
+    print(f"command {cid} ({args.kind}) {outcome}" + (f": {reason}" if reason else ""))
+    return 0 if outcome == "accepted" else SEND_REJECTED
+
+
+SEND_REJECTED = 1  # the engine refused the command (bad input refused before queueing exits 2)
+SEND_NO_VERDICT = 3  # still queued: the engine did not answer within the wait
+
+
+def wait_for_verdict(
+    path: Path, command_id: int, wait_s: float, poll_s: float = 0.05
+) -> tuple[str, str] | None:
+    """The engine's (outcome, reason) for a queued command, or None when it has not answered within wait_s."""
+    from core.journal import JournalReader
+
+    deadline = time.monotonic() + wait_s
+    with JournalReader(path) as reader:
+        while True:
+            row = next((c for c in reader.commands() if c["command_id"] == command_id), None)
+            if row is not None and row["processed"]:
+                return str(row["outcome"]), str(row["reason"] or "")
+            if time.monotonic() >= deadline:
+                return None
+            time.sleep(poll_s)
 
 
 def register(subparsers: Any) -> None:
@@ -640,6 +704,7 @@ def register(subparsers: Any) -> None:
     run.add_argument("--supervision", help="auto | supervised | step")
     run.add_argument("--journal", help="journal path (default ./runs/<UTC time>-<name>.sqlite)")
     run.add_argument("--speed", help="simulated instrument speed-up (default: as fast as possible)")
+    run.add_argument("--group", help="OS group that may watch the run (journal 0640); see docs/security.md")
     run.add_argument("--name", help="run name")
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
@@ -669,7 +734,8 @@ def register(subparsers: Any) -> None:
     send = subparsers.add_parser(
         "send",
         help="send an operator command to a running engine (owner only)",
-        description="Queue an operator command in the run's journal; the engine applies it at its next checkpoint.",
+        description="Queue an operator command in the run's journal, wait (bounded) for the engine's verdict and "
+        "print it. Exit 0 accepted, 1 rejected by the engine, 2 refused before queueing, 3 no verdict yet.",
     )
     send.add_argument("run", metavar="RUN")
     send.add_argument(
@@ -684,6 +750,19 @@ def register(subparsers: Any) -> None:
         nargs="*",
         metavar="FIELD=VALUE",
         help="adjust: settings to change; veto: hold_blocks=N; confirm/report/skip: the token or site",
+    )
+    send.add_argument(
+        "--no-wait",
+        dest="no_wait",
+        action="store_true",
+        help="only queue the command; do not wait for the verdict",
+    )
+    send.add_argument(
+        "--wait-s",
+        dest="wait_s",
+        type=positive_float("--wait-s"),
+        default=5.0,
+        help="how long to wait for the engine's verdict (default 5 s; exit 3 when it has not answered)",
     )
     send.set_defaults(func=_cmd_send)
 

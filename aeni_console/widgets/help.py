@@ -27,6 +27,14 @@ KEYS: tuple[tuple[str, str], ...] = (
     ("q", "leave the console: the run keeps going"),
 )
 
+# the ticket keys: they act only in WAITING FOR INSTRUMENT (a KLA run), where "a" reports instead of approving
+INSTRUMENT_KEYS: tuple[tuple[str, str], ...] = (
+    ("c", "the array has started: type the ticket's token (journaled)"),
+    ("a", "report the array aborted (token): exported rows kept, the rest not run"),
+    ("f", "report surface not found (token): every site not run"),
+    ("k", "skip a site: its number in the sites file (1-based)"),
+)
+
 PANELS: tuple[tuple[str, str], ...] = (
     (
         "Map",
@@ -37,6 +45,7 @@ PANELS: tuple[tuple[str, str], ...] = (
     ("Cost", "instrument seconds by category against the 9×9-of-5×5 grid baseline"),
     ("Drift", "last drift rate, hold mode, area error against the 2 % threshold, drift events"),
     ("Log", "decisions, commands (with their author) and warnings"),
+    ("Ticket", "WAITING FOR INSTRUMENT: what to load, where to move, which method, the deadline"),
 )
 
 
@@ -46,6 +55,13 @@ def help_text() -> Table:
     table.add_column()
     table.add_row(Text("Keys", style="bold underline"), "")
     for key, what in KEYS:
+        table.add_row(key, what)
+    table.add_row("", "")
+    # a short heading: the key column stays as wide as the keys
+    table.add_row(
+        Text("Ticket", style="bold underline"), Text("in WAITING FOR INSTRUMENT (a KLA run)", style="dim")
+    )
+    for key, what in INSTRUMENT_KEYS:
         table.add_row(key, what)
     table.add_row("", "")
     table.add_row(Text("Panels", style="bold underline"), "")

@@ -183,6 +183,7 @@ def result_from_row(r: Sequence[Any]) -> IndentResult:
         t_s=r[10],
         status=r[11],
         note=r[12],
+        depth_at_max_load_nm=None if r[13] is None else float(r[13]),
     )
 
 
@@ -202,10 +203,13 @@ def result_to_row(r: IndentResult) -> tuple[Any, ...]:
         r.t_s,
         r.status,
         r.note,
+        None
+        if r.depth_at_max_load_nm is None or not math.isfinite(r.depth_at_max_load_nm)
+        else r.depth_at_max_load_nm,
     )
 
 
 INDENT_COLS = (
     "block_id, indent_index, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, hold_s, "
-    "hardness_gpa, modulus_gpa, drift_rate_nm_s, t_s, status, note"
+    "hardness_gpa, modulus_gpa, drift_rate_nm_s, t_s, status, note, depth_at_max_load_nm"
 )

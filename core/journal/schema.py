@@ -18,7 +18,7 @@ from core.errors import InputError
 from core.runview import EngineState
 
 # 2: indents carry a status (measured / failed / not_run) and NULL values when not measured
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 SQLITE_MAGIC = b"SQLite format 3\x00"
 LOG_TAIL = 200
 BUSY_TIMEOUT_MS = 10_000
@@ -46,7 +46,8 @@ CREATE TABLE indents (
     commanded_x_um REAL NOT NULL, commanded_y_um REAL NOT NULL, actual_x_um REAL,
     actual_y_um REAL, hold_s REAL NOT NULL, hardness_gpa REAL, modulus_gpa REAL,
     drift_rate_nm_s REAL, t_s REAL NOT NULL,
-    status TEXT NOT NULL CHECK (status IN ('measured', 'failed', 'not_run')), note TEXT NOT NULL, wall_utc TEXT NOT NULL, session_id INTEGER,
+    status TEXT NOT NULL CHECK (status IN ('measured', 'failed', 'not_run')), note TEXT NOT NULL,
+    depth_at_max_load_nm REAL, wall_utc TEXT NOT NULL, session_id INTEGER,
     last_step_id INTEGER, PRIMARY KEY (block_id, indent_index));
 CREATE TABLE steps (
     step_id INTEGER PRIMARY KEY, block_id INTEGER NOT NULL, indent_index INTEGER NOT NULL,
@@ -204,7 +205,7 @@ def _check_schema(conn: sqlite3.Connection, src: str) -> None:
         raise InputError(
             src,
             f"journal schema version {row[0]} is not supported (this program reads version {SCHEMA_VERSION}; "
-            "journals written before indents had a status cannot be loaded, see docs/journal.md)",
+            "journals written by an earlier version are not converted, see docs/journal.md)",
         )
     missing = [t for t in TABLES if t not in names]
     if missing:

@@ -12,6 +12,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from core.access import JOURNAL_MODE, protect, protect_side_files
 from core.errors import InputError
 from core.journal.codec import INDENT_COLS, DriverState, map_fields_to_bytes, result_to_row, to_json, utc_now
 from core.journal.reader import Queries
@@ -85,9 +86,11 @@ class Journal:
 
     # -- opening ---------------------------------------------------------------------------------
     @staticmethod
-    def _take_lock(path: Path, retries: int = 10) -> int:
+    def _take_lock(path: Path, retries: int = 10, gid: int | None = None) -> int:
         lp = lock_path_for(path)
-        fd = os.open(lp, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(lp, os.O_RDWR | os.O_CREAT, JOURNAL_MODE)
+        with contextlib.suppress(OSError):  # the journal's watchers probe the lock: same group and mode
+            protect(lp, gid)
         for attempt in range(retries):
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -113,6 +116,7 @@ class Journal:
         conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
         conn.execute("PRAGMA journal_mode = WAL")
         conn.execute("PRAGMA synchronous = FULL")
+        protect_side_files(path)
         return conn
 
     @classmethod
@@ -130,13 +134,18 @@ class Journal:
         stage_bounds_um: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0),
         name: str | None = None,
         extra: dict[str, Any] | None = None,
+        group_gid: int | None = None,
     ) -> Journal:
-        """A new journal holding the run's configuration; returns the writer (lock held)."""
+        """A new journal holding the run's configuration; returns the writer (lock held).
+
+        The file is created ``0640`` and given ``group_gid`` when set (see core.access): only its owner
+        can write it, so only the owner can command the run.
+        """
         p = Path(path)
         if p.exists():
             raise InputError(str(p), "journal already exists; use `aeni resume` to continue it")
         p.parent.mkdir(parents=True, exist_ok=True)
-        lock_fd = cls._take_lock(p)
+        lock_fd = cls._take_lock(p, gid=group_gid)
         tmp = p.with_name(p.name + ".creating")
         try:
             with contextlib.suppress(FileNotFoundError):
@@ -171,6 +180,7 @@ class Journal:
             )
             conn.execute("COMMIT")
             conn.close()
+            protect(tmp, group_gid)
             os.replace(tmp, p)  # a journal either exists whole or not at all
             for suffix in ("-wal", "-shm"):
                 with contextlib.suppress(FileNotFoundError):
@@ -187,7 +197,7 @@ class Journal:
         """Reopen a journal for writing (resume). Checks it read-only first and takes the engine lock."""
         p = Path(path)
         check_journal_file(p)
-        lock_fd = cls._take_lock(p)
+        lock_fd = cls._take_lock(p, gid=p.stat().st_gid)
         try:
             conn = cls._connect_rw(p)
         except BaseException:
@@ -449,7 +459,7 @@ class Journal:
             last = c.execute("SELECT MAX(step_id) FROM steps").fetchone()[0]
             c.execute(
                 f"INSERT INTO indents ({INDENT_COLS}, wall_utc, session_id, last_step_id) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (*result_to_row(result), utc_now(), self.session_id, last),
             )
             self._driver_state(c, driver_state)

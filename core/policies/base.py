@@ -68,6 +68,8 @@ class PlanContext:
     )
     gp: GPSummary | None = None  # the fitted kernel, for planners that need covariances (y-free)
     recent_drift_rates_nm_s: tuple[float, ...] = ()  # the last drift readings (up to 25), oldest first
+    # the last measured depths at maximum load (nm, up to 25; NaN where the instrument reported none)
+    recent_depths_nm: tuple[float, ...] = ()
     placement_mask: np.ndarray | None = (
         None  # (n²,) lattice centres the sample allows (edge band, exclusions)
     )

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
+from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct, typical_depth_nm
 from core.profile import InstrumentProfile
 
 if TYPE_CHECKING:
@@ -25,21 +25,26 @@ def choose_hold(
     last_drift_rate_nm_s: float | None,
     profile: InstrumentProfile,
     threshold_pct: float = AREA_ERROR_THRESHOLD_PCT,
+    depth_nm: float | None = None,
 ) -> tuple[float, float | None]:
     """SPEC §6.6: the profile's fast hold (5 s) when the last drift rate's area error is below 2 %, else
-    its default hold (80 s)."""
+    its default hold (80 s). The area error is priced over the profile's drift segment at the measured
+    depth (``depth_nm``; the nominal depth when the instrument reported none)."""
     if last_drift_rate_nm_s is None:
         return profile.default_hold_s, None
-    err = area_error_pct(last_drift_rate_nm_s)
+    depth = typical_depth_nm(()) if depth_nm is None else depth_nm
+    err = area_error_pct(last_drift_rate_nm_s, depth, profile.drift_segment_s)
     return (profile.fast_hold_s if err < threshold_pct else profile.default_hold_s), err
 
 
-def robust_rate(readings: tuple[float, ...]) -> float:
+def robust_rate(readings: tuple[float, ...], depth_nm: float, segment_s: float) -> float:
     """One drift reading is noisy: the median of the last DRIFT_WINDOW, unless the last reading alone breaks
-    the paper's 2 % rule (an event shows at once; the readings' own noise never sends a quiet run slow)."""
+    the paper's 2 % rule at ``depth_nm`` over ``segment_s`` (an event shows at once; the readings' own noise
+    never sends a quiet run slow)."""
     window = float(np.median(readings[-DRIFT_WINDOW:]))
     last = float(readings[-1])
-    return max(window, last) if area_error_pct(last) >= AREA_ERROR_THRESHOLD_PCT else window
+    breaks = area_error_pct(last, depth_nm, segment_s) >= AREA_ERROR_THRESHOLD_PCT
+    return max(window, last) if breaks else window
 
 
 @dataclass(frozen=True)
@@ -57,10 +62,11 @@ class HoldRule:
             hold = ctx.fixed_hold_s
             return hold, None, f"fixed {hold:g} s"
         rate = ctx.last_drift_rate_nm_s
+        depth = typical_depth_nm(ctx.recent_depths_nm[-DRIFT_WINDOW:])
         if self.bias_aware and ctx.recent_drift_rates_nm_s:
-            rate = robust_rate(ctx.recent_drift_rates_nm_s)
+            rate = robust_rate(ctx.recent_drift_rates_nm_s, depth, ctx.profile.drift_segment_s)
         fast, slow = ctx.profile.fast_hold_s, ctx.profile.default_hold_s
-        hold, err = choose_hold(rate, ctx.profile)
+        hold, err = choose_hold(rate, ctx.profile, depth_nm=depth)
         mode = f"adaptive: {'fast' if hold == fast else 'slow'} {hold:g} s"
         if self.bias_aware and hold == fast and err is not None and map_rel_err is None:
             # the precision to aim at is not known until the seeds have shaped a model

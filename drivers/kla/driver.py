@@ -255,6 +255,7 @@ class KlaDriver:
                 t_s=self._clock_s,
                 status=outcome.status,
                 note=outcome.reason,
+                depth_at_max_load_nm=outcome.max_depth_nm,
             )
 
 

@@ -25,6 +25,7 @@ drift hold is creep recovery, so neither is re-measured nor re-applied.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 import warnings
@@ -720,6 +721,7 @@ def _read_xlsx(path: Path) -> dict[str, pd.DataFrame]:
 
 
 def _read_sheets(path: Path, engine: str) -> dict[str, pd.DataFrame]:
+    log = io.StringIO()  # xlrd prints its file-format complaints to a log that is stdout by default
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # pandas deprecates xlrd; openpyxl warns on styles
@@ -728,12 +730,18 @@ def _read_sheets(path: Path, engine: str) -> dict[str, pd.DataFrame]:
             elif engine == "openpyxl":
                 sheets = _read_xlsx(path)
             else:
-                sheets = pd.read_excel(path, sheet_name=None, header=None, engine=engine)
+                kwargs = {"logfile": log} if engine == "xlrd" else {}
+                sheets = pd.read_excel(
+                    path, sheet_name=None, header=None, engine=engine, engine_kwargs=kwargs
+                )
     except InputError:
         raise
     except Exception as exc:  # the engines raise a zoo of types on corrupt files
         what = "text export" if engine == "text" else "Excel workbook"
         raise InputError(str(path), f"unreadable {what} ({type(exc).__name__}: {exc})") from exc
+    for line in log.getvalue().splitlines():  # kept, as warnings (the CLI prints them on stderr)
+        if line.strip():
+            warnings.warn(f"{path.name}: {line.strip()}", UserWarning, stacklevel=2)
     if not sheets or all(df.empty for df in sheets.values()):
         raise InputError(str(path), "workbook has no data")
     return {str(name): df for name, df in sheets.items()}

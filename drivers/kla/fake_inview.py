@@ -211,7 +211,7 @@ class FakeInView:
         valid: list[list[float]] = []
         for n, r in enumerate(results, start=1):
             scale = 1e-3 if mm else 1.0
-            depth_nm = 100.0
+            depth_nm = 100.0 if r.depth_at_max_load_nm is None else r.depth_at_max_load_nm
             load_mn = r.hardness_gpa * BERKOVICH_C0 * depth_nm**2 * 1e-6
             values = [r.modulus_gpa, r.hardness_gpa, r.drift_rate_nm_s, depth_nm, load_mn]
             invalid = (

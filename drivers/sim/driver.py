@@ -116,6 +116,7 @@ class SimulatedDriver:
                 modulus_gpa=m.modulus_gpa,
                 drift_rate_nm_s=m.drift_rate_nm_s,
                 t_s=self._clock_s,
+                depth_at_max_load_nm=m.depth_at_max_load_nm,
             )
             if self._abort.is_set():
                 # the current indent is finished: lift and stop

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.drift import area_error_pct
 from core.errors import InputError
+from core.plausible import MAX_STAGE_UM, check_hardness_gpa, check_noise_sd_gpa, check_stage_um
 from core.profile import InstrumentProfile
 
 __all__ = [
@@ -528,10 +529,12 @@ class CsvTruth:
         """Read ``x_um, y_um, hardness_gpa[, noise_sd_gpa]``; any problem is one InputError naming the file."""
         source = str(path)
         p = Path(path)
+        if p.is_dir():
+            raise InputError(source, "is a folder, not a truth file")
         if not p.exists():
             raise InputError(source, "no such truth file")
         if not p.is_file():
-            raise InputError(source, "not a file")
+            raise InputError(source, "not a regular file (a truth CSV was expected)")
         try:
             text = p.read_bytes().decode("utf-8-sig")
         except OSError as exc:
@@ -582,6 +585,13 @@ class CsvTruth:
                 if col == "noise_sd_gpa" and value < 0:
                     raise InputError(source, f"line {line}: noise_sd_gpa must be ≥ 0, got {value:g}")
                 values.append(value)
+            row = dict(zip(header, values, strict=True))
+            # values no real sample has: a unit slip (MPa under hardness_gpa, nm under x_um) is named
+            hardness = check_hardness_gpa(source, row["hardness_gpa"], f"line {line}: hardness_gpa")
+            if "noise_sd_gpa" in row:
+                check_noise_sd_gpa(source, row["noise_sd_gpa"], hardness, f"line {line}: noise_sd_gpa")
+            for axis in ("x_um", "y_um"):
+                check_stage_um(source, f"line {line}: {axis}", row[axis], -MAX_STAGE_UM, MAX_STAGE_UM)
             rows.append(values)
             lines.append(line)
         if len(rows) < 4:
@@ -674,6 +684,7 @@ class Measurement:
     hardness_gpa: float
     modulus_gpa: float
     drift_rate_nm_s: float
+    depth_at_max_load_nm: float  # the test runs to its nominal depth, as measured (drift included)
 
 
 def modulus_from_hardness_gpa(h_gpa: ArrayLike) -> FloatArray:
@@ -786,6 +797,7 @@ class Emulator:
             hardness_gpa=h_noisy * shrink**2,
             modulus_gpa=max(e_true * (1.0 + rel), 1e-3) * shrink,
             drift_rate_nm_s=max(reading, 0.0),
+            depth_at_max_load_nm=depth,
         )
 
 

@@ -90,6 +90,7 @@ class Scenario:
             self.drift,
             self.seed,
             lateral_sd_um=self.lateral_sd_um,
+            t_measure_s=profile.drift_segment_s,
             full_correction_hold_s=max(profile.allowed_holds_s),
             site_texture=self.site_texture,
         )

@@ -1,0 +1,368 @@
+"""A new user's bad and odd inputs across the commands (issue 15's "Done when").
+
+Every case must end in exit code 2 with one line on stderr that names the field or the file, no
+traceback, and nothing written: the files of the case's folder and the run journal are byte-for-byte
+what they were. The table is the point; add a row for each new way to get it wrong.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from aeni_console.cli import main
+from core.campaign import CampaignConfig
+from core.plan import PlannerSettings
+
+DIR = object()  # a file spec that makes a folder
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str
+    argv: tuple[str, ...]  # {t} is the case's folder, {run} a finished run's journal
+    needles: tuple[str, ...]  # each must be in the one error line (the field or the file, and the problem)
+    files: dict[str, object] = field(default_factory=dict)  # name: text, bytes or DIR
+
+
+SAMPLE = 'name = "s"\n[corners]\ntl = { x_um = 0.0, y_um = 1000.0, z_um = 10.0 }\ntr = { x_um = 1000.0, y_um = 1000.0, z_um = 10.0 }\nbr = { x_um = 1000.0, y_um = 0.0, z_um = 10.0 }\nbl = { x_um = 0.0, y_um = 0.0, z_um = 10.0 }\n'
+LATTICE_CSV = "x_um,y_um,hardness_gpa\n0,0,3\n1000,0,4\n0,1000,5\n1000,1000,6\n500,500,4.5\n"
+
+CASES: tuple[Case, ...] = (
+    # ---- the run file ---------------------------------------------------------------------------
+    Case("toml-syntax", ("run", "{t}/r.toml"), ("r.toml", "not valid TOML"), {"r.toml": "name = \n"}),
+    Case("toml-binary", ("run", "{t}/r.toml"), ("r.toml",), {"r.toml": b"\xff\xfe\x00\x01"}),
+    Case("toml-missing", ("run", "{t}/none.toml"), ("none.toml", "no such")),
+    Case("toml-folder", ("run", "{t}/cfg"), ("cfg", "is a folder"), {"cfg": DIR}),
+    Case("toml-typo", ("run", "{t}/r.toml"), ("plannr", "unknown field"), {"r.toml": "[plannr]\nbeta = 1\n"}),
+    Case(
+        "toml-unknown-key",
+        ("run", "{t}/r.toml"),
+        ("planner.betta", "unknown field"),
+        {"r.toml": "[planner]\nbetta = 1\n"},
+    ),
+    Case("toml-beta-neg", ("run", "{t}/r.toml"), ("planner.beta",), {"r.toml": "[planner]\nbeta = -1\n"}),
+    Case(
+        "toml-beta-text", ("run", "{t}/r.toml"), ("planner.beta",), {"r.toml": '[planner]\nbeta = "high"\n'}
+    ),
+    Case(
+        "toml-policy",
+        ("run", "{t}/r.toml"),
+        ("campaign.policy",),
+        {"r.toml": '[campaign]\npolicy = "best"\n'},
+    ),
+    Case("toml-seed-neg", ("run", "{t}/r.toml"), ("campaign.seed",), {"r.toml": "[campaign]\nseed = -3\n"}),
+    Case("toml-name-empty", ("run", "{t}/r.toml"), ("name",), {"r.toml": 'name = ""\n'}),
+    Case(
+        "toml-supervision",
+        ("run", "{t}/r.toml"),
+        ("run.supervision",),
+        {"r.toml": '[run]\nsupervision = "sometimes"\n'},
+    ),
+    Case(
+        "toml-lattice",
+        ("run", "{t}/r.toml"),
+        ("campaign.lattice_n",),
+        {"r.toml": "[campaign]\nlattice_n = 2\n"},
+    ),
+    Case(
+        "toml-budget-nan",
+        ("run", "{t}/r.toml"),
+        ("planner.budget_s",),
+        {"r.toml": "[planner]\nbudget_s = nan\n"},
+    ),
+    Case(
+        "toml-csv-no-truth",
+        ("run", "{t}/r.toml"),
+        ("campaign.truth_csv",),
+        {"r.toml": '[campaign]\nscenario = "csv"\n'},
+    ),
+    Case("toml-section-not-table", ("run", "{t}/r.toml"), ("planner",), {"r.toml": 'planner = "fast"\n'}),
+    Case("toml-speed-zero", ("run", "{t}/r.toml"), ("run.speed",), {"r.toml": "[run]\nspeed = 0\n"}),
+    # ---- run flags ------------------------------------------------------------------------------
+    Case("flag-seed-text", ("run", "--seed", "abc", "--journal", "{t}/j.sqlite"), ("campaign.seed",)),
+    Case("flag-budget-neg", ("run", "--budget-s", "-5", "--journal", "{t}/j.sqlite"), ("planner.budget_s",)),
+    Case(
+        "flag-lattice-big",
+        ("run", "--lattice-n", "5000", "--journal", "{t}/j.sqlite"),
+        ("campaign.lattice_n",),
+    ),
+    Case("flag-speed-zero", ("run", "--speed", "0", "--journal", "{t}/j.sqlite"), ("run.speed",)),
+    Case("flag-driver", ("run", "--driver", "kla9000", "--journal", "{t}/j.sqlite"), ("run.driver",)),
+    Case("flag-policy", ("run", "--policy", "fastest", "--journal", "{t}/j.sqlite"), ("campaign.policy",)),
+    Case(
+        "flag-scenario", ("run", "--scenario", "ternery", "--journal", "{t}/j.sqlite"), ("campaign.scenario",)
+    ),
+    Case(
+        "flag-supervision",
+        ("run", "--supervision", "maybe", "--journal", "{t}/j.sqlite"),
+        ("run.supervision",),
+    ),
+    Case(
+        "journal-is-text",
+        ("run", "--journal", "{t}/notes.txt"),
+        ("notes.txt", "not a journal"),
+        {"notes.txt": "x"},
+    ),
+    Case("journal-is-folder", ("run", "--journal", "{t}/out"), ("out", "is a folder"), {"out": DIR}),
+    Case(
+        "journal-under-file",
+        ("run", "--journal", "{t}/f/j.sqlite"),
+        ("f", "is a file"),
+        {"f": "a file, not a folder"},
+    ),
+    Case("journal-exists", ("run", "--journal", "{run}"), ("aeni resume",)),
+    # ---- sample files ---------------------------------------------------------------------------
+    Case("sample-missing", ("run", "--sample", "{t}/s.toml", "--journal", "{t}/j.sqlite"), ("s.toml",)),
+    Case(
+        "sample-folder",
+        ("run", "--sample", "{t}/s", "--journal", "{t}/j.sqlite"),
+        ("s",),
+        {"s": DIR},
+    ),
+    Case(
+        "sample-in-mm",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "mm"),
+        {"s.toml": SAMPLE.replace("1000.0", "1.0")},
+    ),
+    Case(
+        "sample-no-corner",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "corners.bl"),
+        {"s.toml": SAMPLE.rsplit("bl =", 1)[0]},
+    ),
+    Case(
+        "sample-typo",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "safty"),
+        {"s.toml": SAMPLE + "[safty]\nr_excl_um = 20\n"},
+    ),
+    # ---- cost -----------------------------------------------------------------------------------
+    Case(
+        "path-no-columns", ("cost", "path", "{t}/p.csv"), ("p.csv", "missing column"), {"p.csv": "x,y\n1,2\n"}
+    ),
+    Case(
+        "path-text-number",
+        ("cost", "path", "{t}/p.csv"),
+        ("p.csv", "line 3"),
+        {"p.csv": "x_um,y_um\n1,2\n3,four\n"},
+    ),
+    Case("path-empty-file", ("cost", "path", "{t}/p.csv"), ("p.csv",), {"p.csv": ""}),
+    Case(
+        "path-hold",
+        ("cost", "path", "{t}/p.csv"),
+        ("p.csv", "hold_s 30"),
+        {"p.csv": "x_um,y_um,hold_s\n1,2,30\n"},
+    ),
+    Case("path-folder", ("cost", "path", "{t}/d"), ("d", "is a folder"), {"d": DIR}),
+    Case("grid-blocks-zero", ("cost", "grid", "--blocks", "0"), ("--blocks",)),
+    Case("grid-size-text", ("cost", "grid", "--size", "five"), ("--size",)),
+    Case("grid-pitch-inf", ("cost", "grid", "--pitch-um", "inf"), ("--pitch-um",)),
+    Case("grid-hold", ("cost", "grid", "--hold-s", "40"), ("--hold-s",)),
+    Case("grid-profile-name", ("cost", "grid", "--profile", "imicro"), ("imicro",)),
+    Case(
+        "grid-profile-bad-toml",
+        ("cost", "grid", "--profile", "{t}/p.toml"),
+        ("p.toml",),
+        {"p.toml": "[steps\nlift_s = 3\n"},
+    ),
+    Case("fit-move-missing", ("cost", "fit-move", "{t}/m.csv"), ("m.csv", "no such file")),
+    Case(
+        "fit-move-one-point",
+        ("cost", "fit-move", "{t}/m.csv"),
+        ("m.csv",),
+        {"m.csv": "distance_um,seconds\n100,1.5\n"},
+    ),
+    Case(
+        "fit-move-negative",
+        ("cost", "fit-move", "{t}/m.csv"),
+        ("m.csv",),
+        {"m.csv": "distance_um,seconds\n" + "".join(f"{d},-1\n" for d in (1, 10, 100, 1000, 5000))},
+    ),
+    # ---- simulate -------------------------------------------------------------------------------
+    Case("sim-truth-missing", ("simulate", "--truth", "{t}/t.csv"), ("t.csv",)),
+    Case("sim-truth-folder", ("simulate", "--truth", "{t}/t"), ("t", "is a folder"), {"t": DIR}),
+    Case(
+        "sim-truth-columns",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "hardness_gpa"),
+        {"t.csv": "x,y,h\n0,0,1\n"},
+    ),
+    Case(
+        "sim-truth-text",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv",),
+        {"t.csv": LATTICE_CSV.replace("4.5", "hard")},
+    ),
+    Case(
+        "sim-truth-nan",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv",),
+        {"t.csv": LATTICE_CSV.replace("4.5", "nan")},
+    ),
+    Case(
+        "sim-truth-negative",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv",),
+        {"t.csv": LATTICE_CSV.replace("4.5", "-4.5")},
+    ),
+    Case(
+        "sim-truth-in-mpa",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "line 2", "hardness_gpa 3000 GPa is impossible", "looks like MPa"),
+        {"t.csv": LATTICE_CSV.replace("0,0,3", "0,0,3000")},
+    ),
+    Case(
+        "sim-truth-noise-in-mpa",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "line 2", "noise_sd_gpa 80 GPa", "MPa"),
+        {
+            "t.csv": "x_um,y_um,hardness_gpa,noise_sd_gpa\n0,0,3,80\n1000,0,4,0.1\n0,1000,5,0.1\n1000,1000,6,0.1\n"
+        },
+    ),
+    Case(
+        "sim-truth-in-nm",
+        ("simulate", "--truth", "{t}/t.csv"),
+        ("t.csv", "x_um 1e+06 µm", "looks like nm"),
+        {"t.csv": LATTICE_CSV.replace("1000,", "1000000,")},
+    ),
+    Case(
+        "path-far-away",
+        ("cost", "path", "{t}/p.csv"),
+        ("p.csv", "line 3: x_um 1e+12 µm"),
+        {"p.csv": "x_um,y_um\n0,0\n1e12,0\n"},
+    ),
+    Case(
+        "path-in-nm",
+        ("cost", "path", "{t}/p.csv"),
+        ("p.csv", "looks like nm"),
+        {"p.csv": "x_um,y_um\n50000000,0\n"},
+    ),
+    Case("sim-scenario", ("simulate", "--scenario", "ternery"), ("ternery",)),
+    Case("sim-seed-neg", ("simulate", "--seed", "-1"), ("--seed",)),
+    Case("sim-budget-nan", ("simulate", "--budget-s", "nan"), ("--budget-s",)),
+    Case("sim-policy", ("simulate", "--policy", "best"), ("--policy",)),
+    Case(
+        "sim-profile-missing", ("simulate", "--profile", "{t}/none.toml", "--budget-s", "100"), ("none.toml",)
+    ),
+    # ---- journals and runs ----------------------------------------------------------------------
+    Case(
+        "status-not-journal", ("status", "{t}/j.sqlite"), ("j.sqlite", "not an SQLite"), {"j.sqlite": "hello"}
+    ),
+    Case(
+        "status-truncated",
+        ("status", "{t}/j.sqlite"),
+        ("j.sqlite",),
+        {"j.sqlite": b"SQLite format 3\x00" + b"\x10\x00" + b"\x00" * 82},
+    ),
+    Case("status-missing", ("status", "{t}/nothing.sqlite"), ("nothing.sqlite",)),
+    Case("status-folder", ("status", "{t}/d"), ("d", "is a folder"), {"d": DIR}),
+    Case("replay-block", ("replay", "{run}", "--block", "999"), ("--block", "999")),
+    Case("replay-block-text", ("replay", "{run}", "--block", "two"), ("--block",)),
+    Case("export-format", ("export", "{run}", "--format", "xml", "--out", "{t}/o"), ("--format",)),
+    Case(
+        "export-out-file", ("export", "{run}", "--out", "{t}/o.csv"), ("o.csv", "is a file"), {"o.csv": "x"}
+    ),
+    Case("export-out-missing", ("export", "{run}"), ("--out",)),
+    Case("resume-text", ("resume", "{t}/n.txt"), ("n.txt",), {"n.txt": "notes"}),
+    Case("resume-speed", ("resume", "{run}", "--speed", "-2"), ("--speed",)),
+    Case(
+        "report-not-journal",
+        ("report", "{t}/x.sqlite", "--out", "{t}/rep"),
+        ("x.sqlite",),
+        {"x.sqlite": "hi"},
+    ),
+    Case(
+        "report-out-file", ("report", "{run}", "--out", "{t}/r.png"), ("r.png", "is a file"), {"r.png": "x"}
+    ),
+    Case("runs-file", ("runs", "{t}/x"), ("x", "is a file"), {"x": "x"}),
+    Case("runs-missing", ("runs", "{t}/nope"), ("nope", "no such folder")),
+    Case("send-no-fields", ("send", "{run}", "adjust"), ("adjust",)),
+    Case("send-no-equals", ("send", "{run}", "adjust", "beta"), ("beta", "field=value")),
+    Case("send-kind", ("send", "{run}", "explode"), ("explode",)),
+    Case("send-finished", ("send", "{run}", "pause"), ("no engine is running",)),
+    Case(
+        "send-edge-penalty", ("send", "{run}", "adjust", "edge_penalty=0.99"), ("edge_penalty", "0 to 0.95")
+    ),
+    Case(
+        "send-adjust-unknown", ("send", "{run}", "adjust", "speed=2"), ("speed", "not an adjustable setting")
+    ),
+    Case("send-adjust-hold", ("send", "{run}", "adjust", "fixed_hold_s=30"), ("fixed_hold_s", "0, 5, 80")),
+    Case("send-beta-text", ("send", "{run}", "adjust", "beta=high"), ("beta",)),
+    Case("send-veto-hold", ("send", "{run}", "veto", "hold_blocks=0"), ("hold_blocks", "whole number ≥ 1")),
+    Case("send-pause-field", ("send", "{run}", "pause", "now=1"), ("now", "is not a field of pause")),
+    Case("send-wait-zero", ("send", "{run}", "pause", "--wait-s", "0"), ("--wait-s",)),
+    Case("console-missing", ("console", "{t}/gone.sqlite"), ("gone.sqlite",)),
+    Case("demo-speed", ("demo", "--speed", "0"), ("--speed",)),
+    Case("demo-seed", ("demo", "--seed", "x"), ("--seed",)),
+    Case(
+        "demo-journal-text",
+        ("demo", "--journal", "{t}/n.txt"),
+        ("n.txt", "not a journal"),
+        {"n.txt": "notes"},
+    ),
+    Case("demo-policy", ("demo", "--policy", "fastest", "--journal", "{t}/d.sqlite"), ("policy", "fastest")),
+    # ---- KLA exports ----------------------------------------------------------------------------
+    Case("kla-not-excel", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx",), {"e.xlsx": "test,h\n1,2\n"}),
+    Case("kla-missing", ("kla", "read", "{t}/e.xls"), ("e.xls",)),
+    Case("kla-empty", ("kla", "read", "{t}/e.xls"), ("e.xls",), {"e.xls": b""}),
+    Case("kla-folder", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx", "is a folder"), {"e.xlsx": DIR}),
+    # ---- the command line itself ----------------------------------------------------------------
+    Case("no-command", (), ("COMMAND",)),
+    Case("unknown-command", ("indent",), ("indent",)),
+)
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from aeni_console.commands.run import run_engine
+    from core.runconfig import RunOptions
+
+    path = tmp_path_factory.mktemp("bad-inputs-run") / "done.sqlite"
+    run_engine(
+        path,
+        create=(CampaignConfig(name="done", settings=PlannerSettings(indent_budget=1)), RunOptions()),
+        quiet=True,
+    )
+    return path
+
+
+def _tree(root: Path) -> dict[str, str]:
+    out = {}
+    for p in sorted(root.rglob("*")):
+        out[str(p.relative_to(root))] = "DIR" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_bad_input(
+    case: Case, tmp_path: Path, finished_run: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for name, content in case.files.items():
+        target = tmp_path / name
+        if content is DIR:
+            target.mkdir()
+        elif isinstance(content, bytes):
+            target.write_bytes(content)
+        else:
+            assert isinstance(content, str)
+            target.write_text(content, encoding="utf-8")
+    argv = [a.replace("{t}", str(tmp_path)).replace("{run}", str(finished_run)) for a in case.argv]
+    before, run_before = _tree(tmp_path), _tree(finished_run.parent)
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    assert code == 2, f"exit {code}; stderr: {err!r}"
+    assert out == "", f"stdout: {out!r}"
+    assert "Traceback" not in err
+    assert err.count("\n") == 1 and err.startswith("aeni: "), err
+    for needle in case.needles:
+        assert needle in err, f"{needle!r} not in {err!r}"
+    assert _tree(tmp_path) == before, "something was written"
+    assert _tree(finished_run.parent) == run_before, "the run's journal changed"

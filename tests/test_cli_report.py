@@ -20,7 +20,11 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from aeni_console.scripted import run_supervised
 
     path = tmp_path_factory.mktemp("report") / "demo.sqlite"
-    return run_supervised(path, {"name": "demo", "planner.budget_s": 14_000}, answers=("veto", "approve"))
+    return run_supervised(
+        path,
+        {"name": "demo", "campaign.policy": "cost-aware", "planner.budget_s": 14_000},
+        answers=("veto", "approve"),
+    )
 
 
 def _image(path: Path) -> np.ndarray:

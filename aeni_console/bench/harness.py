@@ -66,7 +66,7 @@ def _robust(key: str, title: str, scenario: str | None = None, **kw: Any) -> Ben
         key,
         scenario or key,
         title,
-        ("grid", "aeni-paper", "aeni"),
+        _all_policies(),
         group="robustness",
         max_seeds=SUITE_SEEDS,
         **kw,
@@ -85,7 +85,7 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
         "film",
         "film",
         "Quaternary film, film profile with the 520 s jump, good drift (paper Figs 7, 8)",
-        ("grid", "aeni-paper", "aeni"),
+        _all_policies(),
         maps_for=("aeni-paper", "aeni"),
         max_seeds=SUITE_SEEDS,
     ),
@@ -109,7 +109,7 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
         "collapse",
         "collapse",
         "Provocation: length-scale collapse (indent-scale texture a tight grid shares)",
-        ("grid", "aeni-paper", "aeni"),
+        _all_policies(),
         group="provocation",
         max_seeds=SUITE_SEEDS,
         maps_for=("aeni-paper", "aeni"),
@@ -750,6 +750,68 @@ def records_from_json(data: dict[str, Any]) -> tuple[list[RunRecord], BenchConfi
         raise InputError(
             "results.json", f"not the output of aeni bench ({type(exc).__name__}: {exc})"
         ) from None
+
+
+def merge_results(
+    parts: Sequence[tuple[list[RunRecord], BenchConfig, float]],
+) -> tuple[list[RunRecord], BenchConfig, float]:
+    """Several bench runs as one (``aeni bench --render-from a.json,b.json``): a sweep run in pieces, or one
+    policy run again after a change. A run of the same scenario, policy and seed in a later part replaces the
+    earlier one. The parts must share the protocol and, where they overlap, the grid baselines (which set every
+    target): otherwise they were not run on the same emulator and cannot be compared."""
+    if not parts:
+        raise InputError("--render-from", "no results to merge")
+    first = parts[0][1]
+    keep = ("quick", "lattice_n", "margin", "max_blocks", "max_centres")
+    runs: dict[tuple[str, str, int], RunRecord] = {}
+    policies: dict[str, list[str]] = {}
+    for i, (records, config, _) in enumerate(parts):
+        for name in keep:
+            if getattr(config, name) != getattr(first, name):
+                raise InputError(
+                    "--render-from",
+                    f"part {i + 1} was run with {name} = {getattr(config, name)}, part 1 with"
+                    f" {getattr(first, name)}: runs under different protocols cannot be merged",
+                )
+        for sc in config.scenarios:
+            have = policies.setdefault(sc.key, [])
+            have += [p for p in sc.policies if p not in have]
+        for r in records:
+            old = runs.get((r.scenario, r.policy, r.seed))
+            if (
+                r.policy == "grid"
+                and old is not None
+                and old.final_mape_pct is not None
+                and r.final_mape_pct is not None
+                and abs(old.final_mape_pct - r.final_mape_pct) > 1e-4
+            ):
+                raise InputError(
+                    "--render-from",
+                    f"part {i + 1}: the grid baseline of {r.scenario} seed {r.seed} ends at"
+                    f" {r.final_mape_pct:.4f} % against {old.final_mape_pct:.4f} % before: not the same emulator",
+                )
+            runs[(r.scenario, r.policy, r.seed)] = r
+    known = {s.key: s for s in (*FULL_SCENARIOS, *EXTRA_SCENARIOS, *QUICK_SCENARIOS)}
+    scen_keys = [k for k in (s.key for s in (*FULL_SCENARIOS, *EXTRA_SCENARIOS)) if k in policies]
+    scen_keys += [k for k in policies if k not in scen_keys]
+    order = policy_names_in_order([p for k in scen_keys for p in policies[k]])
+    scenarios = tuple(
+        replace(known[k], policies=tuple(p for p in order if p in policies[k])) for k in scen_keys
+    )
+    config = replace(
+        first,
+        seeds=max(c.seeds for _, c, _ in parts),
+        jobs=max(c.jobs for _, c, _ in parts),
+        scenarios=scenarios,
+    )
+    records = sorted(runs.values(), key=lambda r: (scen_keys.index(r.scenario), r.policy != "grid", r.seed))
+    return records, config, sum(w for _, _, w in parts)
+
+
+def policy_names_in_order(names: Sequence[str]) -> list[str]:
+    """The registry's policies first, in its order, then any ablation, in the order first seen."""
+    reg = [p for p in _all_policies() if p in names]
+    return reg + [p for p in dict.fromkeys(names) if p not in reg]
 
 
 def summarise(records: Sequence[RunRecord]) -> list[PolicySummary]:

@@ -19,7 +19,7 @@ def _handler(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "--out must be a folder, and this is a file")
     if args.render_from is not None:
-        return _render(Path(args.render_from), out)
+        return _render([Path(p) for p in args.render_from.split(",") if p.strip()], out)
     config = BenchConfig.make(
         quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios, policies=args.policies
     )
@@ -50,27 +50,41 @@ def _handler(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render(source: Path, out: Path) -> int:
-    """The report again from a run's results.json (after a change to the report, or if rendering failed)."""
+def _render(sources: list[Path], out: Path) -> int:
+    """The report again from one run's results.json (after a change to the report, or if rendering failed),
+    or from several merged (a sweep run in pieces). The map figures of each part are carried over."""
     import json
+    import shutil
 
-    from aeni_console.bench.harness import records_from_json
+    from aeni_console.bench.harness import merge_results, records_from_json
     from aeni_console.bench.report import write_report
 
-    try:
-        data = json.loads(source.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(str(source), f"cannot read it ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise InputError(str(source), f"not JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise InputError(str(source), "not the output of aeni bench (expected a JSON object)")
-    try:
-        records, config, wall = records_from_json(data)
-    except InputError as exc:
-        raise InputError(str(source), exc.problem) from None
-    paths = write_report(records, config, out, wall, keep_existing_maps=True)
-    print(f"rendered {len(records)} campaigns from {source}; wrote {paths[0]} and {len(paths) - 2} figure(s)")
+    if not sources:
+        raise InputError("--render-from", "name at least one results.json")
+    parts = []
+    for source in sources:
+        try:
+            data = json.loads(source.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise InputError(str(source), f"cannot read it ({exc.strerror or exc})") from None
+        except ValueError as exc:
+            raise InputError(str(source), f"not JSON ({exc})") from None
+        if not isinstance(data, dict):
+            raise InputError(str(source), "not the output of aeni bench (expected a JSON object)")
+        try:
+            parts.append(records_from_json(data))
+        except InputError as exc:
+            raise InputError(str(source), exc.problem) from None
+    records, config, wall = merge_results(parts) if len(parts) > 1 else parts[0]
+    maps_dir = out / "figures"
+    for source in sources:  # later parts win, as their runs do
+        for fig in sorted((source.parent / "figures").glob("maps_*.png")):
+            if fig.resolve() != (maps_dir / fig.name).resolve():
+                maps_dir.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(fig, maps_dir / fig.name)
+    paths = write_report(records, config, out, wall, keep_existing_maps=True, parts=len(parts))
+    what = sources[0] if len(sources) == 1 else f"{len(sources)} runs"
+    print(f"rendered {len(records)} campaigns from {what}; wrote {paths[0]} and {len(paths) - 2} figure(s)")
     return 0
 
 
@@ -115,7 +129,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--render-from",
         default=None,
-        metavar="RESULTS_JSON",
-        help="run nothing: write the report into --out again from a bench's results.json",
+        metavar="RESULTS_JSON[,...]",
+        help="run nothing: write the report into --out again from a bench's results.json, or from several"
+        " merged (a later file's runs replace the same runs of an earlier one)",
     )
     p.set_defaults(func=_handler)

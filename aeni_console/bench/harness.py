@@ -29,7 +29,7 @@ import numpy as np
 
 from core.errors import InputError
 
-MAX_CENTRES = 1000
+MAX_CENTRES = 2000
 GRID_REFIT_EVERY = 9  # the grid baseline never looks at the model: fit it once per row of blocks
 MAP_DISPLAY_N = 50
 
@@ -762,7 +762,11 @@ def merge_results(
     if not parts:
         raise InputError("--render-from", "no results to merge")
     first = parts[0][1]
-    keep = ("quick", "lattice_n", "margin", "max_blocks", "max_centres")
+    keep = ("quick", "lattice_n", "margin")
+    caps = {
+        "max_blocks": max(c.max_blocks for _, c, _ in parts),
+        "max_centres": max(c.max_centres for _, c, _ in parts),
+    }
     runs: dict[tuple[str, str, int], RunRecord] = {}
     policies: dict[str, list[str]] = {}
     for i, (records, config, _) in enumerate(parts):
@@ -772,6 +776,16 @@ def merge_results(
                     "--render-from",
                     f"part {i + 1} was run with {name} = {getattr(config, name)}, part 1 with"
                     f" {getattr(first, name)}: runs under different protocols cannot be merged",
+                )
+        for r in records:
+            # a lower cap is the same protocol for every run it did not stop
+            if ("block cap" in r.stop_reason and config.max_blocks < caps["max_blocks"]) or (
+                "centre cap" in r.stop_reason and config.max_centres < caps["max_centres"]
+            ):
+                raise InputError(
+                    "--render-from",
+                    f"part {i + 1}: {r.policy} on {r.scenario} seed {r.seed} stopped at a cap another part"
+                    " raised: run it again under the higher cap",
                 )
         for sc in config.scenarios:
             have = policies.setdefault(sc.key, [])
@@ -803,6 +817,7 @@ def merge_results(
         seeds=max(c.seeds for _, c, _ in parts),
         jobs=max(c.jobs for _, c, _ in parts),
         scenarios=scenarios,
+        **caps,
     )
     records = sorted(runs.values(), key=lambda r: (scen_keys.index(r.scenario), r.policy != "grid", r.seed))
     return records, config, sum(w for _, _, w in parts)

@@ -28,13 +28,21 @@ class ReplicateGrid:
 
 @dataclass(frozen=True)
 class ScatteredSingles:
-    indents_per_block: int = 16  # singles per block: a refit after each block
+    indents_per_block: int = 16  # the fewest singles per block (a refit after each block) ...
+    max_indents_per_block: int = 48  # ... and the most, when a program is dear to open (see block_sizes)
     # the space-filling start: this many singles on a low-discrepancy sequence before the model places any
     space_filling_indents: int = 64
     min_spacing_um: float = 15.0  # no two indents closer than this (site texture is shared below it)
     # adaptive placement weighs the map where the model shows structure (its mean's gradient) up to this
     # factor over flat parts; 0 is pure variance reduction (an even design under a stationary kernel)
     structure_weight: float = 1.0
+
+    def block_sizes(self, available: int) -> tuple[int, ...]:
+        """Block sizes the planner prices against each other (gain per second): from the fewest to the most
+        in steps of the fewest, capped at the ``available`` picks."""
+        lo = max(1, min(self.indents_per_block, available))
+        top = max(lo, min(self.max_indents_per_block, available))
+        return tuple(sorted({*range(lo, top + 1, max(1, self.indents_per_block)), top}))
 
 
 BlockDesign = ReplicateGrid | ScatteredSingles

@@ -52,6 +52,10 @@ class HoldRule:
     adaptive: bool = False  # fast / slow from the drift rate (also when the operator sets hold_policy)
     bias_aware: bool = False  # fast hold only where its bias is small against the precision aimed at
     bias_fraction: float = 0.5  # "small": at most this fraction of the aimed map error
+    # ... or below this area error (%) at all: the fitted model can aim at an error far below what any indenter
+    # map reaches (0.01 % on a nearly flat film), and the drift readings' own noise on a still instrument then
+    # sent every other program to the slow hold for a bias of a few hundredths of a percent
+    bias_floor_pct: float = 0.1
 
     def choose(
         self, ctx: PlanContext, map_rel_err: float | None, drift_corrected: bool = False
@@ -75,7 +79,7 @@ class HoldRule:
         elif self.bias_aware and hold == fast and err is not None and map_rel_err is not None:
             # a fast hold leaves the drift in the hardness (bias ≈ the area error) and bias does not
             # average out: worth it only where it stays well below the precision the map aims at
-            if err / 100.0 > self.bias_fraction * map_rel_err:
+            if err > self.bias_floor_pct and err / 100.0 > self.bias_fraction * map_rel_err:
                 hold = slow
                 mode = f"bias-aware: slow {slow:g} s (bias {err:.2f} % vs aim {100 * map_rel_err:.2f} %)"
             else:

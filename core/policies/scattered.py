@@ -23,6 +23,7 @@ How a block is chosen:
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -67,7 +68,7 @@ class ScatteredPlanner:
         value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
         xy = ctx.lattice.xy_um[cand]
         box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
-        options: list[tuple[BlockKind, list[int], float, float]] = []  # kind, picks, hold, gain
+        options: list[tuple[BlockKind, list[int], float, list[float]]] = []  # kind, picks, hold, gains
         prog_hold = ctx.program_hold_s
         if (
             ctx.program_open
@@ -80,25 +81,30 @@ class ScatteredPlanner:
             band = reachable_mask(ctx, ctx.program_center_um, here, 0.0, math.inf, idx=cand)
             band &= _in_box(xy, here, box)
             if band.any():
-                picks, gain = self._batch(value, xy, band, None, ctx)
-                options.append(("local", picks, prog_hold, gain))
+                picks, gains = self._batch(copy.copy(value), xy, band, None, ctx)
+                options.append(("local", picks, prog_hold, gains))
         alts = self._alternatives(ctx, cand, value.gains(), hold)
         first = value.best(np.ones(len(cand), dtype=bool))
         anchor = (float(xy[first, 0]), float(xy[first, 1]))
         band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
         band[first] = True
-        picks, gain = self._batch(value, xy, band, first, ctx)
-        options.append(("global", picks, hold, gain))
+        picks, gains = self._batch(copy.copy(value), xy, band, first, ctx)
+        options.append(("global", picks, hold, gains))
 
+        # each option at every block size the design allows: the size with the best gain per second wins, so
+        # a program that is dear to open (a lift, engage and drift settle, a reconfiguration) serves more
+        # indents, and a cheap stay refits sooner
         best: tuple[float, Block, float, BlockKind, float] | None = None
         rates: dict[str, float] = {}
-        for kind, idx, h, gain in options:
-            block = self._block(ctx, kind, xy[idx], h, anchor if kind == "global" else None)
-            cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
-            rate = gain / cost if cost > 0 else 0.0
-            rates[kind] = rate
-            if best is None or rate > best[0]:
-                best = (rate, block, cost, kind, gain)
+        for kind, idx, h, gains in options:
+            for n in d.block_sizes(len(idx)):
+                block = self._block(ctx, kind, xy[idx[:n]], h, anchor if kind == "global" else None)
+                cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
+                gain = float(sum(gains[:n]))
+                rate = gain / cost if cost > 0 else 0.0
+                rates[kind] = max(rates.get(kind, -math.inf), rate)
+                if best is None or rate > best[0]:
+                    best = (rate, block, cost, kind, gain)
         assert best is not None
         rate, block, cost, kind, gain = best
         what = "maximin spacing" if exploring else "IVR"
@@ -138,22 +144,23 @@ class ScatteredPlanner:
 
     def _batch(
         self, value: _Value, xy: np.ndarray, mask: np.ndarray, first: int | None, ctx: PlanContext
-    ) -> tuple[list[int], float]:
-        """Greedy picks (each conditioned on the earlier ones) within ``mask``, kept apart by the spacing."""
+    ) -> tuple[list[int], list[float]]:
+        """Greedy picks (each conditioned on the earlier ones) within ``mask``, kept apart by the spacing,
+        with the gain of each. ``value`` is conditioned on the picks: pass a copy."""
         free = mask.copy()
         picks: list[int] = []
-        gain = 0.0
+        gains: list[float] = []
         spacing = max(self.design.min_spacing_um, ctx.r_excl_um)
-        for _ in range(self.design.indents_per_block):
+        for _ in range(self.design.max_indents_per_block):
             j = first if first is not None and not picks else value.best(free)
             if j is None:
                 break
-            gain += value.take(j)
+            gains.append(value.take(j))
             picks.append(j)
             free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
             if not free.any():
                 break
-        return picks, gain
+        return picks, gains
 
     def _block(
         self,
@@ -221,7 +228,10 @@ def travel_order(pts: np.ndarray, start: tuple[float, float], ctx: PlanContext) 
 
 
 class _Value:
-    """What one more single indent at candidate j adds; ``take`` commits it so the next pick sees it."""
+    """What one more single indent at candidate j adds; ``take`` commits it so the next pick sees it.
+
+    ``take`` rebinds its state instead of changing it in place, so ``copy.copy`` gives an independent
+    branch: the stay and the jump options are each picked against the same posterior."""
 
     def best(self, mask: np.ndarray) -> int | None:
         raise NotImplementedError

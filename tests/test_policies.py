@@ -13,7 +13,7 @@ from core.cost import block_costs_for, block_steps
 from core.errors import InputError
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.policies.base import PlanContext, grid_size_for_noise
-from core.policies.blocks import ReplicateGrid
+from core.policies.blocks import ReplicateGrid, ScatteredSingles
 from core.policies.hold import HoldRule, robust_rate
 from core.policies.parts import PolicyParts
 from core.policies.planner import BayesPlanner
@@ -513,3 +513,52 @@ def test_aeni_treats_indents_on_pores_as_outliers() -> None:
     evaluator = scen.evaluator()
     mine, theirs = evaluator.score(c).mape_pct, evaluator.score(gaussian).mape_pct
     assert mine is not None and theirs is not None and mine < theirs
+
+
+def test_aeni_block_size_follows_what_opening_a_program_costs() -> None:
+    """Block sizes 16–48 are priced against each other by gain per second: a program that is dear to open
+    serves the most singles, one that costs nothing extra the fewest (a refit sooner)."""
+    c, ctx = _context_after("aeni", blocks=5)
+    assert len(ctx.indents_xy_um) >= 64  # past the space-filling start: the model places the indents
+    sizes = ScatteredSingles().block_sizes(100)
+    assert sizes == (16, 32, 48) and ScatteredSingles().block_sizes(20) == (16, 20)
+    cheap = c.policy.propose(
+        replace(ctx, program_open=False, profile=replace(ctx.profile, global_jump_s=1.0))
+    )
+    dear = c.policy.propose(
+        replace(ctx, program_open=False, profile=replace(ctx.profile, global_jump_s=50_000.0))
+    )
+    assert cheap is not None and dear is not None
+    assert cheap.block.kind == dear.block.kind == "global"
+    assert cheap.block.n_indents == 16 and dear.block.n_indents == 48
+    # the same posterior picks both: the dear block begins with the cheap one's singles
+    first = [(i.x_um, i.y_um) for i in cheap.block.indents]
+    assert set(first) <= {(i.x_um, i.y_um) for i in dear.block.indents}
+
+
+def test_aeni_jump_is_scored_on_the_posterior_before_the_stays_picks() -> None:
+    """The stay and the jump are alternatives: picking the stay's singles must not change where the jump goes
+    (it once did: both were picked from one posterior, which the stay's picks had already conditioned)."""
+    c, ctx = _context_after("aeni", blocks=5)
+    cheap = replace(ctx.profile, global_jump_s=1.0)  # a jump that costs nothing wins either way
+    closed = c.policy.propose(replace(ctx, program_open=False, profile=cheap))
+    open_ = c.policy.propose(replace(ctx, program_open=True, profile=cheap))
+    assert closed is not None and open_ is not None
+    assert open_.stay_score is not None and closed.stay_score is None  # a stay was on offer only when open
+    assert closed.block.kind == open_.block.kind == "global"
+    assert [(i.x_um, i.y_um) for i in open_.block.indents] == [(i.x_um, i.y_um) for i in closed.block.indents]
+
+
+def test_bias_aware_hold_is_fast_when_the_drift_bias_is_negligible_however_small_the_aim() -> None:
+    """On a nearly flat film the model can aim at 0.01 %: a bias of a few hundredths of a percent from the drift
+    readings' own noise must not send a program to the 80 s hold."""
+    _, ctx = _context_after("aeni", blocks=5)
+    probe = replace(ctx, recent_drift_rates_nm_s=(0.001,) * 12, last_drift_rate_nm_s=0.001)
+    rule = HoldRule(adaptive=True, bias_aware=True)
+    hold, err, mode = rule.choose(probe, 0.0001)
+    assert err is not None and err < rule.bias_floor_pct
+    assert hold == FAST_HOLD_S and "bias-aware: fast" in mode
+    # a real event is not negligible: slow
+    event = replace(ctx, recent_drift_rates_nm_s=(0.001,) * 11 + (0.05,), last_drift_rate_nm_s=0.05)
+    hold, err, _ = rule.choose(event, 0.0001)
+    assert err is not None and err > rule.bias_floor_pct and hold == SLOW_HOLD_S

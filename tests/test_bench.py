@@ -373,3 +373,40 @@ def test_dask_address_that_answers_nothing_is_a_one_line_error(capsys: pytest.Ca
 
     with pytest.raises(InputError, match="--dask"):
         _dask_client("tcp://127.0.0.1:9")
+
+
+def test_flat_map_error_is_the_best_constant_maps_and_flags_a_grid_that_resolves_nothing() -> None:
+    """The best constant map's MAPE (weighted median of the truth) is what a map that resolves nothing
+    scores; a robustness target on a field where the grid's own map is no better is flagged as such."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from aeni_console.bench.report import flat_map_errors, resolution_table, targets
+    from drivers.sim.evaluator import TruthEvaluator
+    from drivers.sim.robust_fields import GrainField
+
+    two = TruthEvaluator(GrainField(), np.zeros((4, 2)), np.array([4.0, 4.0, 4.0, 8.0]))
+    assert two.flat_mape_pct() == pytest.approx(
+        100 * 0.25 * 0.5
+    )  # c = 4: only the 8 GPa cell is off, by 50 %
+    candidates = np.linspace(3.0, 9.0, 601)
+    brute = min(float(np.mean(np.abs(c - two.truth_gpa) / two.truth_gpa)) * 100 for c in candidates)
+    assert two.flat_mape_pct() == pytest.approx(brute)
+
+    config = BenchConfig.make(quick=False, seeds=2, only="grains,step")
+    flat = flat_map_errors(config)
+    assert 5.0 < flat["grains"] < 20.0 and 5.0 < flat["step"] < 20.0
+    records = [
+        replace(_rec(p, s, 1000.0 if p == "grid" else 100.0, final=f), scenario=sc)
+        for sc, f in (("grains", flat["grains"] * 1.01), ("step", 0.2 * flat["step"]))
+        for p in ("grid", "aeni")
+        for s in range(2)
+    ]
+    summaries = summarise(records)
+    table = "\n".join(resolution_table(summaries, config, flat))
+    assert "| grains |" in table and "(**nothing**)" in table.split("| grains |")[1].split("\n")[0]
+    assert "(**nothing**)" not in table.split("| step |")[1].split("\n")[0]
+    notes = {t["target"]: t["note"] for t in targets(summaries, records, config, flat)}
+    assert "no better than a constant" in notes["`aeni` vs `grid`, grains"]
+    assert "no better than a constant" not in notes["`aeni` vs `grid`, step"]

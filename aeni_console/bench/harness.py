@@ -278,6 +278,18 @@ def _scenario(spec: RunSpec, driver_options: dict[str, Any]) -> Any:
     return sim_scenario(driver_options, spec.seed)
 
 
+def flat_mape_pct(sc: BenchScenario) -> float | None:
+    """MAPE of the best constant map on a bench field (seed 0's truth): what a map that resolves nothing of
+    the field scores, against which the grid's own final MAPE says how much of the field it resolves."""
+    if sc.truth_csv is not None:
+        return None
+    from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
+    from drivers.sim.scenarios import make_scenario
+
+    sim = robust_scenario(sc.scenario, 0) if sc.scenario in ROBUST_FIELDS else make_scenario(sc.scenario, 0)
+    return sim.evaluator().flat_mape_pct()
+
+
 def run_one(spec: RunSpec) -> RunRecord:
     """One campaign under the bench protocol, through the same loop as ``aeni simulate`` (``run_headless``)."""
     _set_threads()

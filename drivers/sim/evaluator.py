@@ -41,6 +41,16 @@ class TruthEvaluator:
         gx, gy = np.meshgrid(xs, ys)
         return cls(truth, np.column_stack([gx.ravel(), gy.ravel()]), h.ravel())
 
+    def flat_mape_pct(self) -> float:
+        """MAPE of the best constant map (the weighted median of the truth, weights 1/H): what a map that
+        resolves nothing of the field scores. A design whose error is near it has not mapped the field."""
+        t = np.asarray(self.truth_gpa, dtype=float)
+        t = t[np.isfinite(t) & (t > 0)]
+        order = np.argsort(t)
+        w = np.cumsum(1.0 / t[order])
+        c = float(t[order][np.searchsorted(w, 0.5 * w[-1])])
+        return mape_pct(np.full_like(t, c), t)
+
     def score(self, campaign: ScoredMap) -> MapScore:
         indents = campaign.indented_xy_um()
         if len(indents) > self._seen:

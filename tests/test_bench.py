@@ -211,6 +211,71 @@ def test_the_full_report_renders_every_section_from_synthetic_runs(tmp_path: Pat
     assert "| outliers |" in md and "### At 2× the grid's final MAPE" in md
 
 
+def test_why_text_gives_each_missed_fields_even_design_limit_from_its_own_json(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A robustness field (or the film) where ``aeni`` misses its target gets that field's even-design limit,
+    read from benchmarks/results/oracle_bound_<field>.json: here small files in a tmp folder."""
+    from dataclasses import replace
+
+    from aeni_console.bench import report
+
+    def oracle(field: str, best: int | None, rows: list[tuple[int, bool]]) -> None:
+        table = [
+            {
+                "centres": n,
+                "g": 1,
+                "estimator": "median",
+                "indents": n,
+                "reaches_target": ok,
+                "max_speedup": 2e5 / n,
+            }
+            for n, ok in rows
+        ]
+        pick = next((r for r in table if r["indents"] == best), None)
+        data = {"field": field, "seeds": 3, "grid_time_s": 9e6, "grid_final_mape_pct": 1.2345, "rows": table}
+        data |= {"best": {"median": pick, "huber": None}, "wall_s": 1.0}
+        (tmp_path / f"oracle_bound_{field}.json").write_text(json.dumps(data), encoding="utf-8")
+
+    oracle("grains", 1444, [(1024, False), (1444, True)])
+    oracle("stripe", None, [(196, False), (2500, False)])
+    oracle("rotated-quaternary", 400, [(196, False), (400, True)])  # the bench calls this field "rotated"
+    oracle("step", 196, [(196, True)])  # aeni meets its target there: no line
+    oracle("film", 196, [(196, True), (400, True)])  # the smallest design tried reaches it: no limit found
+    monkeypatch.setattr(report, "ORACLE_DIR", tmp_path)
+    records = []
+    misses = (("grains", 100_000.0), ("stripe", None), ("rotated", 90_000.0), ("film", 80_000.0))
+    for key, aeni_hit in (*misses, ("step", 10_000.0)):
+        records += [
+            replace(_rec("grid", 0, 280_000.0), scenario=key),
+            replace(_rec("aeni", 0, aeni_hit), scenario=key),
+        ]
+    text = report.why_text(summarise(records), records)
+    lines = {ln.split("**")[1]: ln for ln in text.splitlines() if ln.startswith("- **`aeni` on")}
+    assert set(lines) == {f"`aeni` on {key}:" for key, _ in misses}
+    assert lines["`aeni` on grains:"].endswith(
+        "The cheapest even design of single indents that reaches the grid's MAPE on this field (1.234 % in"
+        " `benchmarks/oracle_bound.py --field grains`, 3 seeds) takes 1,444 indents: at most 138.5× faster"
+        " than the grid."
+    )
+    assert (
+        "No even design of single indents up to 2,500 indents reaches the grid's MAPE"
+        in lines["`aeni` on stripe:"]
+    )
+    assert (
+        "--field rotated-quaternary" in lines["`aeni` on rotated:"]
+        and "takes 400 indents" in lines["`aeni` on rotated:"]
+    )
+    assert lines["`aeni` on film:"].endswith(
+        "Even the smallest even design tried, 196 single indents, reaches the grid's MAPE on this field (1.234 %"
+        " in `benchmarks/oracle_bound.py --field film`, 3 seeds): the limit lies above 1020.4×."
+    )
+    # no ternary file in the folder: no ternary line; a field without a file gets no sentence
+    assert "The even-design limit" not in text
+    assert report._oracle("ternary") is None and report._field_limit("phase-noise") == ""
+    assert report._field_limit("collapse") == ""  # a provocation, not a field the oracle speaks for
+
+
 def test_render_from_results_json_gives_the_same_report(
     quick: tuple[Path, dict[str, object]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

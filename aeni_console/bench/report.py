@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 
 from aeni_console.bench.harness import (
+    EXTRA_SCENARIOS,
+    FULL_SCENARIOS,
     LEVEL_FACTORS,
     LEVEL_PAIRS,
     LOOSE_FACTOR,
@@ -310,20 +312,61 @@ def suite_tables(summaries: Sequence[PolicySummary], config: BenchConfig) -> lis
     return out
 
 
-def _oracle() -> dict[str, Any] | None:
-    """benchmarks/results/oracle_bound.json: evenly spread designs on the ternary field (read, not typed in)."""
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "oracle_bound.json"
+ORACLE_DIR = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+
+
+def _oracle(field: str = "ternary") -> dict[str, Any] | None:
+    """benchmarks/results/oracle_bound.json (ternary) or oracle_bound_<field>.json: evenly spread designs on
+    that field, written by benchmarks/oracle_bound.py (read, not typed in). None when there is none."""
+    path = ORACLE_DIR / ("oracle_bound.json" if field == "ternary" else f"oracle_bound_{field}.json")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
         best = data["best"]["median"]
+        tried = [int(r["indents"]) for r in data["rows"] if r["estimator"] == "median"]
         return {
             "target_pct": float(data["grid_final_mape_pct"]),
-            "singles": int(best["indents"]),
-            "bound_x": float(best["max_speedup"]),
+            "singles": None if best is None else int(best["indents"]),
+            "bound_x": None if best is None else float(best["max_speedup"]),
+            "largest": max(tried),
+            "smallest": min(tried),
             "seeds": int(data["seeds"]),
         }
     except (OSError, ValueError, KeyError, TypeError):
         return None
+
+
+def _field_of(key: str) -> str | None:
+    """The emulator scenario or robustness field behind a bench scenario key, for the film and the robustness
+    suite (whose targets an even design may not reach at all); None for the others."""
+    sc = next((s for s in (*FULL_SCENARIOS, *EXTRA_SCENARIOS) if s.key == key), None)
+    if sc is None or not (sc.group == "robustness" or sc.key == "film"):
+        return None
+    return sc.scenario
+
+
+def _field_limit(key: str) -> str:
+    """The even-design limit on a film or robustness field, from its oracle_bound_<field>.json ("" if none)."""
+    field = _field_of(key)
+    oracle = None if field is None or field == "ternary" else _oracle(field)
+    if oracle is None:
+        return ""
+    if oracle["singles"] is None:
+        return (
+            f" No even design of single indents up to {oracle['largest']:,} indents reaches the grid's MAPE"
+            f" on this field ({oracle['target_pct']:.3f} % in `benchmarks/oracle_bound.py --field {field}`,"
+            f" {oracle['seeds']} seeds)."
+        )
+    if oracle["singles"] <= oracle["smallest"]:
+        return (
+            f" Even the smallest even design tried, {oracle['singles']:,} single indents, reaches the grid's MAPE"
+            f" on this field ({oracle['target_pct']:.3f} % in `benchmarks/oracle_bound.py --field {field}`,"
+            f" {oracle['seeds']} seeds): the limit lies above {oracle['bound_x']:.1f}×."
+        )
+    return (
+        f" The cheapest even design of single indents that reaches the grid's MAPE on this field"
+        f" ({oracle['target_pct']:.3f} % in `benchmarks/oracle_bound.py --field {field}`, {oracle['seeds']} seeds)"
+        f" takes {oracle['singles']:,} indents: at most {oracle['bound_x']:.1f}× faster than the grid."
+    )
 
 
 def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = ()) -> str:
@@ -331,7 +374,7 @@ def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = 
     out = ["### Where the policies lose", ""]
     t = _get(summaries, "ternary", "aeni")
     oracle = _oracle()
-    if oracle is not None:
+    if oracle is not None and oracle["singles"] is not None:
         text = (
             f"- **The even-design limit.** `benchmarks/oracle_bound.py` ({oracle['seeds']} seeds) spreads single"
             f" indents evenly with no travel, drift or overhead: the cheapest such design that reaches the grid's"
@@ -356,6 +399,7 @@ def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = 
                 f"- **`aeni` on {sc}:** median {_x(sw[0])}, worst seed {_x(sw[1])}"
                 + (f"; never reached the grid's MAPE on seed(s) {', '.join(map(str, miss))}" if miss else "")
                 + "."
+                + _field_limit(sc)
             )
     for pol in policy_order([s.policy for s in summaries]):
         if pol in ("grid", "aeni"):

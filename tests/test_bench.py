@@ -475,3 +475,19 @@ def test_flat_map_error_is_the_best_constant_maps_and_flags_a_grid_that_resolves
     notes = {t["target"]: t["note"] for t in targets(summaries, records, config, flat)}
     assert "no better than a constant" in notes["`aeni` vs `grid`, grains"]
     assert "no better than a constant" not in notes["`aeni` vs `grid`, step"]
+
+
+def test_merged_full_runs_keep_the_full_scenarios() -> None:
+    """Merging full runs keeps the full bench's scenarios (titles, maps), never the quick bench's namesakes."""
+    from dataclasses import replace
+
+    from aeni_console.bench.harness import FULL_SCENARIOS, merge_results
+
+    config = BenchConfig.make(quick=False, seeds=1, only="ternary,step")
+    a = [replace(_rec(p, 0, 100.0), scenario="ternary") for p in ("grid", "uncertainty")]
+    b = [replace(_rec(p, 0, 100.0), scenario=s) for s in ("ternary", "step") for p in ("grid", "aeni")]
+    records, merged, wall = merge_results([(a, config, 1.0), (b, config, 2.0)])
+    full = {s.key: s for s in FULL_SCENARIOS}
+    assert [s.title for s in merged.scenarios] == [full["ternary"].title, full["step"].title]
+    assert merged.scenarios[0].policies == config.scenarios[0].policies and wall == 3.0
+    assert len(records) == 5

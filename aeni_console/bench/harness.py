@@ -817,7 +817,7 @@ def merge_results(
                     f" {r.final_mape_pct:.4f} % against {old.final_mape_pct:.4f} % before: not the same emulator",
                 )
             runs[(r.scenario, r.policy, r.seed)] = r
-    known = {s.key: s for s in (*FULL_SCENARIOS, *EXTRA_SCENARIOS, *QUICK_SCENARIOS)}
+    known = {s.key: s for s in (QUICK_SCENARIOS if first.quick else (*FULL_SCENARIOS, *EXTRA_SCENARIOS))}
     scen_keys = [k for k in (s.key for s in (*FULL_SCENARIOS, *EXTRA_SCENARIOS)) if k in policies]
     scen_keys += [k for k in policies if k not in scen_keys]
     order = policy_names_in_order([p for k in scen_keys for p in policies[k]])

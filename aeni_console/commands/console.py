@@ -165,6 +165,8 @@ def kla_demo(
 
     options = config.driver_options
     exchange = Path(tempfile.mkdtemp(prefix="aeni-demo-exchange-"))
+    for box in ("outbox", "inbox"):  # laid out before either process starts, not by whichever comes first
+        (exchange / box).mkdir()
     journal.parent.mkdir(parents=True, exist_ok=True)
     argv = [
         sys.executable, "-m", "aeni_console.cli", "kla", "fake-inview",

@@ -6,6 +6,7 @@ A capability is a typed protocol a driver class either satisfies or not; the eng
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -108,3 +109,36 @@ class WaitsForOperator(Protocol):
     """
 
     def operator_report(self, kind: str, value: str, author: str) -> tuple[bool, str]: ...
+
+
+class InstrumentState:
+    """What every driver tracks for the engine between blocks: its clock, the stage position, whether a
+    program is engaged, and the abort flag a blocking wait listens to. One home for ``Restorable.set_state``."""
+
+    def __init__(self, start_um: tuple[float, float] = (0.0, 0.0), clock_s: float = 0.0) -> None:
+        self._pos = start_um
+        self._clock_s = clock_s
+        self._open = False
+        self._abort = threading.Event()
+
+    def position_um(self) -> tuple[float, float]:
+        return self._pos
+
+    def clock_s(self) -> float:
+        return self._clock_s
+
+    def program_open(self) -> bool:
+        return self._open
+
+    def set_state(
+        self,
+        clock_s: float,
+        position_um: tuple[float, float],
+        program_open: bool,
+        physics_clock_s: float | None = None,
+    ) -> None:
+        """Restore the model of the instrument after a crash (``physics_clock_s``: a simulated instrument's)."""
+        self._clock_s, self._pos, self._open = clock_s, position_um, program_open
+
+    def abort(self) -> None:
+        self._abort.set()

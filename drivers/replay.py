@@ -7,17 +7,16 @@ replay never invents a measurement.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Generator, Iterator
 from pathlib import Path
 
-from core.driver import DriverAborted, DriverEvent
+from core.driver import DriverAborted, DriverEvent, InstrumentState
 from core.errors import InputError
 from core.journal import JournalReader
 from core.plan import Block, IndentResult, StepRecord
 
 
-class ReplayDriver:
+class ReplayDriver(InstrumentState):
     def __init__(self, journal: str | Path | JournalReader, speed: float | None = None) -> None:
         if speed is not None and speed <= 0:
             raise ValueError(f"speed must be > 0, got {speed}")
@@ -45,37 +44,12 @@ class ReplayDriver:
         if not isinstance(journal, JournalReader):
             reader.close()
         self._cursor = 0  # index into self._steps of the next step not yet played
-        self._clock = 0.0
-        self._pos: tuple[float, float] = (0.0, 0.0)
-        self._open = False
-        self._abort = threading.Event()
-
-    def position_um(self) -> tuple[float, float]:
-        return self._pos
-
-    def clock_s(self) -> float:
-        return self._clock
-
-    def program_open(self) -> bool:
-        return self._open
-
-    def set_state(
-        self,
-        clock_s: float,
-        position_um: tuple[float, float],
-        program_open: bool,
-        physics_clock_s: float | None = None,
-    ) -> None:
-        """Restorable: the recorded clock is the only clock, so ``physics_clock_s`` is not used."""
-        self._clock, self._pos, self._open = clock_s, position_um, program_open
-
-    def abort(self) -> None:
-        self._abort.set()
+        super().__init__()  # the recorded clock is the only clock: no physics clock to restore
 
     def _play(self, step: StepRecord, t_end_s: float) -> StepRecord:
         if self.speed is not None and step.seconds > 0:
             self._abort.wait(step.seconds / self.speed)
-        self._clock = t_end_s
+        self._clock_s = t_end_s
         if step.category == "comeback":
             self._open = False
         return step
@@ -103,7 +77,7 @@ class ReplayDriver:
                 )
             yield from self._steps_until(self._last_step.get((block.block_id, i), 0))
             self._pos, self._open = (res.commanded_x_um, res.commanded_y_um), True
-            self._clock = res.t_s
+            self._clock_s = res.t_s
             yield res
             if self._abort.is_set():
                 yield from self.end_program()

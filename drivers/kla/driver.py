@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import replace
 from datetime import datetime, timedelta
@@ -21,7 +20,7 @@ from pathlib import Path
 from typing import cast
 
 from core.cost import comeback_step, indent_steps
-from core.driver import DriverAborted, DriverEvent, InstrumentWait
+from core.driver import DriverAborted, DriverEvent, InstrumentState, InstrumentWait
 from core.errors import InputError
 from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
@@ -72,7 +71,7 @@ def make_kla_driver(
     return driver
 
 
-class KlaDriver:
+class KlaDriver(InstrumentState):
     """Runs blocks on an iMicro through an exchange folder (see docs/kla.md)."""
 
     def __init__(
@@ -93,34 +92,10 @@ class KlaDriver:
         self.watcher = InboxWatcher(self.folder, self.archive)
         self.now = now
         self.speed = speed  # a fake InView's speed-up: deadlines shrink with it
-        self._pos = start_um
-        self._clock_s = clock_s
-        self._open = False
-        self._abort = threading.Event()
+        super().__init__(start_um, clock_s)
         self._array: ArrayRun | None = None
 
     # -- state -----------------------------------------------------------------------------------
-    def position_um(self) -> tuple[float, float]:
-        return self._pos
-
-    def clock_s(self) -> float:
-        return self._clock_s
-
-    def program_open(self) -> bool:
-        return self._open
-
-    def set_state(
-        self,
-        clock_s: float,
-        position_um: tuple[float, float],
-        program_open: bool,
-        physics_clock_s: float | None = None,
-    ) -> None:
-        """Restore the model of the instrument after a crash (the real one kept going)."""
-        self._clock_s, self._pos, self._open = clock_s, position_um, program_open
-
-    def abort(self) -> None:
-        self._abort.set()
 
     def end_program(self) -> Iterator[StepRecord]:
         if self._open:

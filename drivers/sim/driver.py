@@ -7,12 +7,11 @@ planner's predicted cost and the executed cost agree. With a speed factor the dr
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Generator, Iterator
 from typing import TYPE_CHECKING
 
 from core.cost import comeback_step, indent_steps
-from core.driver import DriverAborted, DriverEvent
+from core.driver import DriverAborted, DriverEvent, InstrumentState
 from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
 
@@ -20,7 +19,7 @@ if TYPE_CHECKING:
     from drivers.sim.emulator import Emulator
 
 
-class SimulatedDriver:
+class SimulatedDriver(InstrumentState):
     def __init__(
         self,
         emulator: Emulator,
@@ -34,26 +33,14 @@ class SimulatedDriver:
         self.emulator = emulator
         self.profile = profile
         self.speed = speed
-        self._pos = start_um
-        self._clock_s = clock_s
+        super().__init__(start_um, clock_s)
         # the emulated physics (drift) runs on a clock without crash-recovery time, so a resumed run
         # measures what an uninterrupted one would have
         self._physics_s = clock_s
-        self._open = False
-        self._abort = threading.Event()
 
     # -- state -----------------------------------------------------------------------------
-    def position_um(self) -> tuple[float, float]:
-        return self._pos
-
-    def clock_s(self) -> float:
-        return self._clock_s
-
     def physics_clock_s(self) -> float:
         return self._physics_s
-
-    def program_open(self) -> bool:
-        return self._open
 
     def set_state(
         self,
@@ -62,14 +49,9 @@ class SimulatedDriver:
         program_open: bool,
         physics_clock_s: float | None = None,
     ) -> None:
-        """Restore the virtual instrument after a crash (from the journal)."""
-        self._clock_s = clock_s
+        """Restore the virtual instrument after a crash (from the journal), its physics clock too."""
+        super().set_state(clock_s, position_um, program_open)
         self._physics_s = clock_s if physics_clock_s is None else physics_clock_s
-        self._pos = position_um
-        self._open = program_open
-
-    def abort(self) -> None:
-        self._abort.set()
 
     # -- execution -------------------------------------------------------------------------
     def _advance(self, step: StepRecord) -> StepRecord:

@@ -431,3 +431,41 @@ def test_observations_carry_the_estimators_efficiency() -> None:
         Observations(
             base.uv, base.median_gpa, base.spread_var_gpa2, base.n_indents, efficiency=np.full(9, 0.5)
         )
+
+
+# -- cold restarts of a warm-started refit ---------------------------------------------------------------
+
+
+def _texture(n: int, seed: int) -> Observations:
+    """Single indents on a texture of period 0.2 of the side, 1 % noise: 40 points read it as noise."""
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform(0.0, 1.0, size=(n, 2))
+    h = 5.0 + 0.8 * np.sin(2 * np.pi * uv[:, 0] / 0.2) * np.sin(2 * np.pi * uv[:, 1] / 0.2)
+    h = h + 0.05 * rng.standard_normal(n)
+    return Observations(uv, h, np.full(n, np.nan), np.ones(n))
+
+
+def test_a_refit_on_grown_data_escapes_the_warm_optimum_and_resumes_the_same() -> None:
+    """A warm start follows the optimum it fitted on few points (texture read as noise at a long length-scale);
+    once the data have grown 1.5× since the last cold fit, the cold starts run too and the better likelihood
+    wins, a short length-scale that is the data's own choice, not a collapse. The schedule is part of the
+    record, so a resumed run makes the same choice."""
+    few, many = _texture(40, 0), _texture(400, 0)
+    gp = HeteroskedasticGP(lengthscale_floor_uv=0.01)
+    first = gp.fit(few)
+    assert min(first.lengthscales_uv) > 0.1 and first.hyper["cold_n"] == 40
+    # the same refit with the cold starts not yet due: the warm optimum holds
+    stuck = HeteroskedasticGP(lengthscale_floor_uv=0.01)
+    stuck.set_hyper({**first.hyper, "cold_n": 10_000}, few)
+    warm_only = stuck.fit(many)
+    assert min(warm_only.lengthscales_uv) > 0.1
+    resumed = HeteroskedasticGP(lengthscale_floor_uv=0.01)
+    resumed.set_hyper(first.hyper, few)
+    grown = gp.fit(many)
+    assert max(grown.lengthscales_uv) < 0.05 and grown.hyper["cold_n"] == 400
+    assert not grown.collapse and not grown.used_last_good
+    assert resumed.fit(many).hyper == grown.hyper
+    grid = _lattice(40)
+    truth = 5.0 + 0.8 * np.sin(2 * np.pi * grid[:, 0] / 0.2) * np.sin(2 * np.pi * grid[:, 1] / 0.2)
+    error = np.mean(np.abs(gp.predict_mean(grid) - truth))
+    assert error < 0.5 * np.mean(np.abs(stuck.predict_mean(grid) - truth))

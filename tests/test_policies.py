@@ -522,6 +522,10 @@ def test_aeni_block_size_follows_what_opening_a_program_costs() -> None:
     assert len(ctx.indents_xy_um) >= 64  # past the space-filling start: the model places the indents
     sizes = ScatteredSingles().block_sizes(100)
     assert sizes == (16, 32, 48) and ScatteredSingles().block_sizes(20) == (16, 20)
+    # a block adds at most a quarter to the indents the model was fitted on
+    assert ScatteredSingles().block_sizes(100, 64) == (16,)
+    assert ScatteredSingles().block_sizes(100, 150) == (16, 32, 37)
+    assert ScatteredSingles().block_sizes(100, 1000) == (16, 32, 48)
     cheap = c.policy.propose(
         replace(ctx, program_open=False, profile=replace(ctx.profile, global_jump_s=1.0))
     )
@@ -530,7 +534,9 @@ def test_aeni_block_size_follows_what_opening_a_program_costs() -> None:
     )
     assert cheap is not None and dear is not None
     assert cheap.block.kind == dear.block.kind == "global"
-    assert cheap.block.n_indents == 16 and dear.block.n_indents == 48
+    most = ScatteredSingles().block_sizes(10_000, len(ctx.indents_xy_um))[-1]
+    assert most > 16  # the context leaves room for a bigger block
+    assert cheap.block.n_indents == 16 and dear.block.n_indents == most
     # the same posterior picks both: the dear block begins with the cheap one's singles
     first = [(i.x_um, i.y_um) for i in cheap.block.indents]
     assert set(first) <= {(i.x_um, i.y_um) for i in dear.block.indents}

@@ -36,12 +36,20 @@ class ScatteredSingles:
     # adaptive placement weighs the map where the model shows structure (its mean's gradient) up to this
     # factor over flat parts; 0 is pure variance reduction (an even design under a stationary kernel)
     structure_weight: float = 1.0
+    # a block adds at most this fraction to the indents the model was fitted on: pricing by gain per second
+    # sees the program's overhead but not what a refit learns, so early on big blocks run on a model fitted
+    # to few points (48 singles at a slow hold after the 64-indent start delayed the ternary's first maps)
+    max_block_fraction: float = 0.25
 
-    def block_sizes(self, available: int) -> tuple[int, ...]:
+    def block_sizes(self, available: int, fitted_on: int | None = None) -> tuple[int, ...]:
         """Block sizes the planner prices against each other (gain per second): from the fewest to the most
-        in steps of the fewest, capped at the ``available`` picks."""
+        in steps of the fewest, capped at the ``available`` picks and at ``max_block_fraction`` of the
+        ``fitted_on`` indents (no cap when None)."""
         lo = max(1, min(self.indents_per_block, available))
-        top = max(lo, min(self.max_indents_per_block, available))
+        most = self.max_indents_per_block
+        if fitted_on is not None:
+            most = min(most, int(self.max_block_fraction * fitted_on))
+        top = max(lo, min(most, available))
         return tuple(sorted({*range(lo, top + 1, max(1, self.indents_per_block)), top}))
 
 

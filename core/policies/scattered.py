@@ -97,7 +97,7 @@ class ScatteredPlanner:
         best: tuple[float, Block, float, BlockKind, float] | None = None
         rates: dict[str, float] = {}
         for kind, idx, h, gains in options:
-            for n in d.block_sizes(len(idx)):
+            for n in d.block_sizes(len(idx), len(ctx.indents_xy_um)):
                 block = self._block(ctx, kind, xy[idx[:n]], h, anchor if kind == "global" else None)
                 cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
                 gain = float(sum(gains[:n]))

@@ -65,6 +65,7 @@ PALETTE: tuple[tuple[str, str, str], ...] = (
     ("help", "Help", "Keys and panels (?)"),
     ("leave", "Leave the console", "The run keeps going (q)"),
 )
+LEAVE_STOPS = "The demo's engine finishes the indent, lifts and stops (q)"
 
 
 def describe_payload(payload: dict[str, object]) -> str:
@@ -136,6 +137,7 @@ class ConsoleApp(App[None]):
         max_rate_hz: float = 8.0,
         author: str | None = None,
         cursor_blink: bool = True,
+        leaving_stops_engine: bool = False,
     ) -> None:
         super().__init__()
         if replay and not isinstance(source, ReplaySource):
@@ -147,6 +149,8 @@ class ConsoleApp(App[None]):
         self.max_rate_hz = max_rate_hz
         self.author = author or getpass.getuser()
         self.cursor_blink = cursor_blink
+        # a demo's console owns its engine: leaving stops it, and help and palette must say so
+        self.leaving_stops_engine = leaving_stops_engine
         self.snapshot: RunSnapshot | None = None
         self.feed: Feed | None = None
         self.replay_index = -1
@@ -338,6 +342,8 @@ class ConsoleApp(App[None]):
 
     def get_system_commands(self, screen: Screen) -> Iterable[SystemCommand]:
         for action, title, help_ in PALETTE:
+            if action == "leave" and self.leaving_stops_engine:
+                help_ = LEAVE_STOPS
             if self.check_action(action, ()):
                 yield SystemCommand(title, help_, lambda a=action: self.run_action(a))
         yield from super().get_system_commands(screen)
@@ -506,7 +512,7 @@ class ConsoleApp(App[None]):
         self.map_panel.cycle()
 
     def action_help(self) -> None:
-        self.push_screen(HelpScreen())
+        self.push_screen(HelpScreen(self.leaving_stops_engine))
 
     def action_leave(self) -> None:
         self.exit()

@@ -39,9 +39,11 @@ def make_app(source: RunSource, **kw: Any) -> ConsoleApp:
 
 
 @contextlib.asynccontextmanager
-async def attached(source: RunSource, size: tuple[int, int]) -> AsyncIterator[tuple[ConsoleApp, Pilot[None]]]:
+async def attached(
+    source: RunSource, size: tuple[int, int], **kw: Any
+) -> AsyncIterator[tuple[ConsoleApp, Pilot[None]]]:
     """A console on ``source``, settled on what the run shows now; the source is closed on the way out."""
-    app = make_app(source)
+    app = make_app(source, **kw)
     try:
         async with app.run_test(size=size) as pilot:
             await settle(pilot)
@@ -361,6 +363,23 @@ async def test_command_palette_lists_only_valid_commands(live_run: LiveRunFactor
         await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
         await pilot.press("escape")
         await wait_until(pilot, lambda: not isinstance(app.screen, HelpScreen), what="help closed")
+
+
+async def test_a_demo_console_says_that_leaving_stops_its_engine(live_run: LiveRunFactory) -> None:
+    """`aeni demo` stops its engine when its console quits: help and palette must not promise otherwise."""
+    for stops, says in ((False, "the run keeps going"), (True, "finishes the indent, lifts and stops")):
+        run = live_run()
+        async with attached(run.source(), (100, 40), leaving_stops_engine=stops) as (app, pilot):
+            leave = [c.help for c in app.get_system_commands(app.screen) if c.title == "Leave the console"]
+            assert len(leave) == 1 and says.lower() in leave[0].lower()
+            await pilot.press("question_mark")
+            await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
+            await settle(pilot)
+            shown = " ".join(
+                " ".join(widget_text(w).split()) for w in app.screen.query("#help-dialog Static")
+            )
+            assert says in shown
+            await pilot.press("escape")
 
 
 async def test_replay_steps_forward_and_back(live_run: LiveRunFactory) -> None:

@@ -125,7 +125,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     )
     if kla:
         with kla_demo(config, journal, args.supervision, args.speed) as (_, engine, _):
-            run_console(journal, pid=engine.pid, leave=False)
+            run_console(journal, pid=engine.pid, leave=False, leaving_stops_engine=True)
         print(
             f"The demo's engine and fake InView stopped; step through the run: aeni console --replay {journal}"
         )
@@ -135,7 +135,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if args.stay:
         return run_console(journal, pid=pid)
     try:
-        run_console(journal, pid=pid, leave=False)
+        run_console(journal, pid=pid, leave=False, leaving_stops_engine=True)
     finally:
         print(f"{stop_engine(pid, journal)}; step through the run: aeni console --replay {journal}")
     return 0

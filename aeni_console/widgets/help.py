@@ -49,13 +49,16 @@ PANELS: tuple[tuple[str, str], ...] = (
 )
 
 
-def help_text() -> Table:
+LEAVE_STOPS = "leave the console: the demo's engine finishes the indent, lifts and stops"
+
+
+def help_text(leaving_stops_engine: bool = False) -> Table:
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold cyan", no_wrap=True)
     table.add_column()
     table.add_row(Text("Keys", style="bold underline"), "")
     for key, what in KEYS:
-        table.add_row(key, what)
+        table.add_row(key, LEAVE_STOPS if key == "q" and leaving_stops_engine else what)
     table.add_row("", "")
     # a short heading: the key column stays as wide as the keys
     table.add_row(
@@ -75,9 +78,13 @@ def help_text() -> Table:
 class HelpScreen(ModalScreen[None]):
     BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "close", "Close")]
 
+    def __init__(self, leaving_stops_engine: bool = False) -> None:
+        super().__init__()
+        self.leaving_stops_engine = leaving_stops_engine
+
     def compose(self) -> ComposeResult:
         with VerticalScroll(id="help-dialog"):
-            yield Static(help_text())
+            yield Static(help_text(self.leaving_stops_engine))
 
     def on_mount(self) -> None:
         self.query_one("#help-dialog").border_title = "Help"

@@ -16,7 +16,9 @@ How a block is chosen:
   up to ``1 + structure_weight`` times more: on a flat map that is an even design, on a structured one it
   places more indents where the map bends;
 - every block is priced twice: staying in the engaged program (the safe band it can reach without a lift)
-  and opening a new one around the best candidate anywhere; the better gain per second wins;
+  and opening a new one around the best candidate anywhere; the better gain per second wins. In the
+  space-filling start the new program opens where the stay would not reach (farthest from the earlier
+  indents and the stay's picks), so the start spreads over several programs;
 - the indents of a block stay within a box small enough that no hop needs a reconfiguration, and are
   visited in a nearest-neighbour order improved by 2-opt.
 """
@@ -70,6 +72,7 @@ class ScatteredPlanner:
         box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
         options: list[tuple[BlockKind, list[int], float, list[float]]] = []  # kind, picks, hold, gains
         prog_hold = ctx.program_hold_s
+        after_stay: _Value | None = None
         if (
             ctx.program_open
             and ctx.program_center_um is not None
@@ -81,10 +84,15 @@ class ScatteredPlanner:
             band = reachable_mask(ctx, ctx.program_center_um, here, 0.0, math.inf, idx=cand)
             band &= _in_box(xy, here, box)
             if band.any():
-                picks, gains = self._batch(copy.copy(value), xy, band, None, ctx)
+                after_stay = copy.copy(value)
+                picks, gains = self._batch(after_stay, xy, band, None, ctx)
                 options.append(("local", picks, prog_hold, gains))
         alts = self._alternatives(ctx, cand, value.gains(), hold)
-        first = value.best(np.ones(len(cand), dtype=bool))
+        # in the space-filling start a jump opens where the stay would not reach (farthest from the earlier
+        # indents and the stay's picks), so the start spreads over programs; it is scored on the same design
+        first = (after_stay if exploring and after_stay is not None else value).best(
+            np.ones(len(cand), dtype=bool)
+        )
         anchor = (float(xy[first, 0]), float(xy[first, 1]))
         band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
         band[first] = True

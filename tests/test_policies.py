@@ -542,6 +542,29 @@ def test_aeni_block_size_follows_what_opening_a_program_costs() -> None:
     assert set(first) <= {(i.x_um, i.y_um) for i in dear.block.indents}
 
 
+def test_aeni_space_filling_jump_opens_where_the_stay_would_not_reach() -> None:
+    """In the space-filling start a new program is anchored farthest from the earlier indents and from the
+    stay's picks, so the start spreads over programs (anchored on the earlier indents alone, it opened beside
+    the engaged program's area, and the ternary reached twice the grid's MAPE later)."""
+    c, ctx = _context_after("aeni", blocks=2)
+    assert ctx.program_open and len(ctx.indents_xy_um) < ScatteredSingles().space_filling_indents
+    stay = c.policy.propose(replace(ctx, profile=replace(ctx.profile, global_jump_s=1e7)))
+    jump = c.policy.propose(replace(ctx, program_hold_s=1e5))  # the stay is on offer, but dear
+    closed = c.policy.propose(replace(ctx, program_open=False))  # no stay: plain maximin
+    assert stay is not None and jump is not None and closed is not None
+    assert (stay.block.kind, jump.block.kind, closed.block.kind) == ("local", "global", "global")
+    assert jump.phase == closed.phase == "explore"
+    picks = np.array([(i.x_um, i.y_um) for i in stay.block.indents])
+    earlier = np.asarray(ctx.indents_xy_um)
+
+    def gap(block: Block, points: np.ndarray) -> float:
+        return float(np.min(np.hypot(points[:, 0] - block.center_x_um, points[:, 1] - block.center_y_um)))
+
+    both = np.vstack([earlier, picks])
+    assert gap(closed.block, earlier) >= gap(jump.block, earlier)  # maximin on the earlier indents alone
+    assert gap(jump.block, both) > gap(closed.block, both)  # but the jump keeps away from the stay too
+
+
 def test_aeni_jump_is_scored_on_the_posterior_before_the_stays_picks() -> None:
     """The stay and the jump are alternatives: picking the stay's singles must not change where the jump goes
     (it once did: both were picked from one posterior, which the stay's picks had already conditioned)."""

@@ -87,12 +87,12 @@ class ScatteredPlanner:
                 after_stay = copy.copy(value)
                 picks, gains = self._batch(after_stay, xy, band, None, ctx)
                 options.append(("local", picks, prog_hold, gains))
-        alts = self._alternatives(ctx, cand, value.gains(), hold)
         # in the space-filling start a jump opens where the stay would not reach (farthest from the earlier
-        # indents and the stay's picks), so the start spreads over programs; it is scored on the same design
-        first = (after_stay if exploring and after_stay is not None else value).best(
-            np.ones(len(cand), dtype=bool)
-        )
+        # indents and the stay's picks), so the start spreads over programs; it is scored on the same design.
+        # The alternatives (where a veto moves to) are ranked the same way, the anchor first
+        placing = after_stay if exploring and after_stay is not None else value
+        alts = self._alternatives(ctx, cand, placing.gains(), hold)
+        first = placing.best(np.ones(len(cand), dtype=bool))
         anchor = (float(xy[first, 0]), float(xy[first, 1]))
         band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
         band[first] = True

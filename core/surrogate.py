@@ -33,7 +33,12 @@ from core.errors import InputError
 from core.estimators import estimator_efficiency
 
 KernelName = Literal["matern52", "rbf"]
-GuardName = Literal["keep-last-good", "off"]
+# keep-last-good: a fit whose length-scales collapse keeps the last good kernel (SPEC §5);
+# keep-last-good-unless-confirmed: ... except where a cold search on 1.5× more data lands where the warm fit
+# slid and both beat the kept kernel by more than COLD_WIN_NATS (a real short scale, not a slide);
+# off: a plain maximum-likelihood GP (the unguarded ablation)
+GuardName = Literal["keep-last-good", "keep-last-good-unless-confirmed", "off"]
+GUARDS: tuple[GuardName, ...] = ("keep-last-good", "keep-last-good-unless-confirmed", "off")
 
 HYPER_VERSION = 1
 MIN_NOISE_STD = 1e-8  # numerical floor on a point's noise, in standardised units
@@ -565,8 +570,8 @@ class HeteroskedasticGP:
     ) -> None:
         if kernel not in ("matern52", "rbf"):
             raise InputError("surrogate.kernel", f"unknown kernel {kernel!r}; allowed: matern52, rbf")
-        if guard not in ("keep-last-good", "off"):
-            raise InputError("surrogate.guard", f"unknown guard {guard!r}; allowed: keep-last-good, off")
+        if guard not in GUARDS:
+            raise InputError("surrogate.guard", f"unknown guard {guard!r}; allowed: {', '.join(GUARDS)}")
         if not 0.0 < lengthscale_floor_uv < 1.0:
             raise InputError(
                 "surrogate.lengthscale_floor_uv", f"must be in (0, 1), got {lengthscale_floor_uv}"
@@ -639,9 +644,16 @@ class HeteroskedasticGP:
             # deterministic in (obs, previous record): a resumed run makes the same choice
             theta_c, it = _fit_problem(pm, None, self.max_iter, self.warm_max_iter)
             iterations += it
-            gain_nats = (_objective(pm, theta_m) - _objective(pm, theta_c)) * obs.n
-            if gain_nats > COLD_WIN_NATS:
+            warm_value, cold_value = _objective(pm, theta_m), _objective(pm, theta_c)
+            if (warm_value - cold_value) * obs.n > COLD_WIN_NATS:
                 theta_m = theta_c
+                cold_won = True
+            elif self.guard == "keep-last-good-unless-confirmed" and self._confirms(
+                pm, warm_mean, warm_value, cold_value, obs.n
+            ):
+                # the warm fit's slide is where the cold search lands too, and the data prefer it by more
+                # than the margin to the kernel in use: the data's own choice (the grains' texture),
+                # which keep-last-good would otherwise veto at every refit
                 cold_won = True
             cold_n = obs.n
         hyper = self._make_hyper(kind, theta_m.tolist(), noise_raw, obs)
@@ -650,7 +662,7 @@ class HeteroskedasticGP:
         # likelihood over 1.5× more data is the data's own choice, held only to the floor
         collapse, reason = self._collapse_check(hyper, None if cold_won or not compatible else prev)
         used_last_good = False
-        if collapse and self.guard == "keep-last-good":
+        if collapse and self.guard != "off":
             if self._last_good is not None and self._last_good["kernel"] == self.kernel:
                 hyper = self._restore(hyper, self._last_good)
                 used_last_good = True
@@ -867,6 +879,18 @@ class HeteroskedasticGP:
             "lengthscales_uv": list(_lengthscales_of(mean_raw, self.floor_uv)),
             "n_points": obs.n,
         }
+
+    @staticmethod
+    def _confirms(p: _Problem, kept_raw: list[float], warm: float, cold: float, n: int) -> bool:
+        """Does a cold search confirm the warm fit against the kept kernel (objectives per point)?"""
+        if (cold - warm) * n > COLD_WIN_NATS:
+            return False  # the cold starts found nothing as good: the slide is the warm path's own
+        size = 5 if p.learn_noise else 4
+        values = list(kept_raw[:size])
+        if len(values) < size:
+            values.append(_inv_softplus(COLD_NOISE_VAR - NOISE_VAR_FLOOR))
+        kept = _objective(p, torch.tensor(values, dtype=_DTYPE))
+        return math.isfinite(kept) and (kept - min(warm, cold)) * n > COLD_WIN_NATS
 
     def _collapse_check(self, hyper: dict[str, Any], prev: dict[str, Any] | None) -> tuple[bool, str]:
         ls = hyper["lengthscales_uv"]

@@ -441,6 +441,17 @@ def test_tight_and_unguarded_differ_only_in_the_guard() -> None:
     assert replace(loose.policy.parts, guard=tight.policy.parts.guard) == tight.policy.parts
 
 
+def test_aeni_guard_yields_to_a_confirmed_drop_and_strict_guard_does_not() -> None:
+    aeni, strict = (
+        Campaign(CampaignConfig(policy="aeni"), _TERNARY),
+        Campaign(CampaignConfig(policy="aeni+strict-guard"), _TERNARY),
+    )
+    assert aeni.surrogate.guard == "keep-last-good-unless-confirmed"
+    assert strict.surrogate.guard == "keep-last-good"
+    assert aeni.surrogate.floor_uv == strict.surrogate.floor_uv and strict.surrogate.lengthscale_prior
+    assert replace(strict.policy.parts, guard=aeni.policy.parts.guard) == aeni.policy.parts
+
+
 def test_bias_aware_drift_estimate_ignores_the_reading_noise_but_not_an_event() -> None:
     rng = np.random.default_rng(0)
     quiet = tuple(np.maximum(0.002 * rng.standard_normal(25), 0.0).tolist())  # no drift, noisy readings

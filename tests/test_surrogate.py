@@ -436,13 +436,17 @@ def test_observations_carry_the_estimators_efficiency() -> None:
 # -- cold restarts of a warm-started refit ---------------------------------------------------------------
 
 
-def _texture(n: int, seed: int) -> Observations:
+def _texture(n: int, seed: int, period: float = 0.2, amplitude_gpa: float = 0.8) -> Observations:
     """Single indents on a texture of period 0.2 of the side, 1 % noise: 40 points read it as noise."""
     rng = np.random.default_rng(seed)
     uv = rng.uniform(0.0, 1.0, size=(n, 2))
-    h = 5.0 + 0.8 * np.sin(2 * np.pi * uv[:, 0] / 0.2) * np.sin(2 * np.pi * uv[:, 1] / 0.2)
+    h = 5.0 + amplitude_gpa * _egg_box(uv, period)
     h = h + 0.05 * rng.standard_normal(n)
     return Observations(uv, h, np.full(n, np.nan), np.ones(n))
+
+
+def _egg_box(uv: np.ndarray, period: float) -> np.ndarray:
+    return np.sin(2 * np.pi * uv[:, 0] / period) * np.sin(2 * np.pi * uv[:, 1] / period)
 
 
 def test_a_refit_on_grown_data_escapes_the_warm_optimum_and_resumes_the_same() -> None:
@@ -469,3 +473,36 @@ def test_a_refit_on_grown_data_escapes_the_warm_optimum_and_resumes_the_same() -
     truth = 5.0 + 0.8 * np.sin(2 * np.pi * grid[:, 0] / 0.2) * np.sin(2 * np.pi * grid[:, 1] / 0.2)
     error = np.mean(np.abs(gp.predict_mean(grid) - truth))
     assert error < 0.5 * np.mean(np.abs(stuck.predict_mean(grid) - truth))
+
+
+def test_a_drop_the_cold_search_confirms_passes_the_confirming_guard_only() -> None:
+    """Here the warm refit itself slides from the few points' long scale (0.35) to the texture's (0.1): a
+    drop keep-last-good vetoes. When the cold starts are due and land there too, beating the kept kernel by
+    more than 2 nats, ``aeni``'s guard takes the drop as the data's; with the cold starts not due it keeps
+    the last good kernel like the strict guard (the grains: 35 of 41 refits vetoed before)."""
+    few, many = (
+        _texture(30, 0, period=0.4, amplitude_gpa=0.3),
+        _texture(300, 0, period=0.4, amplitude_gpa=0.3),
+    )
+    fits = {}
+    for guard in ("keep-last-good", "keep-last-good-unless-confirmed"):
+        for cold_due in (True, False):
+            first = HeteroskedasticGP(lengthscale_floor_uv=0.01, guard=guard).fit(few)
+            assert max(first.lengthscales_uv) > 0.3
+            gp = HeteroskedasticGP(lengthscale_floor_uv=0.01, guard=guard)
+            gp.set_hyper({**first.hyper, "cold_n": 30 if cold_due else 10_000}, few)
+            fits[guard, cold_due] = (gp, gp.fit(many), first)
+    _, confirmed, _ = fits["keep-last-good-unless-confirmed", True]
+    assert max(confirmed.lengthscales_uv) < 0.15 and not confirmed.collapse and not confirmed.used_last_good
+    for key in (
+        ("keep-last-good", True),
+        ("keep-last-good", False),
+        ("keep-last-good-unless-confirmed", False),
+    ):
+        _, report, first = fits[key]
+        assert report.collapse and report.used_last_good, key
+        assert report.lengthscales_uv == pytest.approx(first.lengthscales_uv)
+    grid = _lattice(40)
+    truth = 5.0 + 0.3 * _egg_box(grid, 0.4)
+    errors = {key: np.mean(np.abs(gp.predict_mean(grid) - truth)) for key, (gp, _, _) in fits.items()}
+    assert errors["keep-last-good-unless-confirmed", True] < 0.5 * errors["keep-last-good", True]

@@ -51,6 +51,7 @@ def _parts() -> dict[str, PolicyParts]:
             acquisition=AcquisitionPart(kind="ivr"),
             blocks=ScatteredSingles(),
             hold=HoldRule(adaptive=True, bias_aware=True),
+            guard=CollapseGuard(yield_to_confirmed=True),
         ),
         "uncertainty": PolicyParts(
             acquisition=AcquisitionPart(cost_aware=False), blocks=replace(fixed, stay=False)
@@ -108,6 +109,10 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
     "unguarded": (
         "no length-scale floor, prior or keep-last-good (collapse guard)",
         lambda p: replace(p, guard=CollapseGuard(keep_last_good=False, floor=False)),
+    ),
+    "strict-guard": (
+        "keep-last-good even where a cold search on 1.5× more data confirms the drop (collapse guard)",
+        lambda p: replace(p, guard=replace(p.guard, yield_to_confirmed=False)),
     ),
     "even": (
         "no weighting to the map's structure: pure variance reduction (block design)",

@@ -246,10 +246,10 @@ def test_why_text_gives_each_missed_fields_even_design_limit_from_its_own_json(
     records = []
     misses = (("grains", 100_000.0), ("stripe", None), ("rotated", 90_000.0), ("film", 80_000.0))
     for key, aeni_hit in (*misses, ("step", 10_000.0)):
-        records += [
-            replace(_rec("grid", 0, 280_000.0), scenario=key),
-            replace(_rec("aeni", 0, aeni_hit), scenario=key),
-        ]
+        aeni = replace(_rec("aeni", 0, aeni_hit, final=0.53), scenario=key, indents=1563)
+        if aeni_hit is None:
+            aeni = replace(aeni, stop_reason="policy aeni has nothing left to propose")
+        records += [replace(_rec("grid", 0, 280_000.0), scenario=key), aeni]
     text = report.why_text(summarise(records), records)
     lines = {ln.split("**")[1]: ln for ln in text.splitlines() if ln.startswith("- **`aeni` on")}
     assert set(lines) == {f"`aeni` on {key}:" for key, _ in misses}
@@ -261,6 +261,11 @@ def test_why_text_gives_each_missed_fields_even_design_limit_from_its_own_json(
     assert (
         "No even design of single indents up to 2,500 indents reaches the grid's MAPE"
         in lines["`aeni` on stripe:"]
+    )
+    # a seed that missed says how far from its target it ended, and what ended it
+    assert (
+        "never reached the grid's MAPE on seed 0 (ended at 0.530 % against 0.500 % after 1,563 indents:"
+        " policy aeni has nothing left to propose)." in lines["`aeni` on stripe:"]
     )
     assert (
         "--field rotated-quaternary" in lines["`aeni` on rotated:"]

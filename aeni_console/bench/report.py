@@ -369,6 +369,13 @@ def _field_limit(key: str) -> str:
     )
 
 
+def _miss_text(r: RunRecord) -> str:
+    """How far a seed that never reached its target ended from it, and what ended it."""
+    final = f"ended at {r.final_mape_pct:.3f} %" if r.final_mape_pct is not None else "ended unscored"
+    target = f" against {r.target_mape_pct:.3f} %" if r.target_mape_pct is not None else ""
+    return f"seed {r.seed} ({final}{target} after {r.indents:,} indents: {r.stop_reason})"
+
+
 def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = ()) -> str:
     """Where each policy loses, with this run's own figures, and the oracle's limit read from its JSON."""
     out = ["### Where the policies lose", ""]
@@ -393,11 +400,11 @@ def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = 
         if a is None or sw is None:
             continue
         worst = [r for r in records if r.scenario == sc and r.policy == "aeni"]
-        miss = [r.seed for r in worst if r.t_hit_s is None]
+        miss = [r for r in worst if r.t_hit_s is None]
         if sw[0] < SUITE_GOAL or sw[1] < 1.0 or miss:
             out.append(
                 f"- **`aeni` on {sc}:** median {_x(sw[0])}, worst seed {_x(sw[1])}"
-                + (f"; never reached the grid's MAPE on seed(s) {', '.join(map(str, miss))}" if miss else "")
+                + (f"; never reached the grid's MAPE on {'; '.join(map(_miss_text, miss))}" if miss else "")
                 + "."
                 + _field_limit(sc)
             )

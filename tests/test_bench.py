@@ -139,6 +139,18 @@ def test_scenario_subset_keeps_the_bench_order_of_the_given_keys() -> None:
     assert {"grid", "aeni-paper", "aeni"} <= set(full.scenarios[1].policies)
 
 
+def test_policy_subset_holds_on_extra_fields_and_runs_the_ablations_it_names() -> None:
+    """``--policies`` filters every scenario, also one added with ``--scenarios`` (rough-csv ran all eight
+    policies before), and an ablation it names runs beside them instead of being dropped in silence."""
+    config = BenchConfig.make(
+        quick=False, only="rough-csv,good-drift", policies="aeni,aeni+strict-guard,uncertainty"
+    )
+    by_key = {s.key: s.policies for s in config.scenarios}
+    assert sorted(by_key["rough-csv"]) == ["aeni", "aeni+strict-guard", "grid", "uncertainty"]
+    # the drift provocation runs no uncertainty: a named policy runs only where its scenario runs it
+    assert sorted(by_key["good-drift"]) == ["aeni", "aeni+strict-guard", "grid"]
+
+
 # -- bad input ------------------------------------------------------------------------------------------
 
 

@@ -164,33 +164,35 @@ class BenchConfig:
         """``only``: a comma-separated subset of the scenario keys (an unknown key is an error);
         ``policies``: only these policies (and the grid, which sets every target) on each scenario."""
         config = cls._make(quick, seeds, jobs)
-        if policies is not None:
-            from core.policies.registry import policy_parts
-
-            keep = [p.strip() for p in policies.split(",") if p.strip()]
-            for p in keep:
-                try:
-                    policy_parts(p)
-                except InputError as exc:
-                    raise InputError("--policies", exc.problem) from None
-            config = replace(
-                config,
-                scenarios=tuple(
-                    replace(sc, policies=tuple(p for p in sc.policies if p == "grid" or p in keep))
-                    for sc in config.scenarios
-                ),
-            )
-        if only is None:
+        if only is not None:
+            keys = [k.strip() for k in only.split(",") if k.strip()]
+            known = {s.key: s for s in (*config.scenarios, *([] if quick else EXTRA_SCENARIOS))}
+            unknown = [k for k in keys if k not in known]
+            if unknown or not keys:
+                raise InputError(
+                    "--scenarios",
+                    f"unknown scenario key(s) {', '.join(unknown) or '(none given)'} (known: {', '.join(known)})",
+                )
+            config = replace(config, scenarios=tuple(known[k] for k in dict.fromkeys(keys)))
+        if policies is None:
             return config
-        keys = [k.strip() for k in only.split(",") if k.strip()]
-        known = {s.key: s for s in (*config.scenarios, *([] if quick else EXTRA_SCENARIOS))}
-        unknown = [k for k in keys if k not in known]
-        if unknown or not keys:
-            raise InputError(
-                "--scenarios",
-                f"unknown scenario key(s) {', '.join(unknown) or '(none given)'} (known: {', '.join(known)})",
-            )
-        return replace(config, scenarios=tuple(known[k] for k in dict.fromkeys(keys)))
+        from core.policies.registry import policy_names, policy_parts
+
+        keep = list(dict.fromkeys(p.strip() for p in policies.split(",") if p.strip()))
+        for p in keep:
+            try:
+                policy_parts(p)
+            except InputError as exc:
+                raise InputError("--policies", exc.problem) from None
+        # a named policy runs where the scenario runs it; an ablation (BASE+modifier) runs on every scenario
+        ablations = tuple(p for p in keep if p not in policy_names())
+        return replace(
+            config,
+            scenarios=tuple(
+                replace(sc, policies=(*(p for p in sc.policies if p == "grid" or p in keep), *ablations))
+                for sc in config.scenarios
+            ),
+        )
 
     @classmethod
     def _make(cls, quick: bool, seeds: int | None, jobs: int) -> BenchConfig:

@@ -116,7 +116,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--policies",
         default=None,
         metavar="P[,P...]",
-        help="score only these policies (the grid always runs: it sets every target)",
+        help="score only these policies (the grid always runs: it sets every target); an ablation "
+        "BASE+modifier named here runs on every scenario",
     )
     p.add_argument(
         "--dask",

@@ -23,7 +23,7 @@ from core.errors import InputError
 from core.geometry import CandidateLattice
 from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings
-from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext
+from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext, base_mask
 from core.policies.registry import RECOMMENDED, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
@@ -265,9 +265,15 @@ class Campaign:
         self.last_stop_reason = self.stop_reason(clock_s)
         if self.last_stop_reason is not None:
             return None
-        decision = self.policy.propose(self.context(clock_s, position_um, program_open, block_id))
+        ctx = self.context(clock_s, position_um, program_open, block_id)
+        decision = self.policy.propose(ctx)
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
+            if not base_mask(ctx, 0.0).any():
+                n = self.lattice.n
+                self.last_stop_reason += (
+                    f": every candidate of the {n}×{n} lattice is indented, excluded or too near an indent"
+                )
             return None
         return self._fit_budgets(decision, clock_s, position_um, program_open)
 

@@ -58,3 +58,18 @@ def test_the_default_horizon_lets_the_grid_baseline_run_all_its_indents() -> Non
     assert indents == 2025  # SPEC §3: 9×9 blocks of 5×5
     assert instrument_s == pytest.approx(286_392, rel=0.002)  # SPEC §3, from the sample's centre
     assert "nothing left to propose" in reason
+
+
+def test_single_indents_that_use_up_the_lattice_say_so() -> None:
+    """A run of single indents ends when no candidate is left; its reason says the lattice ran out (the
+    bench's stripe seed that stopped 1 % short of its target said only "nothing left to propose")."""
+    config = CampaignConfig(
+        policy="aeni", lattice_n=10, sample=default_sample("sim", OPTIONS, 0), driver_options=dict(OPTIONS)
+    )
+    campaign = Campaign(config)
+    result = run_headless(campaign, make_driver("sim", campaign.sample, campaign.profile, OPTIONS))
+    assert result.stop_reason == (
+        "policy aeni has nothing left to propose: every candidate of the 10×10 lattice is indented, excluded or"
+        " too near an indent"
+    )
+    assert 0 < result.indents <= 100

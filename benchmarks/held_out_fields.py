@@ -1,0 +1,188 @@
+"""Does a policy hold on fields that nothing was tuned on? Five held-out truths, scored like the bench.
+
+The bench's robustness suite is what `aeni` was developed against; these five were written after its last
+change and were never used to choose a setting. Each is a truth CSV (x_um, y_um, hardness_gpa,
+noise_sd_gpa on a 101×101 lattice over the 1000 µm square: what a user loads with ``--truth``):
+
+- ring: a hard annulus (+1.5 GPa, 80 µm wide, radius 250 µm) on a gentle gradient, 2 % noise;
+- spots: a hard and a soft spot (50 and 70 µm) of opposite sign on a tilted plane, 1.5 % noise;
+- checker: a soft-edged checkerboard of 250 µm squares (±0.6 GPa), 2 % noise;
+- noisy: a smooth saddle under 6 % per-indent noise (the film's problem without its program changes);
+- band: a steep gradient with a sigmoid step along a diagonal, 1 % + 0.03 GPa noise.
+
+Protocol as in ``aeni bench``: the grid baseline of each seed sets the target (its final MAPE) and the
+budget; the policy runs until it reaches the target and on for 10 %, and the speed-up is grid time /
+policy time to the target, paired by seed (0 = never reached).
+
+Run: python benchmarks/held_out_fields.py [--policy aeni] [--seeds 5] [--jobs 2] → prints a table,
+writes results/held_out_<policy>.{json,md}
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from aeni_console.bench.harness import BenchScenario, RunRecord, RunSpec, run_one  # noqa: E402
+
+SIDE_UM = 1000.0
+LATTICE_N = 50  # the bench's candidate lattice
+Field = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def _ring(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r = np.hypot(x - 450.0, y - 550.0)
+    h = 5.0 + 0.1 * x / SIDE_UM + 1.5 * np.exp(-0.5 * ((r - 250.0) / 35.0) ** 2)
+    return h, 0.02 * h
+
+
+def _spots(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    hard = 1.2 * np.exp(-((x - 300.0) ** 2 + (y - 300.0) ** 2) / (2 * 50.0**2))
+    soft = 1.0 * np.exp(-((x - 700.0) ** 2 + (y - 650.0) ** 2) / (2 * 70.0**2))
+    h = 6.0 - 0.3 * y / SIDE_UM + hard - soft
+    return h, 0.015 * h
+
+
+def _checker(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s = np.tanh(8.0 * np.sin(np.pi * x / 250.0)) * np.tanh(8.0 * np.sin(np.pi * y / 250.0))
+    h = 7.0 + 0.6 * s
+    return h, 0.02 * h
+
+
+def _noisy(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    h = 8.0 + np.sin(np.pi * x / SIDE_UM) * np.cos(0.5 * np.pi * y / SIDE_UM)
+    return h, 0.06 * h
+
+
+def _band(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d = (0.6 * x + 0.8 * y) / SIDE_UM
+    h = 4.0 + 3.0 * d + 0.8 / (1.0 + np.exp(-(d - 0.7) / 0.02))
+    return h, 0.01 * h + 0.03
+
+
+FIELDS: dict[str, Field] = {
+    "ring": _ring,
+    "spots": _spots,
+    "checker": _checker,
+    "noisy": _noisy,
+    "band": _band,
+}
+
+
+def write_truth(key: str, folder: Path) -> Path:
+    xs = np.linspace(0.0, SIDE_UM, 101)
+    gx, gy = np.meshgrid(xs, xs)
+    h, sd = FIELDS[key](gx, gy)
+    rows = ["x_um,y_um,hardness_gpa,noise_sd_gpa"]
+    rows += [
+        f"{a:.3f},{b:.3f},{c:.6f},{d:.6f}"
+        for a, b, c, d in zip(gx.ravel(), gy.ravel(), h.ravel(), sd.ravel(), strict=True)
+    ]
+    path = folder / f"held_out_{key}.csv"
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return path
+
+
+def _spec(key: str, csv: Path, policy: str, seed: int, **kw: float) -> RunSpec:
+    sc = BenchScenario(key, "csv", f"held-out field {key}", ("grid", policy), group="robustness")
+    return RunSpec(sc, policy, seed, LATTICE_N, truth_csv=str(csv), **kw)  # type: ignore[arg-type]
+
+
+def _grid(args: tuple[str, Path, int]) -> RunRecord:
+    key, csv, seed = args
+    return run_one(_spec(key, csv, "grid", seed))
+
+
+def _policy(args: tuple[str, Path, str, int, float, float]) -> RunRecord:
+    key, csv, policy, seed, budget_s, target_pct = args
+    return run_one(_spec(key, csv, policy, seed, budget_s=budget_s, target_mape_pct=target_pct, margin=0.1))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--policy", default="aeni", help="a registry policy or an ablation BASE+modifier")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument(
+        "--fields", default=",".join(FIELDS), help="comma-separated subset of " + ", ".join(FIELDS)
+    )
+    args = ap.parse_args()
+    keys = [k.strip() for k in args.fields.split(",") if k.strip()]
+    unknown = [k for k in keys if k not in FIELDS]
+    if unknown or args.seeds < 1 or args.jobs < 1:
+        sys.exit(f"held_out_fields: unknown field(s) {unknown} or seeds/jobs < 1")
+    out = ROOT / "benchmarks" / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    csvs = {k: write_truth(k, out) for k in keys}
+    try:
+        with ProcessPoolExecutor(args.jobs) as ex:
+            grids = list(ex.map(_grid, [(k, csvs[k], s) for k in keys for s in range(args.seeds)]))
+            tasks = [
+                (g.scenario, csvs[g.scenario], args.policy, g.seed, g.instrument_s, g.final_mape_pct)
+                for g in grids
+            ]
+            runs = list(ex.map(_policy, tasks))
+    finally:
+        for path in csvs.values():
+            path.unlink(missing_ok=True)  # the truths are rebuilt from this file; only the results are kept
+    speedups: dict[str, list[float]] = {k: [] for k in keys}
+    rows = []
+    for g, r in zip(grids, runs, strict=True):
+        assert g.t_hit_s is not None  # the grid reaches its own final MAPE by definition
+        x = g.t_hit_s / r.t_hit_s if r.t_hit_s else 0.0
+        speedups[g.scenario].append(x)
+        rows.append(
+            {
+                "field": g.scenario,
+                "seed": g.seed,
+                "grid_final_mape_pct": g.final_mape_pct,
+                "grid_t_hit_s": g.t_hit_s,
+                "policy_t_hit_s": r.t_hit_s,
+                "policy_final_mape_pct": r.final_mape_pct,
+                "indents": r.indents,
+                "speedup": x,
+                "stop_reason": r.stop_reason,
+            }
+        )
+    lines = [
+        f"# Held-out fields: `{args.policy}` against the grid ({args.seeds} seeds)",
+        "",
+        "Grid time / policy time to reach the grid's final MAPE, paired by seed (0 = never reached).",
+        "",
+        "| field | median | worst seed | reached |",
+        "| --- | --- | --- | --- |",
+    ]
+    for k in keys:
+        v = speedups[k]
+        lines.append(
+            f"| {k} | {statistics.median(v):.1f}× | {min(v):.1f}× | {sum(x > 0 for x in v)}/{len(v)} |"
+        )
+    wall = time.perf_counter() - t0
+    lines += [
+        "",
+        f"{len(grids) + len(runs)} campaigns in {wall / 60:.1f} min of wall time, --jobs {args.jobs}.",
+    ]
+    text = "\n".join(lines)
+    print(text)
+    name = args.policy.replace("+", "_")
+    (out / f"held_out_{name}.md").write_text(text + "\n", encoding="utf-8")
+    data = {"policy": args.policy, "seeds": args.seeds, "fields": keys, "runs": rows, "wall_s": wall}
+    (out / f"held_out_{name}.json").write_text(json.dumps(data, indent=1), encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

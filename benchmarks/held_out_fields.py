@@ -25,6 +25,7 @@ import json
 import os
 import statistics
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
@@ -36,7 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from aeni_console.bench.harness import BenchScenario, RunRecord, RunSpec, run_one  # noqa: E402
+from aeni_console.bench.harness import BenchScenario, RunRecord, RunSpec, run_one, write_truth_csv  # noqa: E402
 
 SIDE_UM = 1000.0
 LATTICE_N = 50  # the bench's candidate lattice
@@ -85,15 +86,7 @@ FIELDS: dict[str, Field] = {
 def write_truth(key: str, folder: Path) -> Path:
     xs = np.linspace(0.0, SIDE_UM, 101)
     gx, gy = np.meshgrid(xs, xs)
-    h, sd = FIELDS[key](gx, gy)
-    rows = ["x_um,y_um,hardness_gpa,noise_sd_gpa"]
-    rows += [
-        f"{a:.3f},{b:.3f},{c:.6f},{d:.6f}"
-        for a, b, c, d in zip(gx.ravel(), gy.ravel(), h.ravel(), sd.ravel(), strict=True)
-    ]
-    path = folder / f"held_out_{key}.csv"
-    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
-    return path
+    return write_truth_csv(folder / f"held_out_{key}.csv", gx, gy, *FIELDS[key](gx, gy))
 
 
 def _spec(key: str, csv: Path, policy: str, seed: int, **kw: float) -> RunSpec:
@@ -127,18 +120,14 @@ def main() -> None:
     out = ROOT / "benchmarks" / "results"
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    csvs = {k: write_truth(k, out) for k in keys}
-    try:
-        with ProcessPoolExecutor(args.jobs) as ex:
-            grids = list(ex.map(_grid, [(k, csvs[k], s) for k in keys for s in range(args.seeds)]))
-            tasks = [
-                (g.scenario, csvs[g.scenario], args.policy, g.seed, g.instrument_s, g.final_mape_pct)
-                for g in grids
-            ]
-            runs = list(ex.map(_policy, tasks))
-    finally:
-        for path in csvs.values():
-            path.unlink(missing_ok=True)  # the truths are rebuilt from this file; only the results are kept
+    with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.jobs) as ex:
+        csvs = {k: write_truth(k, Path(tmp)) for k in keys}  # rebuilt from this file: only results are kept
+        grids = list(ex.map(_grid, [(k, csvs[k], s) for k in keys for s in range(args.seeds)]))
+        tasks = [
+            (g.scenario, csvs[g.scenario], args.policy, g.seed, g.instrument_s, g.final_mape_pct)
+            for g in grids
+        ]
+        runs = list(ex.map(_policy, tasks))
     speedups: dict[str, list[float]] = {k: [] for k in keys}
     rows = []
     for g, r in zip(grids, runs, strict=True):

@@ -16,7 +16,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import gpytorch
 import numpy as np
@@ -38,7 +38,7 @@ KernelName = Literal["matern52", "rbf"]
 # slid and both beat the kept kernel by more than COLD_WIN_NATS (a real short scale, not a slide);
 # off: a plain maximum-likelihood GP (the unguarded ablation)
 GuardName = Literal["keep-last-good", "keep-last-good-unless-confirmed", "off"]
-GUARDS: tuple[GuardName, ...] = ("keep-last-good", "keep-last-good-unless-confirmed", "off")
+GUARDS: tuple[GuardName, ...] = get_args(GuardName)
 
 HYPER_VERSION = 1
 MIN_NOISE_STD = 1e-8  # numerical floor on a point's noise, in standardised units
@@ -516,21 +516,28 @@ def _cold_theta(lengthscale: float, floor_uv: float, learn_noise: bool) -> torch
     return torch.tensor(values, dtype=_DTYPE)
 
 
+def _raw_for(p: _Problem, raw: list[float]) -> list[float]:
+    """A recorded raw vector sized to the problem: a learned noise added at its cold value where the record
+    had none (a fit on spreads), dropped where the problem learns none."""
+    size = 5 if p.learn_noise else 4
+    values = list(raw[:size])
+    if len(values) < size:
+        values.append(_inv_softplus(COLD_NOISE_VAR - NOISE_VAR_FLOOR))
+    return values
+
+
 def _fit_problem(
     p: _Problem, warm: list[float] | None, max_iter: int, warm_max_iter: int
 ) -> tuple[torch.Tensor, int]:
     """Warm: one short L-BFGS run from the previous raw vector. Cold: a few deterministic starts, best kept."""
-    size = 5 if p.learn_noise else 4
     if warm is not None:
-        values = list(warm[:size])
-        if len(values) < size:
-            values.append(_inv_softplus(COLD_NOISE_VAR - NOISE_VAR_FLOOR))
+        values = _raw_for(p, warm)
         # an outputscale that went to ~0 on a few points has a vanishing gradient (softplus' tail): lift it,
         # or every later warm fit stays trapped in the "constant function" corner
         values[1] = max(values[1], _inv_softplus(WARM_MIN_OUTPUTSCALE))
         values[2] = max(values[2], _inv_softplus(WARM_MIN_LENGTHSCALE_EXCESS_UV))  # same at the floor
         values[3] = max(values[3], _inv_softplus(WARM_MIN_LENGTHSCALE_EXCESS_UV))
-        if size == 5:
+        if p.learn_noise:
             values[4] = max(values[4], _inv_softplus(WARM_MIN_NOISE_VAR))
         return _optimise(p, torch.tensor(values, dtype=_DTYPE), warm_max_iter)
     best: tuple[float, torch.Tensor] | None = None
@@ -885,11 +892,7 @@ class HeteroskedasticGP:
         """Does a cold search confirm the warm fit against the kept kernel (objectives per point)?"""
         if (cold - warm) * n > COLD_WIN_NATS:
             return False  # the cold starts found nothing as good: the slide is the warm path's own
-        size = 5 if p.learn_noise else 4
-        values = list(kept_raw[:size])
-        if len(values) < size:
-            values.append(_inv_softplus(COLD_NOISE_VAR - NOISE_VAR_FLOOR))
-        kept = _objective(p, torch.tensor(values, dtype=_DTYPE))
+        kept = _objective(p, torch.tensor(_raw_for(p, kept_raw), dtype=_DTYPE))
         return math.isfinite(kept) and (kept - min(warm, cold)) * n > COLD_WIN_NATS
 
     def _collapse_check(self, hyper: dict[str, Any], prev: dict[str, Any] | None) -> tuple[bool, str]:

@@ -429,22 +429,29 @@ def _maps(campaign: Any) -> dict[str, Any]:
 # -- the whole bench -----------------------------------------------------------------------------------
 
 
+def write_truth_csv(
+    path: Path, x_um: np.ndarray, y_um: np.ndarray, hardness_gpa: np.ndarray, noise_sd_gpa: np.ndarray
+) -> Path:
+    """A truth as a CSV lattice (what a user would load with ``--truth``): one row per point."""
+    lines = ["x_um,y_um,hardness_gpa,noise_sd_gpa"]
+    lines += [
+        f"{x:.3f},{y:.3f},{hv:.6f},{sv:.6f}"
+        for x, y, hv, sv in zip(
+            np.ravel(x_um), np.ravel(y_um), np.ravel(hardness_gpa), np.ravel(noise_sd_gpa), strict=True
+        )
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
 def write_rough_truth(path: Path, seed: int = 11, n: int = 101) -> Path:
-    """A rough real-looking map as a CSV lattice (what a user would load with ``--truth``)."""
+    """A rough real-looking map as a CSV lattice."""
     from drivers.sim.emulator import RoughField
 
     field_ = RoughField(seed=seed)
     xs = np.linspace(0.0, field_.side_um, n)
     gx, gy = np.meshgrid(xs, xs)
-    h = field_.hardness_gpa(gx, gy)
-    sd = field_.noise_sd_gpa(gx, gy)
-    lines = ["x_um,y_um,hardness_gpa,noise_sd_gpa"]
-    lines += [
-        f"{x:.3f},{y:.3f},{hv:.6f},{sv:.6f}"
-        for x, y, hv, sv in zip(gx.ravel(), gy.ravel(), h.ravel(), sd.ravel(), strict=True)
-    ]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+    return write_truth_csv(path, gx, gy, field_.hardness_gpa(gx, gy), field_.noise_sd_gpa(gx, gy))
 
 
 def _parallel(

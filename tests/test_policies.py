@@ -459,9 +459,15 @@ def test_bias_aware_drift_estimate_ignores_the_reading_noise_but_not_an_event() 
     # an event shows in the very next reading: the paper's 2 % rule fires on it at once
     event = (*quiet, 0.3)
     assert robust_rate(event, 100.0, 40.0) == pytest.approx(0.3)
-    # a fall is trusted only once the window's median has come down
+    # one low reading after a high window is not trusted ...
     after = (*([0.2] * 11), 0.0)
     assert robust_rate(after, 100.0, 40.0) == pytest.approx(0.2)
+    # ... but an event decaying over a slow block (16 indents of 120 s, tau 600 s) is: the newest readings
+    # are under the 2 % rule (0.025 nm/s) while the window's median, half a window behind, is not
+    decay = tuple((0.3 * np.exp(-np.arange(16) * 120.0 / 600.0)).tolist())
+    assert float(np.median(decay[-12:])) > 0.025
+    assert robust_rate(decay, 100.0, 40.0) == pytest.approx(decay[-2])
+    assert robust_rate(decay, 100.0, 40.0) < 0.025
 
 
 # -- aeni: scattered singles ----------------------------------------------------------------------------

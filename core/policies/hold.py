@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from core.policies.base import PlanContext
 
 DRIFT_WINDOW = 12  # drift readings whose median the bias-aware hold trusts
+RECENT_READINGS = 3  # ... unless the newest readings agree that the drift has fallen below it
 
 
 def choose_hold(
@@ -40,11 +41,15 @@ def choose_hold(
 def robust_rate(readings: tuple[float, ...], depth_nm: float, segment_s: float) -> float:
     """One drift reading is noisy: the median of the last DRIFT_WINDOW, unless the last reading alone breaks
     the paper's 2 % rule at ``depth_nm`` over ``segment_s`` (an event shows at once; the readings' own noise
-    never sends a quiet run slow)."""
+    never sends a quiet run slow), or the median of the last RECENT_READINGS is lower: a drift event decays
+    over minutes, and the window's median lags it by half a window (six indents of a slow block, 12 min),
+    which sent the next block slow too although the drift had already fallen. Two of the three newest
+    readings must say so: one low reading is not trusted."""
     window = float(np.median(readings[-DRIFT_WINDOW:]))
+    recent = float(np.median(readings[-RECENT_READINGS:]))
     last = float(readings[-1])
     breaks = area_error_pct(last, depth_nm, segment_s) >= AREA_ERROR_THRESHOLD_PCT
-    return max(window, last) if breaks else window
+    return max(window, last) if breaks else min(window, recent)
 
 
 @dataclass(frozen=True)

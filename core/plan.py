@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 BlockKind = Literal["global", "local"]
-# what became of a commanded indent: only a measured one carries numbers the model may learn from
-IndentStatus = Literal["measured", "failed", "not_run"]
-INDENT_STATUSES: tuple[IndentStatus, ...] = ("measured", "failed", "not_run")
+# what became of a commanded indent: only a measured one carries numbers the model may learn from.
+# ``unverified``: the instrument made it (its export says where the tip went) but the export was refused,
+# so it is kept away from and priced, never learnt from.
+IndentStatus = Literal["measured", "failed", "not_run", "unverified"]
+INDENT_STATUSES: tuple[IndentStatus, ...] = ("measured", "failed", "not_run", "unverified")
 
 # Ledger categories, in the order the console lists them.
 LEDGER_CATEGORIES: tuple[str, ...] = (
@@ -121,7 +123,7 @@ class IndentResult:
     ) -> IndentResult:
         """A failed or not-run indent: where it was commanded, when, why; no values."""
         if status == "measured":
-            raise ValueError("an unmeasured indent needs the status failed or not_run")
+            raise ValueError("an unmeasured indent needs the status failed, not_run or unverified")
         nan = float("nan")
         return cls(
             block_id,

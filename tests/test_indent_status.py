@@ -84,7 +84,7 @@ def test_an_unmeasured_indent_carries_no_numbers() -> None:
         12.0,
     )
     assert all(math.isnan(v) for v in (r.hardness_gpa, r.modulus_gpa, r.drift_rate_nm_s, r.actual_x_um))
-    with pytest.raises(ValueError, match="failed or not_run"):
+    with pytest.raises(ValueError, match="failed, not_run or unverified"):
         IndentResult.unmeasured(0, 1, spec, 12.0, "measured", "")
     # a measured indent without a hardness is a driver's mistake, refused before it reaches the journal
     with pytest.raises(ValueError, match="report it as failed"):

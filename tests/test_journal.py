@@ -287,7 +287,7 @@ def test_unknown_schema_version_is_refused(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(InputError) as info:
         JournalReader(path)
-    assert "schema version 1 is not supported (this program reads version 3" in str(info.value)
+    assert "schema version 1 is not supported (this program reads version 4" in str(info.value)
     assert "docs/journal.md" in str(info.value) and "\n" not in str(info.value)
 
 
@@ -429,3 +429,28 @@ def test_a_corrupt_wal_mode_copy_gets_no_sidecar_files(tmp_path: Path) -> None:
         Journal.open_writer(copy)
     assert [p.name for p in copy.parent.iterdir()] == ["live.sqlite"]
     assert copy.read_bytes() == bytes(data)
+
+
+def test_a_version_3_journal_is_read_and_converted_on_resume(tmp_path: Path) -> None:
+    """Schema 4 adds the 'unverified' status: a version 3 journal still opens, and a resume converts it."""
+    path = tmp_path / "v3.sqlite"
+    with make_journal(path) as j:
+        fill(j, 1)
+    conn = sqlite3.connect(path)
+    v4 = conn.execute("SELECT sql FROM sqlite_master WHERE name = 'indents'").fetchone()[0]
+    v3 = v4.replace(", 'unverified'", "")
+    conn.executescript(
+        f"PRAGMA foreign_keys = OFF; {v3.replace('CREATE TABLE indents', 'CREATE TABLE old', 1)};"
+        "INSERT INTO old SELECT * FROM indents; DROP TABLE indents; ALTER TABLE old RENAME TO indents;"
+        "UPDATE schema_version SET version = 3;"
+    )
+    conn.close()
+    assert len(JournalReader(path).results()) == 25
+    with Journal.open_writer(path) as j:
+        b = block(7)
+        made = IndentResult.unmeasured(7, 0, b.indents[0], 9.0, "unverified", "export refused")
+        j.record_indent(made, [], DriverState(9.0, 9.0, (0.0, 0.0), True, "indent"))
+    reader = JournalReader(path)
+    assert [r.status for r in reader.results()].count("unverified") == 1 and len(reader.results()) == 26
+    version = sqlite3.connect(path).execute("SELECT version FROM schema_version").fetchone()[0]
+    assert version == 4

@@ -286,17 +286,26 @@ def test_refuses_empty_missing_and_corrupt_files(tmp_path: Path) -> None:
     _expect_input_error(corrupt, "unreadable Excel workbook")
 
 
-def test_refuses_workbook_without_results_sheet(tmp_path: Path) -> None:
+def test_results_table_on_a_sheet_of_another_name_or_a_clear_refusal(tmp_path: Path) -> None:
     path = _write_xlsx(
         tmp_path / "no_results.xlsx", {"Sheet1": [["Test", "X", "Y", "Hardness"], [1, 0, 0, 9]]}
     )
-    error = _expect_input_error(path, "no 'Results' sheet")
+    export = read_kla_export(path)
+    assert export.indents[0].hardness_gpa == 9.0
+    assert any("results read from sheet 'Sheet1'" in w for w in export.warnings)
+    nothing = _write_xlsx(tmp_path / "nothing.xlsx", {"Sheet1": [["Sample", "A"], ["Operator", "B"]]})
+    error = _expect_input_error(nothing, "no 'Results' sheet, no 'Test N' sheets")
     assert "Sheet1" in error.problem
 
 
-def test_refuses_results_without_positions_or_hardness(tmp_path: Path) -> None:
+def test_results_without_positions_are_read_with_empty_positions(tmp_path: Path) -> None:
     no_xy = _write_xlsx(tmp_path / "no_xy.xlsx", {"Results": [["Test", "Hardness"], [None, "GPa"], [1, 9.0]]})
-    _expect_input_error(no_xy, "no position columns")
+    export = read_kla_export(no_xy)
+    assert export.indents[0].hardness_gpa == 9.0 and export.indents[0].x_um is None
+    assert not export.has_positions and "no positions" in export.summary
+
+
+def test_refuses_results_without_hardness(tmp_path: Path) -> None:
     no_h = _write_xlsx(tmp_path / "no_h.xlsx", {"Results": [["Test", "X", "Y"], [1, 0.0, 0.0]]})
     _expect_input_error(no_h, "no hardness column")
     only_summary = _write_xlsx(
@@ -321,7 +330,7 @@ def test_cli_table_json_and_csv(kla_dir: Path, tmp_path: Path, capsys: pytest.Ca
     src = str(kla_dir / "Example.xls")
     assert _run(["kla", "read", src]) == 0
     table = capsys.readouterr().out
-    assert "Example.xls (NanoSuite): 16 tests" in table
+    assert "Example.xls: format NanoSuite, 16 tests" in table
     assert "9.784" in table and "109942.27" in table and "Mean" not in table
 
     assert _run(["kla", "read", src, "--json"]) == 0

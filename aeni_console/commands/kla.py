@@ -125,10 +125,8 @@ def _num(value: float | None, digits: int) -> str:
 
 
 def format_table(export: KlaExport) -> str:
-    sources = sorted({i.source for i in export.indents})
     lines = [
-        f"{Path(export.path).name} ({export.software}): {len(export.indents)} tests, "
-        f"hardness from {'/'.join(sources)}",
+        export.summary,
         f"{'test':>6} {'x_um':>12} {'y_um':>12} {'H_GPa':>8} {'E_GPa':>8} {'drift_nm_s':>11}  failure",
     ]
     for i in export.indents:

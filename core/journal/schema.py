@@ -18,7 +18,9 @@ from core.errors import InputError
 from core.runview import EngineState
 
 # 2: indents carry a status (measured / failed / not_run) and NULL values when not measured
-SCHEMA_VERSION = 3
+# 4: the status may also be 'unverified' (made, but its export was refused); 3 is migrated on resume
+SCHEMA_VERSION = 4
+READABLE_VERSIONS = (3, 4)
 SQLITE_MAGIC = b"SQLite format 3\x00"
 LOG_TAIL = 200
 BUSY_TIMEOUT_MS = 10_000
@@ -46,7 +48,7 @@ CREATE TABLE indents (
     commanded_x_um REAL NOT NULL, commanded_y_um REAL NOT NULL, actual_x_um REAL,
     actual_y_um REAL, hold_s REAL NOT NULL, hardness_gpa REAL, modulus_gpa REAL,
     drift_rate_nm_s REAL, t_s REAL NOT NULL,
-    status TEXT NOT NULL CHECK (status IN ('measured', 'failed', 'not_run')), note TEXT NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('measured', 'failed', 'not_run', 'unverified')), note TEXT NOT NULL,
     depth_at_max_load_nm REAL, wall_utc TEXT NOT NULL, session_id INTEGER,
     last_step_id INTEGER, PRIMARY KEY (block_id, indent_index));
 CREATE TABLE steps (
@@ -181,6 +183,27 @@ def check_journal_file(path: str | Path) -> None:
         conn.close()
 
 
+def migrate(conn: sqlite3.Connection) -> None:
+    """Version 3 -> 4: the indents table's status check gains 'unverified' (SQLite cannot alter a CHECK, so
+    the table is rebuilt from the new definition in one transaction)."""
+    row = conn.execute("SELECT version FROM schema_version").fetchone()
+    if row is None or int(row[0]) != 3:
+        return
+    start = SCHEMA_SQL.index("CREATE TABLE indents")
+    create = SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)]
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        conn.execute(create.replace("CREATE TABLE indents", "CREATE TABLE indents_v4", 1))
+        conn.execute("INSERT INTO indents_v4 SELECT * FROM indents")
+        conn.execute("DROP TABLE indents")
+        conn.execute("ALTER TABLE indents_v4 RENAME TO indents")
+        conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+
+
 def connect_ro(path: Path, immutable: bool = False) -> sqlite3.Connection:
     uri = f"file:{path.resolve()}?mode=ro" + ("&immutable=1" if immutable else "")
     try:
@@ -201,7 +224,7 @@ def _check_schema(conn: sqlite3.Connection, src: str) -> None:
         raise InputError(src, f"journal is corrupt ({exc}); nothing was changed") from None
     if row is None:
         raise InputError(src, "journal has no schema version (it was never fully created)")
-    if int(row[0]) != SCHEMA_VERSION:
+    if int(row[0]) not in READABLE_VERSIONS:
         raise InputError(
             src,
             f"journal schema version {row[0]} is not supported (this program reads version {SCHEMA_VERSION}; "

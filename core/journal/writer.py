@@ -23,6 +23,7 @@ from core.journal.schema import (
     check_journal_file,
     engine_running,
     lock_path_for,
+    migrate,
     user_name,
 )
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
@@ -200,6 +201,7 @@ class Journal:
         lock_fd = cls._take_lock(p, gid=p.stat().st_gid)
         try:
             conn = cls._connect_rw(p)
+            migrate(conn)
         except BaseException:
             os.close(lock_fd)
             raise

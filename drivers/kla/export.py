@@ -42,6 +42,7 @@ from scipy.optimize import curve_fit
 
 from core.errors import InputError
 
+NO_POSITIONS = "no positions in the export"
 INVALID_THRESHOLD = 1.0e307  # NanoSuite writes DBL_MAX (1.797e308) for "no value"
 BERKOVICH_C0 = 24.5  # ideal Berkovich projected area A = 24.5 hc² (nm²)
 EPSILON_BERKOVICH = 0.75  # Oliver-Pharr geometry factor for a paraboloid of revolution
@@ -51,6 +52,11 @@ DEFAULT_POISSON = 0.25  # only when the file does not state the sample's Poisson
 
 SOFTWARE_INVIEW = "InView"
 SOFTWARE_NANOSUITE = "NanoSuite"
+SOFTWARE_TESTWORKS = "TestWorks"
+SOFTWARE_HYSITRON = "Hysitron"
+SOFTWARE_ANTON_PAAR = "Anton Paar"
+SOFTWARE_MICRO_MATERIALS = "Micro Materials"
+SOFTWARE_FISCHERSCOPE = "Fischerscope"
 SOFTWARE_UNKNOWN = "unknown"
 
 _XLSX_MAGIC = b"PK\x03\x04"
@@ -82,11 +88,23 @@ class KlaIndent:
 @dataclass(frozen=True)
 class KlaExport:
     path: str
-    software: str  # "InView" | "NanoSuite" | "unknown"
+    software: str  # the format recognised: InView, NanoSuite, TestWorks, Hysitron, Anton Paar ... or unknown
     indents: tuple[KlaIndent, ...]
     warnings: tuple[str, ...] = ()
     # the depth range (nm) the hardness column says it was averaged over, e.g. "Avg Hardness [75-85 nm]"
     hardness_range_nm: tuple[float, float] | None = None
+    hardness_column: str = ""  # the column the hardness came from ("load-depth curve" when derived)
+
+    @property
+    def has_positions(self) -> bool:
+        return any(i.x_um is not None and i.y_um is not None for i in self.indents)
+
+    @property
+    def summary(self) -> str:
+        """One line for logs and the manifest: the format, the tests, where hardness came from."""
+        where = f", hardness from {self.hardness_column!r}" if self.hardness_column else ""
+        xy = "" if self.has_positions else ", no positions"
+        return f"{Path(self.path).name}: format {self.software}, {len(self.indents)} tests{where}{xy}"
 
     def to_frame(self) -> pd.DataFrame:
         columns = [f.name for f in fields(KlaIndent)]
@@ -106,7 +124,28 @@ def _norm(text: object) -> str:
 
 
 _RESULT_ALIASES: dict[str, tuple[str, ...]] = {
-    "test_id": ("test", "test #", "test number", "test no", "test no.", "test id", "test name"),
+    "test_id": (
+        "test",
+        "test #",
+        "test number",
+        "test no",
+        "test no.",
+        "test id",
+        "test name",
+        "indent",
+        "indent #",
+        "indent number",
+        "indent no",
+        "indent no.",
+        "indent id",
+        "indentation",
+        "point",
+        "point #",
+        "#",
+        "no.",
+        "nr.",
+        "nr",
+    ),
     "x_um": ("x position", "x", "x test position", "x pos", "x axis position"),
     "y_um": ("y position", "y", "y test position", "y pos", "y axis position"),
     "hardness_gpa": (
@@ -122,6 +161,16 @@ _RESULT_ALIASES: dict[str, tuple[str, ...]] = {
         "hardness avg",
         "hardness average",
         "hardness mean",
+        "hardness at max load",
+        "h at max load",
+        "avg h",
+        "average h",
+        "mean h",
+        "h avg",
+        "h average",
+        "h mean",
+        "h avg over defined range",
+        "h average over range",
     ),
     "modulus_gpa": (
         "modulus",
@@ -136,10 +185,31 @@ _RESULT_ALIASES: dict[str, tuple[str, ...]] = {
         "modulus avg",
         "modulus average",
         "modulus mean",
+        "modulus at max load",
+        "e at max load",
+        "avg e",
+        "average e",
+        "mean e",
+        "e avg",
+        "e average",
+        "e mean",
+        "e avg over defined range",
+        "e average over range",
     ),
     "drift_rate_nm_s": ("drift rate", "drift correction"),
     # "Maximum Displacement" and "Target Load" are the programmed limits, not measurements: not aliased.
-    "max_load_mn": ("pmax", "p max", "max load", "maximum load", "load at max load", "peak load"),
+    "max_load_mn": (
+        "pmax",
+        "p max",
+        "max load",
+        "maximum load",
+        "load at max load",
+        "peak load",
+        "fmax",
+        "f max",
+        "max force",
+        "maximum force",
+    ),
     "max_depth_nm": (
         "hmax",
         "h max",
@@ -183,9 +253,33 @@ _SUMMARY_LABELS = frozenset(
         "maximum",
         "min",
         "max",
+        "min.",
+        "max.",
         "range",
         "count",
+        "sum",
+        "total",
+        "variance",
+        "sd",
+        "s.d.",
+        "std. deviation",
+        "std deviation",
+        "standard dev",
+        "standard dev.",
+        "std. dev",
+        "std dev.",
+        "mean value",
+        "average value",
+        "avg",
+        "avg.",
+        "statistics",
+        "summary",
+        "valid tests",
     }
+)
+# a per-cycle row of a multi-cycle test: "1-1", "1:2", "3.5" written as text, "Test 1 Cycle 2"
+_CYCLE_LABEL = re.compile(
+    r"^\s*(?:test\s*)?#?\s*\d+\s*(?:[-:/_]\s*\d+|\.[1-9]\d*|\s+cycle\s*\d+)\s*$", re.IGNORECASE
 )
 _AREA_COEFF = re.compile(r"^area coefficient\s*(\d+)$")
 # "Test 004", and curve sheets some InView templates suffix: "Test 004 Tagged", "Test 4 (2)"
@@ -747,27 +841,171 @@ def _read_sheets(path: Path, engine: str) -> dict[str, pd.DataFrame]:
     return {str(name): df for name, df in sheets.items()}
 
 
+def _sheet_words(sheets: Mapping[str, pd.DataFrame]) -> tuple[str, set[str]]:
+    """Lower-case text of the sheets' top cells (vendor names live there) and every header-like key."""
+    texts: list[str] = []
+    keys: set[str] = set()
+    for raw in sheets.values():
+        top = raw.iloc[:40, :40]
+        for row in top.itertuples(index=False):
+            for cell in row:
+                if isinstance(cell, str) and cell.strip():
+                    texts.append(cell.lower())
+                    keys.add(_norm(_parse_header(cell)[0]))
+    return " | ".join(texts), keys
+
+
+# vendor words in a file's own text, checked before any column-based guess
+_VENDOR_WORDS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (SOFTWARE_TESTWORKS, ("testworks",)),
+    (SOFTWARE_NANOSUITE, ("nanosuite",)),
+    (SOFTWARE_INVIEW, ("inview",)),
+    (SOFTWARE_HYSITRON, ("hysitron", "triboscan", "triboview", "tribo indenter", "triboindenter", "xpm")),
+    (SOFTWARE_ANTON_PAAR, ("anton paar", "csm instruments", "indentation software")),
+    (SOFTWARE_MICRO_MATERIALS, ("micro materials", "micromaterials", "nanotest")),
+    (SOFTWARE_FISCHERSCOPE, ("fischerscope", "helmut fischer", "winhcu")),
+)
+
+
 def _detect_software(sheets: Mapping[str, pd.DataFrame]) -> str:
+    """The program that wrote the file: its sheet names, then its own words, then its column names."""
     names = {_norm(n) for n in sheets}
-    if names & {"required inputs", "inputs editable post test"} or any(
-        re.match(r"^test 0\d+$", n) for n in names
-    ):
+    if names & {"required inputs", "inputs editable post test"}:
         return SOFTWARE_NANOSUITE
     if names & {"pre-test inputs", "post-test inputs", "sample summary", "sample information"} or any(
         n.startswith("cycles-") for n in names
     ):
         return SOFTWARE_INVIEW
+    text, keys = _sheet_words(sheets)
+    for software, words in _VENDOR_WORDS:
+        if any(re.search(rf"\b{re.escape(w)}\b", text) for w in words):
+            return software
+    if {"hc", "er"} <= keys or {"pmax", "er"} <= keys:  # Hysitron's contact depth and reduced modulus
+        return SOFTWARE_HYSITRON
+    if {"hit", "eit"} <= keys and keys & {"hvit", "fmax", "cit", "rit"}:  # ISO 14577 names, Anton Paar's
+        return SOFTWARE_ANTON_PAAR
+    test_sheets = [n for n in names if _TEST_SHEET.match(n)]
+    if test_sheets and not any("result" in n for n in names):
+        return SOFTWARE_TESTWORKS  # MTS TestWorks writes one sheet per test and no Results sheet
+    if any(re.match(r"^test 0\d+$", n) for n in test_sheets):
+        return SOFTWARE_NANOSUITE
     return SOFTWARE_UNKNOWN
 
 
-def _results_sheet(path: Path, sheets: Mapping[str, pd.DataFrame]) -> str:
+def _results_sheet(sheets: Mapping[str, pd.DataFrame]) -> str | None:
     for name in sheets:
         if _norm(name) == "results":
             return name
     for name in sheets:
         if "result" in _norm(name):
             return name
-    raise InputError(str(path), f"no 'Results' sheet (sheets: {', '.join(sheets)})")
+    return None
+
+
+def _table_sheet(sheets: Mapping[str, pd.DataFrame]) -> str | None:
+    """A sheet of another name that holds a per-test results table (a test column and a hardness column,
+    no load-depth curve): a workbook without a Results sheet and without Test sheets."""
+    for name, raw in sheets.items():
+        table = _split_table(raw, _RESULT_ALIASES["test_id"])
+        if table is None or table.column(_RESULT_ALIASES["test_id"]) is None:
+            continue
+        if (
+            table.column(_CURVE_ALIASES["load"]) is not None
+            and table.column(_CURVE_ALIASES["depth"]) is not None
+        ):
+            continue
+        if _value_columns(table, "hardness_gpa", "hardness", "h"):
+            return name
+    return None
+
+
+def _key_of(text: str) -> str | None:
+    """Which result a label names ('Hardness At Max Load (GPa)' -> hardness_gpa), or None."""
+    key = _norm(_parse_header(text)[0])
+    for name, aliases in _RESULT_ALIASES.items():
+        if name != "test_id" and key in aliases:
+            return name
+    words = set(re.split(r"[^a-z%]+", key))
+    if not words & _NOT_A_VALUE:
+        if "hardness" in key:
+            return "hardness_gpa"
+        if "modulus" in key and "reduced" not in words:
+            return "modulus_gpa"
+    return None
+
+
+def _sheet_own_result(raw: pd.DataFrame, sheet: str, notes: list[str]) -> dict[str, float]:
+    """A Test sheet's own result, as 'label | value | unit' rows (TestWorks, some InView templates):
+    values converted to µm / GPa / nm/s / mN / nm. A label whose right-hand cells are not a number (a
+    curve's header row) is not a result."""
+    out: dict[str, float] = {}
+    for row in raw.iloc[:200].itertuples(index=False):
+        cells = list(row)
+        for j, cell in enumerate(cells):
+            if not isinstance(cell, str) or not cell.strip():
+                continue
+            key = _key_of(cell)
+            if key is None or key in out:
+                continue
+            right = [
+                c
+                for c in cells[j + 1 : j + 4]
+                if c is not None and not (isinstance(c, float) and math.isnan(c))
+            ]
+            if not right or not _is_number(right[0]):
+                if right and isinstance(right[0], str):
+                    try:
+                        right[0] = float(right[0].replace(",", "."))
+                    except ValueError:
+                        continue
+                else:
+                    continue
+            value = float(cast(float, right[0]))
+            unit = _parse_header(cell)[1]
+            if unit is None and len(right) > 1 and isinstance(right[1], str):
+                unit = right[1]
+            if abs(value) >= INVALID_THRESHOLD or not math.isfinite(value):
+                continue
+            out[key] = value * _unit_factor(key, unit, f"{sheet}: {cell.strip()}", notes)
+    return out
+
+
+_CANONICAL_HEADERS = {
+    "x_um": ("X Position", "µm"),
+    "y_um": ("Y Position", "µm"),
+    "hardness_gpa": ("Hardness", "GPa"),
+    "modulus_gpa": ("Modulus", "GPa"),
+    "drift_rate_nm_s": ("Drift Rate", "nm/s"),
+    "max_load_mn": ("Max Load", "mN"),
+    "max_depth_nm": ("Max Depth", "nm"),
+}
+
+
+def _results_from_test_sheets(
+    path: Path, sheets: Mapping[str, pd.DataFrame], notes: list[str]
+) -> pd.DataFrame:
+    """A Results table built from the Test sheets' own results, one row per sheet in test order (a test
+    without a result there gets its hardness from its curve, as for a Results sheet without hardness)."""
+    curve_sheets = _curve_sheet_names(sheets)
+    per_test = {t: _sheet_own_result(sheets[n], n, notes) for t, n in curve_sheets.items()}
+    keys = [k for k in _CANONICAL_HEADERS if any(k in v for v in per_test.values())]
+    rows: list[list[object]] = [["Test", *(_CANONICAL_HEADERS[k][0] for k in keys)]]
+    rows.append(["", *(_CANONICAL_HEADERS[k][1] for k in keys)])
+    for test in sorted(per_test, key=int):
+        rows.append([test, *(per_test[test].get(k) for k in keys)])
+    if "hardness_gpa" in keys:
+        notes.append(
+            f"no Results sheet: each test's hardness is its own sheet's result ({len(per_test)} Test sheets)"
+        )
+    elif any(_parse_curve(sheets[n], n, []) is not None for n in curve_sheets.values()):
+        notes.append("no Results sheet and no result on the Test sheets: hardness from each test's curve")
+    else:
+        raise InputError(
+            str(path),
+            f"no Results sheet, and its {len(curve_sheets)} Test sheets hold neither a hardness value nor "
+            "Load/Depth columns",
+        )
+    return pd.DataFrame(rows, dtype=object)
 
 
 def _inputs_by_test(
@@ -833,6 +1071,11 @@ def _robust_outliers(indents: list[KlaIndent], notes: list[str]) -> None:
 
 _NOT_A_VALUE = frozenset(
     {
+        "vickers",
+        "hv",
+        "hvit",
+        "martens",
+        "hm",
         "std",
         "stdev",
         "dev",
@@ -865,16 +1108,14 @@ def _value_columns(table: _Table, key: str, word: str, letter: str) -> list[int]
     return exact + loose
 
 
-def _result_columns(table: _Table, sheet: str, notes: list[str]) -> dict[str, int | None]:
-    cols = {key: table.column(aliases) for key, aliases in _RESULT_ALIASES.items()}
-    for key, word, letter in (("hardness_gpa", "hardness", "h"), ("modulus_gpa", "modulus", "e")):
-        found = _value_columns(table, key, word, letter)
-        cols[key] = found[0] if found else None
-        if len(found) > 1:
-            others = ", ".join(repr(table.headers[i]) for i in found[1:])
-            notes.append(
-                f"{sheet}: {word} from {table.headers[found[0]]!r}; also present, not used: {others}"
-            )
+def _result_columns(table: _Table) -> dict[str, list[int]]:
+    """Every candidate column per quantity, best first (hardness and modulus may have several)."""
+    cols: dict[str, list[int]] = {}
+    for key, aliases in _RESULT_ALIASES.items():
+        col = table.column(aliases)
+        cols[key] = [] if col is None else [col]
+    cols["hardness_gpa"] = _value_columns(table, "hardness_gpa", "hardness", "h")
+    cols["modulus_gpa"] = _value_columns(table, "modulus_gpa", "modulus", "e")
     return cols
 
 
@@ -925,27 +1166,133 @@ def _curve_sheet_names(sheets: Mapping[str, pd.DataFrame]) -> dict[str, str]:
 
 
 def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = None) -> KlaExport:
-    """Read one KLA/Agilent export; ``frame_compliance_nm_mn`` overrides the estimate from the file.
+    """Read one nanoindenter export; ``frame_compliance_nm_mn`` overrides the estimate from the file.
 
-    Every row of the file is one indent. A row whose hardness is missing, marked invalid or impossible
-    (≤ 0, or modulus ≤ 0) comes back as a failed indent with its reason and no hardness number.
+    Every per-test row of the file is one indent (per-cycle rows and summary rows are not tests). A row
+    whose hardness is missing, marked invalid or impossible (≤ 0, or modulus ≤ 0) comes back as a failed
+    indent with its reason and no hardness number. A file it cannot read is refused in one line that names
+    the program that wrote it, when it can tell.
     """
     path = Path(path)
     engine = _check_file(path)
     sheets = _read_sheets(path, engine)
     software = _detect_software(sheets)
-    notes: list[str] = []
+    try:
+        return _read(path, sheets, software, frame_compliance_nm_mn)
+    except InputError as exc:
+        if software == SOFTWARE_UNKNOWN:
+            raise
+        hint = _VENDOR_HINTS.get(software, "")
+        raise InputError(exc.source, f"{software} export: {exc.problem}{hint}") from None
 
-    res_name = _results_sheet(path, sheets)
+
+# what to export instead, for programs whose usual files are one test's raw curve
+_VENDOR_HINTS = {
+    SOFTWARE_HYSITRON: " (export the analysed results table from TriboScan/TriboView, not a single .hld/.txt curve)",
+    SOFTWARE_MICRO_MATERIALS: " (export the NanoTest results table with one row per indent)",
+    SOFTWARE_FISCHERSCOPE: " (export the WIN-HCU results table with one row per indent, not a .hap file)",
+    SOFTWARE_ANTON_PAAR: " (export the Indentation Software results table with one row per indent)",
+}
+
+
+def _test_rows(
+    table: _Table, test_col: int | None, sheet: str, path: Path, notes: list[str]
+) -> list[tuple[int, str]]:
+    """(row, test id) for every per-test row: summary rows, blank rows and per-cycle rows ('1-1') are
+    skipped; a sheet of per-cycle rows only is refused (it has no per-test result)."""
+    rows: list[tuple[int, str]] = []
+    cycles: list[str] = []
+    for row in range(len(table.data)):
+        label = table.data.iat[row, test_col] if test_col is not None else None
+        if _summary_row(table.data, row):
+            continue
+        blank = all(
+            table.data.iat[row, c] is None
+            or (isinstance(table.data.iat[row, c], float) and math.isnan(table.data.iat[row, c]))
+            or (isinstance(table.data.iat[row, c], str) and not table.data.iat[row, c].strip())
+            for c in range(table.data.shape[1])
+            if c != test_col
+        )
+        if blank:
+            continue
+        if isinstance(label, str) and _CYCLE_LABEL.match(label):
+            cycles.append(label.strip())
+            continue
+        test_key = _test_key(label)
+        rows.append((row, test_key if test_key is not None else str(len(rows) + 1)))
+    if cycles and not rows:
+        raise InputError(
+            str(path),
+            f"sheet {sheet!r} has per-cycle rows only ({cycles[0]!r} ...), no per-test rows: "
+            "export the per-test results",
+        )
+    if cycles:
+        notes.append(
+            f"{sheet}: {len(cycles)} per-cycle row(s) ({cycles[0]!r} ...) are not tests: "
+            f"read the {len(rows)} per-test row(s)"
+        )
+    return rows
+
+
+def _pick_value_column(
+    table: _Table, candidates: list[int], key: str, rows: list[int], sheet: str, notes: list[str]
+) -> int | None:
+    """The first candidate with a number on a per-test row ('H' may be empty there while 'Avg H' holds
+    the test's result); says which column was used when there was a choice."""
+    word = "hardness" if key == "hardness_gpa" else "modulus"
+    filled = [c for c in candidates if np.isfinite(_numeric(table.data[c].iloc[rows])).any()]
+    if not candidates:
+        return None
+    chosen = filled[0] if filled else candidates[0]
+    empty = [c for c in candidates if c not in filled and candidates.index(c) < candidates.index(chosen)]
+    others = [c for c in candidates if c != chosen and c not in empty]
+    if empty:
+        names = ", ".join(repr(table.headers[c]) for c in empty)
+        notes.append(f"{sheet}: {word} from {table.headers[chosen]!r} ({names} empty on the per-test rows)")
+    elif others:
+        names = ", ".join(repr(table.headers[c]) for c in others)
+        notes.append(f"{sheet}: {word} from {table.headers[chosen]!r}; also present, not used: {names}")
+    return chosen
+
+
+def _read(
+    path: Path, sheets: dict[str, pd.DataFrame], software: str, frame_compliance_nm_mn: float | None
+) -> KlaExport:
+    notes: list[str] = []
+    res_name = _results_sheet(sheets)
+    if res_name is None and _curve_sheet_names(sheets):
+        res_name = "Test sheets"
+        sheets = {**sheets, res_name: _results_from_test_sheets(path, sheets, notes)}
+    elif res_name is None:
+        res_name = _table_sheet(sheets)
+        if res_name is None:
+            raise InputError(
+                str(path),
+                f"no 'Results' sheet, no 'Test N' sheets and no sheet with a test and a hardness column "
+                f"(sheets: {', '.join(sheets)})",
+            )
+        notes.append(f"no 'Results' sheet: results read from sheet {res_name!r}")
     table = _split_table(sheets[res_name], [a for aliases in _RESULT_ALIASES.values() for a in aliases])
     if table is None or table.data.empty:
         raise InputError(str(path), f"sheet {res_name!r} has no header row with known columns")
-    cols = _result_columns(table, res_name, notes)
+    candidates = _result_columns(table)
+    test_col = candidates["test_id"][0] if candidates["test_id"] else None
+    test_ids = _test_rows(table, test_col, res_name, path, notes)
+    if not test_ids:
+        raise InputError(str(path), f"sheet {res_name!r} has no test rows")
+    row_index = [r for r, _ in test_ids]
+    cols: dict[str, int | None] = {}
+    for key, found in candidates.items():
+        if key in ("hardness_gpa", "modulus_gpa"):
+            cols[key] = _pick_value_column(table, found, key, row_index, res_name, notes)
+        else:
+            cols[key] = found[0] if found else None
     values: dict[str, np.ndarray] = {}
     for key, col in cols.items():
         if col is not None and key != "test_id":
             factor = _unit_factor(key, table.units[col], f"{res_name}: {table.headers[col]}", notes)
             values[key] = _numeric(table.data[col]) * factor
+    hardness_column = table.headers[cols["hardness_gpa"]] if cols["hardness_gpa"] is not None else ""
     hardness_range = table.ranges_nm[cols["hardness_gpa"]] if cols["hardness_gpa"] is not None else None
     if hardness_range is not None:
         lo, hi = hardness_range
@@ -954,26 +1301,6 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
             f"(column {table.headers[cast(int, cols['hardness_gpa'])]!r})"
         )
     area_cols = {int(m.group(1)): i for i, k in enumerate(table.keys) if (m := _AREA_COEFF.match(k))}
-
-    # rows: skip summary rows ("Average", "Std Dev", "% COV" ...) wherever they are, and blank rows
-    test_ids: list[tuple[int, str]] = []
-    for row in range(len(table.data)):
-        label = table.data.iat[row, cols["test_id"]] if cols["test_id"] is not None else None
-        test_key = _test_key(label)
-        if _summary_row(table.data, row):
-            continue
-        blank = all(
-            table.data.iat[row, c] is None
-            or (isinstance(table.data.iat[row, c], float) and math.isnan(table.data.iat[row, c]))
-            or (isinstance(table.data.iat[row, c], str) and not table.data.iat[row, c].strip())
-            for c in range(table.data.shape[1])
-            if c != cols["test_id"]
-        )
-        if blank:
-            continue
-        test_ids.append((row, test_key if test_key is not None else str(len(test_ids) + 1)))
-    if not test_ids:
-        raise InputError(str(path), f"sheet {res_name!r} has no test rows")
 
     inputs = _inputs_by_test(sheets, set(), notes)  # Results may carry calculation depths too
     for row, test in test_ids:
@@ -986,7 +1313,7 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
     if not has_xy and not any(
         "x_um" in inputs.get(t, {}) and "y_um" in inputs.get(t, {}) for _, t in test_ids
     ):
-        raise InputError(str(path), f"no position columns (X/Y) in {res_name!r} or any inputs sheet")
+        notes.append(f"{NO_POSITIONS} (no X/Y column in {res_name!r} or any inputs sheet)")
 
     curve_sheets = _curve_sheet_names({n: df for n, df in sheets.items() if n != res_name})
     need_h = "hardness_gpa" not in values
@@ -1004,6 +1331,7 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
     indents: list[KlaIndent] = []
     missing_curves: list[str] = []
     used_op = False
+    parsed_curves = 0
     for row, test in test_ids:
 
         def get(key: str, r: int = row) -> float | None:
@@ -1026,6 +1354,7 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
         derived: _CurveResult | None = None
         if need_curve and test in curve_sheets:
             curve = _parse_curve(sheets[curve_sheets[test]], curve_sheets[test], notes)
+            parsed_curves += curve is not None
             if curve is None:
                 notes.append(f"test {test}: sheet {curve_sheets[test]!r} has no Load/Depth columns")
             elif need_h and curve.hardness_gpa is not None and np.isfinite(curve.hardness_gpa).any():
@@ -1067,6 +1396,10 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
         source = "curve" if need_h else "results"
         indents.append(KlaIndent(test, x, y, h, e, drift, p_max, h_max, source, failure))
 
+    if need_h and parsed_curves == 0:
+        raise InputError(
+            str(path), f"no hardness in {res_name!r} and no Test sheet with Load/Depth columns to derive it"
+        )
     if missing_curves:
         notes.append(f"no Test sheet for test(s) {', '.join(missing_curves)}: hardness missing")
     if used_op:
@@ -1079,7 +1412,14 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
         more = f" (and {len(failed) - 5} more)" if len(failed) > 5 else ""
         notes.append(f"{len(failed)} failed indent(s), no hardness recorded: {shown}{more}")
     _robust_outliers(indents, notes)
-    return KlaExport(str(path), software, tuple(indents), tuple(dict.fromkeys(notes)), hardness_range)
+    return KlaExport(
+        str(path),
+        software,
+        tuple(indents),
+        tuple(dict.fromkeys(notes)),
+        hardness_range,
+        hardness_column if not need_h else "load-depth curve",
+    )
 
 
 def records(export: KlaExport) -> list[dict[str, Any]]:

@@ -15,7 +15,7 @@ import itertools
 import json
 import math
 import shutil
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
@@ -24,8 +24,12 @@ from core.errors import InputError
 from drivers.kla.exchange import EXPORT_SUFFIXES, ExchangeFolder, Ticket, parse_name
 from drivers.kla.export import KlaExport, KlaIndent, read_kla_export
 
-# the same words as core.plan.IndentResult.status (the engine issue adds it there)
-SiteStatus = Literal["measured", "failed", "not_run"]
+# the same words as core.plan.IndentResult.status
+SiteStatus = Literal["measured", "failed", "not_run", "unverified"]
+MATCHED_BY_ORDER = (
+    "no positions in the export: matched by test order "
+    "(add X/Y Test Position to the export template to let the driver check them)"
+)
 STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a little on a share
 
 
@@ -60,6 +64,7 @@ class AcceptedExport:
     outcomes: tuple[SiteOutcome, ...]
     notes: tuple[str, ...]
     original: str = ""  # the file's name in the inbox
+    fmt: str = ""  # the format the reader recognised (InView, NanoSuite, TestWorks, Hysitron ...)
 
     @property
     def partial(self) -> bool:
@@ -71,6 +76,8 @@ class Refusal:
     file: str
     reason: str
     sha256: str | None
+    # a refused export whose rows say where the tip went: those indents were made ("unverified")
+    made: tuple[SiteOutcome, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -145,10 +152,12 @@ class ExportArchive:
         """Archive the file and record what it said, so a resumed run never parses it again."""
         dst = self._move(src, sha)
         entry = _entry("accepted", run, block_id, sha, src.name, dst.name, "")
+        if export.fmt:
+            entry["format"] = export.fmt
         entry["outcomes"] = [asdict(o) for o in export.outcomes]
         entry["notes"] = list(export.notes)
         self._append(entry)
-        return AcceptedExport(block_id, dst, sha, export.outcomes, export.notes, src.name)
+        return AcceptedExport(block_id, dst, sha, export.outcomes, export.notes, src.name, export.fmt)
 
     def accepted_export(self, run: str, block_id: int) -> AcceptedExport | None:
         """A block's accepted export as recorded when it was accepted (for a resumed run)."""
@@ -157,17 +166,32 @@ class ExportArchive:
             return None
         outcomes = tuple(SiteOutcome(**o) for o in e.get("outcomes", []))
         notes = tuple(e.get("notes", []))
-        return AcceptedExport(block_id, self.folder / e["file"], e["sha256"], outcomes, notes, e["original"])
+        return AcceptedExport(
+            block_id,
+            self.folder / e["file"],
+            e["sha256"],
+            outcomes,
+            notes,
+            e["original"],
+            e.get("format", ""),
+        )
 
-    def refuse(self, src: Path, sha: str | None, run: str, block_id: int, reason: str) -> None:
+    def refuse(self, src: Path, sha: str | None, run: str, block_id: int, reason: str, fmt: str = "") -> None:
         if sha is None:
             sha = sha256_of(src)
         dst = self._move(src, sha, "refused")
-        self._append(_entry("refused", run, block_id, sha, src.name, f"refused/{dst.name}", reason))
+        entry = _entry("refused", run, block_id, sha, src.name, f"refused/{dst.name}", reason)
+        if fmt:
+            entry["format"] = fmt
+        self._append(entry)
 
-    def close(self, run: str, block_id: int, reason: str) -> None:
-        """A block ended without an accepted export (deadline, skip, surface not found)."""
-        self._append(_entry("closed", run, block_id, "", "", "", reason))
+    def close(self, run: str, block_id: int, reason: str, outcomes: tuple[SiteOutcome, ...] = ()) -> None:
+        """A block ended without an accepted export (deadline, skip, surface not found); ``outcomes``
+        when a refused export said which indents were made (``unverified``), so a resume keeps them."""
+        entry = _entry("closed", run, block_id, "", "", "", reason)
+        if outcomes:
+            entry["outcomes"] = [asdict(o) for o in outcomes]
+        self._append(entry)
 
 
 def _entry(
@@ -256,7 +280,13 @@ def _diagnose(rows: list[tuple[float, float]], ticket: Ticket, tol: float) -> st
     return f"the rows do not lie on the planned sites (up to {worst:.1f} µm off, tolerance {tol:.1f} µm)"
 
 
-def match_rows(export: KlaExport, ticket: Ticket, tolerance_um: float) -> Match:
+def match_rows(
+    export: KlaExport,
+    ticket: Ticket,
+    tolerance_um: float,
+    skipped: frozenset[int] = frozenset(),
+    partial: bool = False,
+) -> Match:
     """Rows to planned sites: in array order when they agree, else one-to-one by position.
 
     InView runs the array in file order, so row k is site k. A row list that is a permutation of the
@@ -268,7 +298,7 @@ def match_rows(export: KlaExport, ticket: Ticket, tolerance_um: float) -> Match:
     raw = [(i.x_um, i.y_um) if i.x_um is not None and i.y_um is not None else None for i in export.indents]
     positioned = [p for p in raw if p is not None]
     if not positioned:
-        return Match(refusal="the export has no X/Y positions to check against the plan")
+        return _by_order(len(raw), ticket, skipped, partial)
     ox, oy = ticket.origin_x_um, ticket.origin_y_um
     readings: list[tuple[float, str, list[tuple[float, float] | None]]] = [
         (1.0, "", raw),
@@ -299,8 +329,49 @@ def match_rows(export: KlaExport, ticket: Ticket, tolerance_um: float) -> Match:
     return Match(refusal=_diagnose(positioned, ticket, tol))
 
 
+def _by_order(n_rows: int, ticket: Ticket, skipped: frozenset[int], partial: bool) -> Match:
+    """An export without positions: InView runs the array in the sites file's order, so row k is the k-th
+    site that ran, when the count says so (all sites, or all but the skipped ones; the first ones of an
+    array that stopped early)."""
+    ran = [k for k in range(ticket.n_sites) if ticket.first_index + k not in skipped]
+    if n_rows == len(ran):
+        return Match(tuple(ran), (MATCHED_BY_ORDER,))
+    if partial and 0 < n_rows < len(ran):
+        stopped = f"the array stopped after {n_rows} of {len(ran)} sites: the rows are its first sites"
+        return Match(tuple(ran[:n_rows]), (MATCHED_BY_ORDER, stopped))
+    return Match(
+        refusal=(
+            f"no positions in the export and {n_rows} rows for {len(ran)} sites: cannot tell which row is "
+            "which site (add X/Y Test Position to the export template)"
+        )
+    )
+
+
 def _scaled(rows: list[tuple[float, float] | None], factor: float) -> list[tuple[float, float] | None]:
     return [None if p is None else (p[0] * factor, p[1] * factor) for p in rows]
+
+
+def made_where_reported(export: KlaExport, ticket: Ticket, why: str) -> tuple[SiteOutcome, ...]:
+    """The indents a refused export says were made, row k being the array's k-th site (InView runs it in
+    order), at the export's positions: ``unverified``, with no value, so they are priced and kept away from
+    but never learnt from. Nothing when a row has no position or there are more rows than sites."""
+    rows = export.indents
+    if not rows or len(rows) > ticket.n_sites or any(i.x_um is None or i.y_um is None for i in rows):
+        return ()
+    note = f"{why}: made at the export's position, not checked against the plan, not learnt from"
+    return tuple(
+        SiteOutcome(
+            ticket.first_index + k,
+            "unverified",
+            row.x_um,
+            row.y_um,
+            max_depth_nm=row.max_depth_nm,
+            reason=note
+            if row.hardness_gpa is None
+            else f"{note} (the export read {row.hardness_gpa:.3g} GPa)",
+        )
+        for k, row in enumerate(rows)
+    )
 
 
 def outcomes_for(
@@ -407,8 +478,9 @@ class InboxWatcher:
         seen.stable += 1
         return seen.stable >= self.folder.settings.stable_polls and st.st_size > 0
 
-    def _refuse(self, path: Path, sha: str | None, block_id: int, reason: str) -> Refusal:
-        self.archive.refuse(path, sha, self.folder.run, block_id, reason)
+    def _refuse(self, path: Path, sha: str | None, block_id: int, reason: str, fmt: str = "") -> Refusal:
+        """Keep the file in the archive's refused/ and say why (the manifest names the reader's format)."""
+        self.archive.refuse(path, sha, self.folder.run, block_id, reason, fmt)
         self._seen.pop(path.name, None)
         return Refusal(path.name, reason, sha)
 
@@ -503,11 +575,17 @@ class InboxWatcher:
             return self._refuse(
                 path, sha, ticket.block_id, f"has {n_rows} rows, the block planned {n_sites} (another array?)"
             )
-        match = match_rows(export, ticket, self.folder.settings.position_tolerance_um)
-        if match.refusal:
-            return self._refuse(
-                path, sha, ticket.block_id, f"positions do not match the plan: {match.refusal}"
+        if not export.has_positions and n_rows < n_expected and not (partial_ok or final):
+            return (
+                f"{path.name} has {n_rows} of {n_expected} rows and no positions: waiting for an "
+                "'aborted' report (then its rows are the array's first sites)"
             )
+        tolerance = self.folder.settings.position_tolerance_um
+        match = match_rows(export, ticket, tolerance, skipped, partial=partial_ok or final)
+        if match.refusal:
+            reason = f"positions do not match the plan: {match.refusal} ({export.summary})"
+            refusal = self._refuse(path, sha, ticket.block_id, reason, export.software)
+            return replace(refusal, made=made_where_reported(export, ticket, f"export {path.name} refused"))
         if n_rows < n_expected and not (partial_ok or final):
             return (
                 f"{path.name} has {n_rows} of {n_expected} rows: waiting for an 'aborted' report "
@@ -515,6 +593,13 @@ class InboxWatcher:
             )
         why = "array aborted" if partial_ok else "no row in the export (deadline passed)"
         outcomes = outcomes_for(export, ticket, match, why, skipped)
-        found = AcceptedExport(ticket.block_id, path, sha, outcomes, match.notes + export.warnings)
+        found = AcceptedExport(
+            ticket.block_id,
+            path,
+            sha,
+            outcomes,
+            (*match.notes, *export.warnings, export.summary),
+            fmt=export.software,
+        )
         self._seen.pop(path.name, None)
         return self.archive.accept(path, sha, self.folder.run, ticket.block_id, found)

@@ -32,7 +32,7 @@ from drivers.kla.exchange import (
     to_array_offset,
 )
 from drivers.kla.fake_inview import FakeInView, parse_fault
-from drivers.kla.inbox import ExportArchive, InboxWatcher, PollResult
+from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher, PollResult
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.scenarios import make_scenario
 
@@ -489,3 +489,55 @@ def test_fake_profile_is_the_sites_convention(exchange: ExchangeFolder) -> None:
     b = f._block(t, exchange)
     assert [(s.x_um, s.y_um) for s in b.indents] == pytest.approx(list(t.sites_um))
     assert isinstance(FAST, InstrumentProfile)
+
+
+def _without_positions(path: Path, rows: list[list[object]]) -> Path:
+    lines = ["Test,MODULUS,HARDNESS,Drift Rate", ",GPa,GPa,nm/s"]
+    lines += [",".join(str(v) for v in (r[0], *r[3:])) for r in rows]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_an_export_without_positions_is_matched_by_test_order(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
+    t = ticket_for(block())
+    _without_positions(exchange.inbox / "r1-002-export.csv", rows_for(t))
+    accepted = poll_until(watcher, t).accepted
+    assert accepted is not None and MATCHED_BY_ORDER in accepted.notes
+    assert [o.hardness_gpa for o in accepted.outcomes] == pytest.approx(
+        [5.0 + 0.01 * k for k in range(1, 10)]
+    )
+    assert all(o.x_um is None for o in accepted.outcomes) and accepted.fmt == "unknown"
+    entry = watcher.archive.accepted("r1", 2)
+    assert entry is not None and MATCHED_BY_ORDER in entry["notes"]
+    # fewer rows: waits for an 'aborted' report, then the rows are the first sites; skipped sites are skipped
+    t3 = ticket_for(block(3))
+    _without_positions(exchange.inbox / "r1-003-export.csv", rows_for(t3)[:4])
+    assert "no positions: waiting for an 'aborted' report" in poll_until(watcher, t3).waiting
+    partial = watcher.poll(t3, partial_ok=True).accepted
+    assert partial is not None and [o.status for o in partial.outcomes] == ["measured"] * 4 + ["not_run"] * 5
+    t4 = ticket_for(block(4))
+    _without_positions(exchange.inbox / "r1-004-export.csv", rows_for(t4)[:8])
+    skipped = poll_until(watcher, t4, skipped=frozenset({t4.first_index + 2}))  # type: ignore[arg-type]
+    assert skipped.accepted is not None
+    assert [o.status for o in skipped.accepted.outcomes][:4] == [
+        "measured",
+        "measured",
+        "not_run",
+        "measured",
+    ]
+
+
+def test_a_refused_export_with_positions_says_which_indents_were_made(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
+    b = block()
+    cut = replace(b, indents=b.indents[:6])  # not symmetric about the origin: a flipped Y is refused
+    t = ticket_for(cut)
+    write_export(exchange.inbox / "r1-002-export.csv", rows_for(t, flip_y=True))
+    refused = poll_until(watcher, t).refused
+    assert refused and "Y axis is flipped" in refused[0].reason
+    made = refused[0].made
+    assert [o.status for o in made] == ["unverified"] * 6 and all(o.hardness_gpa is None for o in made)
+    assert [o.y_um for o in made] == pytest.approx([2 * t.origin_y_um - y for _, y in t.sites_um])

@@ -362,3 +362,104 @@ def test_run_on_a_sample_file_through_the_fake_inview(tmp_path: Path, setup: tup
     assert [r[5] for r in first] == pytest.approx(expect, rel=0.05)
     with JournalReader(journal) as r:
         assert r.meta["config"]["sample"]["name"] == "NiTiCu-library-07"
+
+
+def _run_with_fake(
+    tmp_path: Path, faults: tuple[str, ...], margin_s: float, budget_s: str, *fake_extra: str
+) -> tuple[Path, subprocess.CompletedProcess[str], float]:
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    profile = tmp_path / "fast.toml"
+    profile.write_text(
+        f'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.05\ndeadline_margin_s = {margin_s}\n'
+    )
+    config = tmp_path / "run.toml"
+    config.write_text(
+        f'name = "kla"\n[campaign]\npolicy = "cost-aware"\nscenario = "ternary"\nseed = 0\nprofile = "{profile}"\n'
+    )
+    journal = tmp_path / "runs" / "kla.sqlite"
+    for _ in running(fake_inview(exchange, profile, *faults, extra=fake_extra)):
+        run = kla_run(config, exchange, journal)
+        run[run.index("--budget-s") + 1] = budget_s
+        started = time.monotonic()
+        proc = subprocess.run(run, capture_output=True, text=True, env=ENV, timeout=600)
+        took = time.monotonic() - started
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return journal, proc, took
+
+
+def _block_rows(journal: Path, block: int) -> list[tuple[str, float, float, float, float, object, str]]:
+    with sqlite3.connect(journal) as conn:
+        return list(
+            conn.execute(
+                "SELECT status, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, hardness_gpa, note "
+                "FROM indents WHERE block_id = ? ORDER BY indent_index",
+                (block,),
+            )
+        )
+
+
+@pytest.mark.slow
+def test_a_refused_flipped_y_export_records_the_indents_as_made_unverified(tmp_path: Path) -> None:
+    """A budget that cuts the first block to 16 sites: flipped Y is then no permutation of the plan, so the
+    export is refused; its 16 indents are journaled as made (unverified) at the export's mirrored places,
+    priced on the instrument clock, never learnt from."""
+    journal, _, _ = _run_with_fake(tmp_path, ("flipped-y@0",), 5.0, "2500")
+    rows = _block_rows(journal, 0)
+    assert 0 < len(rows) < 25 and {r[0] for r in rows} == {"unverified"}
+    origin_y = sum(r[2] for r in rows) / len(rows)
+    with sqlite3.connect(journal) as conn:
+        cy = conn.execute("SELECT center_y_um FROM blocks WHERE block_id = 0").fetchone()[0]
+        indent_steps = conn.execute(
+            "SELECT COUNT(*) FROM steps WHERE block_id = 0 AND category = 'indent'"
+        ).fetchone()[0]
+        snapshots = conn.execute("SELECT summary_json FROM gp_snapshots").fetchall()
+    for _status, cx_, cy_, ax, ay, hardness, note in rows:
+        assert hardness is None and "refused" in note and "not learnt from" in note
+        assert ax == pytest.approx(cx_) and ay == pytest.approx(2 * cy - cy_)  # where the tip went
+    assert any(abs(r[2] - r[4]) > 1.0 for r in rows) and origin_y == pytest.approx(cy, abs=20.0)
+    assert indent_steps == len(rows)  # made, so priced
+    # nothing else ran under this budget: the model never had a value to fit
+    assert all(json.loads(s)["mape_pct"] is None for (s,) in snapshots)
+    entries = manifest(journal)
+    refused = [e for e in entries if e["status"] == "refused"]
+    assert refused and refused[0]["format"] == "InView" and "Y axis is flipped" in str(refused[0]["reason"])
+    closed = [e for e in entries if e["status"] == "closed"]
+    assert closed and len(closed[0]["outcomes"]) == len(rows)  # kept for a resume
+
+
+@pytest.mark.slow
+def test_an_aborted_report_closes_the_wait_at_once_with_the_rows_in_hand(tmp_path: Path) -> None:
+    """The array is aborted half way and its (flipped) export refused: the accepted 'aborted' report ends
+    the wait at once, with the exported rows as made and the rest not run (the deadline is 5 min away)."""
+    journal, _, took = _run_with_fake(tmp_path, ("aborted@0", "flipped-y@0"), 300.0, "2500")
+    assert took < 120.0
+    statuses = [r[0] for r in _block_rows(journal, 0)]
+    n = len(statuses)
+    assert statuses == ["unverified"] * (n // 2) + ["not_run"] * (n - n // 2)
+    with sqlite3.connect(journal) as conn:
+        texts = [t for (t,) in conn.execute("SELECT text FROM events WHERE category = 'instrument'")]
+    assert not any("no export by the deadline" in t for t in texts)
+    assert any("array aborted" in t for t in texts)
+
+
+@pytest.mark.slow
+def test_exports_without_positions_are_matched_by_test_order(tmp_path: Path) -> None:
+    """A lab template without X/Y columns: every row goes to its site in the sites file's order, the run
+    completes with every measurement in the model, and the log and manifest say how it was matched."""
+    journal, _, _ = _run_with_fake(tmp_path, (), 60.0, BUDGET_S, "--no-positions")
+    order = "no positions in the export: matched by test order"
+    with sqlite3.connect(journal) as conn:
+        rows = list(conn.execute("SELECT status, actual_x_um, commanded_x_um FROM indents"))
+        observed = conn.execute("SELECT COUNT(*) FROM blocks WHERE status = 'observed'").fetchone()[0]
+        texts = [t for (t,) in conn.execute("SELECT text FROM events")]
+    accepted = [e for e in manifest(journal) if e["status"] == "accepted"]
+    assert observed == len(accepted) >= 2
+    assert rows and {s for s, *_ in rows} == {"measured"}  # --invalid-rate 0: every indent measured
+    assert all(ax == pytest.approx(cx) for _, ax, cx in rows)  # placed on the planned sites
+    assert all(any(order in n for n in e["notes"]) for e in accepted)
+    assert all(e["format"] == "InView" for e in accepted)
+    assert any(order in t for t in texts)
+    with JournalReader(journal) as r:
+        snap = r.snapshot()
+    assert snap.n_blocks == observed and snap.mape_pct is not None

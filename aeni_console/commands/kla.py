@@ -56,6 +56,12 @@ def register(subparsers: Any) -> None:
     fake.add_argument(
         "--invalid-rate", type=float, default=0.03, help="share of indents exported as 1.797e308 (0-1)"
     )
+    fake.add_argument(
+        "--no-positions",
+        dest="positions",
+        action="store_false",
+        help="export without X/Y Test Position columns (a lab template that leaves them out)",
+    )
     fake.set_defaults(func=_fake_inview)
 
     check = actions.add_parser(
@@ -164,6 +170,7 @@ def _fake_inview(args: argparse.Namespace) -> int:
         faults=faults,
         fmt=args.fmt,
         invalid_rate=args.invalid_rate,
+        positions=args.positions,
         log=lambda line: print(f"fake-inview: {line}", flush=True),
     )
 
@@ -189,7 +196,7 @@ def _check(args: argparse.Namespace) -> int:
     from core.profile import load_profile
     from drivers.kla.array_run import ArrayRun
     from drivers.kla.exchange import ExchangeFolder, check_block, make_ticket, ticket_text
-    from drivers.kla.inbox import ExportArchive, InboxWatcher
+    from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
 
     profile = load_profile(args.profile)
     hold = profile.check_hold(args.hold_s, "--hold-s") if args.hold_s is not None else profile.default_hold_s
@@ -221,6 +228,12 @@ def _check(args: argparse.Namespace) -> int:
             break
         time.sleep(profile.inview.poll_s)
     measured = [o for o in end.outcomes if o.status == "measured"]
+    if any(n.startswith(MATCHED_BY_ORDER) for n in end.notes):  # nothing to check the sites against
+        print_to_pipe(
+            "NOT RIGHT: the export has no X/Y positions, so the check cannot see the axis signs or the "
+            "origin: add X/Y Test Position to the export template and run the check again"
+        )
+        return 1
     if len(measured) < len(end.outcomes) or any("not in the array's order" in n for n in end.notes):
         for note in end.notes:
             print_to_pipe(f"note: {note}")

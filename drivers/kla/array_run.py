@@ -53,7 +53,10 @@ class ArrayRun:
     skipped: set[int] = field(default_factory=set)
     waiting: str = "no export yet"
     events: list[ArrayEvent] = field(default_factory=list)
+    # the indents a refused export says were made (where the tip went): kept if no export is accepted
+    made: tuple[SiteOutcome, ...] = ()
     _ignored_files: set[tuple[str, str]] = field(default_factory=set)
+    _aborted_at: datetime | None = None
 
     @property
     def started(self) -> bool:
@@ -82,6 +85,8 @@ class ArrayRun:
         if kind in self.reported:
             return self._event(kind, f"{kind} already reported for block {self.ticket.block_id}", False, by)
         self.reported.add(kind)
+        if kind == "aborted":
+            self._aborted_at = self.now()
         text = {
             "started": f"block {self.ticket.block_id}: array started (token confirmed)",
             "aborted": f"block {self.ticket.block_id}: array aborted; the rows exported are kept, the rest not run",
@@ -141,6 +146,8 @@ class ArrayRun:
         result = self.watcher.poll(t, partial_ok=self.aborted, final=final, skipped=frozenset(self.skipped))
         for r in result.refused:
             self._refused(r)
+            if r.made:
+                self.made = r.made
         self.waiting = result.waiting
         if result.accepted is not None:
             a = result.accepted
@@ -150,20 +157,35 @@ class ArrayRun:
             return ArrayEnd(a.outcomes, how, a.sha256, a.archived, a.notes)
         if final:
             return self._close(f"no export by the deadline ({t.deadline():%H:%M:%S} UTC)")
+        if self.aborted and self.made:  # the operator ended it, and the refused rows say what ran
+            return self._close("array aborted; the refused export's rows are what ran")
+        if self.aborted and result.waiting == "no export yet" and self._grace_over():
+            return self._close("array aborted; no export came")
         return None
+
+    def _grace_over(self) -> bool:
+        """An aborted array's export may follow the report by a few polls; no longer than that."""
+        if self._aborted_at is None:
+            return False
+        s = self.folder.settings
+        return (self.now() - self._aborted_at).total_seconds() >= (s.stable_polls + 2) * s.poll_s
 
     def _refused(self, r: Refusal) -> None:
         self._event("refused", f"export {r.file} refused: {r.reason}", False, "inbox")
 
     def _close(self, why: str) -> ArrayEnd:
+        """Every site not run, except those a refused export said were made (``unverified``)."""
         t = self.ticket
-        self.watcher.archive.close(t.run, t.block_id, why)
+        made = {o.indent_index: o for o in self.made}
         outcomes = tuple(
-            SiteOutcome(
+            made.get(t.first_index + k)
+            or SiteOutcome(
                 t.first_index + k,
                 "not_run",
                 reason="skipped by the operator" if t.first_index + k in self.skipped else why,
             )
             for k in range(t.n_sites)
         )
-        return ArrayEnd(outcomes, why)
+        self.watcher.archive.close(t.run, t.block_id, why, tuple(made.values()))
+        notes = (f"{len(made)} indent(s) made but unverified (the export was refused)",) if made else ()
+        return ArrayEnd(outcomes, why, notes=notes)

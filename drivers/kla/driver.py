@@ -165,8 +165,10 @@ class KlaDriver(InstrumentState):
         closed = self.archive.closed(ticket.run, ticket.block_id)
         if closed is not None:
             why = str(closed["reason"])
+            made = {o["indent_index"]: SiteOutcome(**o) for o in closed.get("outcomes", [])}
             outcomes = tuple(
-                SiteOutcome(ticket.first_index + k, "not_run", reason=why) for k in range(ticket.n_sites)
+                made.get(ticket.first_index + k) or SiteOutcome(ticket.first_index + k, "not_run", reason=why)
+                for k in range(ticket.n_sites)
             )
             return ArrayEnd(outcomes, why)
         return None
@@ -185,6 +187,8 @@ class KlaDriver(InstrumentState):
                     end = array.poll()
                     notes = tuple(e.text for e in array.events[shown:])
                     shown = len(array.events)
+                    if end is not None:  # the run log keeps what the export was and how it was matched
+                        notes += tuple(f"block {block.block_id}: {n}" for n in end.notes)
                     yield InstrumentWait(
                         block_id=block.block_id,
                         ticket=ticket_text(ticket).replace(ticket.token, "·····"),
@@ -193,7 +197,7 @@ class KlaDriver(InstrumentState):
                         waiting=array.waiting if end is None else end.how,
                         started=array.started,
                         notes=notes,
-                        panel=ticket_panel(ticket),
+                        panel=ticket_panel(ticket) + (end.notes if end is not None else ()),
                     )
                     if end is not None:
                         break
@@ -214,8 +218,19 @@ class KlaDriver(InstrumentState):
                 )
                 continue
             for step in indent_steps(self.profile, block, i, self._pos, self._open):
-                yield self._advance(step)
+                yield self._advance(step)  # made, so priced on the instrument clock (unverified too)
             self._pos, self._open = (spec.x_um, spec.y_um), True
+            if outcome.status == "unverified":  # where the export says the tip went; no value
+                made = IndentResult.unmeasured(
+                    block.block_id, i, spec, self._clock_s, "unverified", outcome.reason
+                )
+                yield replace(
+                    made,
+                    actual_x_um=_nan(outcome.x_um),
+                    actual_y_um=_nan(outcome.y_um),
+                    depth_at_max_load_nm=outcome.max_depth_nm,
+                )
+                continue
             yield IndentResult(
                 block_id=block.block_id,
                 indent_index=i,

@@ -94,6 +94,7 @@ class FakeInView:
     fmt: str = "xlsx"  # or "csv"
     invalid_rate: float = 0.03  # share of indents InView marks invalid (1.797e308)
     write_s: float = 0.6  # wall seconds a slow export write takes
+    positions: bool = True  # False: a lab template without X/Y Test Position columns
     log: Callable[[str], None] = print
     _done: set[tuple[str, int]] = field(default_factory=set)
     _sim: SimulatedDriver | None = None
@@ -226,6 +227,8 @@ class FakeInView:
         for label, fn in (("Mean", _mean), ("Std. Dev.", _sd), ("% COV", _cov)):
             stats = [fn([v[k] for v in valid]) if valid else None for k in range(5)]
             rows.append([label, None, None, *stats, None])
+        if not self.positions:  # the template has no X/Y Test Position columns
+            rows = [[c for k, c in enumerate(row) if k not in (1, 2)] for row in rows]
         return rows
 
     def _export_bytes(self, results: list[IndentResult], ticket: Ticket) -> bytes:

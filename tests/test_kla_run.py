@@ -4,6 +4,7 @@ waiting followed by `aeni resume`."""
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import os
@@ -426,6 +427,14 @@ def test_a_refused_flipped_y_export_records_the_indents_as_made_unverified(tmp_p
     assert refused and refused[0]["format"] == "InView" and "Y axis is flipped" in str(refused[0]["reason"])
     closed = [e for e in entries if e["status"] == "closed"]
     assert closed and len(closed[0]["outcomes"]) == len(rows)  # kept for a resume
+    # the tidy export tells them apart: status, note, depth and the refused file they came from
+    out = tmp_path / "tidy"
+    assert cli_main(["export", str(journal), "--out", str(out)]) == 0
+    with (out / "indents.csv").open() as fh:
+        tidy = [r for r in csv.DictReader(fh) if r["block_id"] == "0"]
+    assert {r["status"] for r in tidy} == {"unverified"} and all(r["note"] for r in tidy)
+    assert {r["export_file"] for r in tidy} == {refused[0]["file"]}
+    assert all(float(r["depth_at_max_load_nm"]) > 0 for r in tidy)
 
 
 @pytest.mark.slow
@@ -463,3 +472,9 @@ def test_exports_without_positions_are_matched_by_test_order(tmp_path: Path) -> 
     with JournalReader(journal) as r:
         snap = r.snapshot()
     assert snap.n_blocks == observed and snap.mape_pct is not None
+    out = tmp_path / "tidy"
+    assert cli_main(["export", str(journal), "--out", str(out)]) == 0
+    with (out / "indents.csv").open() as fh:
+        tidy = list(csv.DictReader(fh))
+    assert len(tidy) == len(rows) and {r["status"] for r in tidy} == {"measured"}
+    assert {r["export_file"] for r in tidy} == {str(e["file"]) for e in accepted}

@@ -487,6 +487,20 @@ def _replay_line(rec: Any) -> str:
     )
 
 
+def _export_files(journal: Path, indents: Any) -> list[str]:
+    """Each indent's instrument export (a KLA run's archive beside the journal); '' for a simulated run."""
+    from drivers.kla.driver import archive_dir_for
+    from drivers.kla.inbox import ExportArchive
+
+    folder = archive_dir_for(journal)
+    if not (folder / "manifest.jsonl").is_file():
+        return [""] * len(indents)
+    files = ExportArchive(folder).export_files()
+    return [
+        files.get((int(b), str(s)), "") for b, s in zip(indents["block_id"], indents["status"], strict=True)
+    ]
+
+
 def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[Path]:
     """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events."""
     import pandas as pd
@@ -509,6 +523,7 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
         cols, rows = r.table("indents")
         ind = pd.DataFrame(rows, columns=cols)
         ind = ind.rename(columns={"actual_x_um": "x_um", "actual_y_um": "y_um"})
+        ind["export_file"] = _export_files(Path(path), ind)
         first = [
             "block_id",
             "x_um",
@@ -516,6 +531,10 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             "hold_s",
             "hardness_gpa",
             "t_s",
+            "status",
+            "note",
+            "depth_at_max_load_nm",
+            "export_file",
             "indent_index",
             "commanded_x_um",
             "commanded_y_um",

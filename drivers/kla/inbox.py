@@ -134,6 +134,17 @@ class ExportArchive:
             None,
         )
 
+    def export_files(self) -> dict[tuple[int, str], str]:
+        """(block, indent status) -> the archived export the indent's record came from: the block's accepted
+        export for a measured or failed indent, the last refused one for an unverified one."""
+        out: dict[tuple[int, str], str] = {}
+        for e in self.entries():
+            if e["status"] == "accepted":
+                out[(e["block_id"], "measured")] = out[(e["block_id"], "failed")] = str(e["file"])
+            elif e["status"] == "refused":
+                out[(e["block_id"], "unverified")] = str(e["file"])
+        return out
+
     def _append(self, entry: dict[str, Any]) -> None:
         with self.manifest.open("a", encoding="utf-8") as fh:
             fh.write(json.dumps(entry) + "\n")

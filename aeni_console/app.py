@@ -448,6 +448,7 @@ class ConsoleApp(App[None]):
                 snap.supervision,
                 cursor_blink=self.cursor_blink,
                 allowed_holds_s=snap.allowed_holds_s or None,
+                policy=snap.policy,
             ),
             done,
         )

@@ -40,7 +40,8 @@ MEANINGS: dict[str, str] = {
     "campaign.lattice_n": "candidate centres per side of the lattice (default: the scenario's)",
     "planner.target_sem_gpa": "target standard error of a centre's value: sets the adaptive grid size",
     "planner.beta": "UCB exploration weight",
-    "planner.hold_policy": "fixed holds, or adaptive holds from the measured drift",
+    "planner.hold_policy": "fixed holds, or adaptive holds from the measured drift (a policy that picks every "
+    "hold itself, e.g. aeni, refuses fixed ones and fixed_hold_s; grid refuses adaptive)",
     "planner.fixed_hold_s": "the hold of every indent with the fixed hold policy",
     "planner.local_center_limit": "local centres after a global jump before the planner must jump again",
     "planner.edge_penalty": "how strongly the acquisition is damped near the sample's edges",

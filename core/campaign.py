@@ -28,7 +28,13 @@ from core.policies.registry import RECOMMENDED, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
 from core.sample import Sample, grid_baseline_s, sample_from_dict
-from core.settings import adjust_settings, check_holds, settings_from_dict, settings_to_dict
+from core.settings import (
+    adjust_settings,
+    check_hold_in_force,
+    check_holds,
+    settings_from_dict,
+    settings_to_dict,
+)
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
 VETO_HOLD_BLOCKS = 3
@@ -331,6 +337,7 @@ class Campaign:
         self.vetoes.append(_Veto(b.center_x_um, b.center_y_um, len(self.blocks) + hold_blocks))
 
     def adjust(self, **changes: Any) -> PlannerSettings:
+        check_hold_in_force(self.policy.name, changes, "adjust")
         self.settings = adjust_settings(self.settings, changes, self.profile.allowed_holds_s)
         return self.settings
 

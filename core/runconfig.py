@@ -26,6 +26,7 @@ from core.errors import InputError
 from core.settings import (
     ADJUSTABLE,
     SUPERVISION_MODES,
+    check_hold_in_force,
     coerce_setting,
     coerce_supervision,
     settings_from_dict,
@@ -205,8 +206,10 @@ def parse_run_config(
         rf = RunFile.model_validate(merged)
     except ValidationError as exc:
         raise InputError(source, _message(exc)) from None
-    settings = settings_from_dict(rf.planner.model_dump(exclude_unset=True))
+    given = rf.planner.model_dump(exclude_unset=True)
+    settings = settings_from_dict(given)
     c = rf.campaign
+    check_hold_in_force(c.policy, given)
     if c.scenario == "csv" and not c.truth_csv:
         raise InputError(source, "field campaign.truth_csv is missing: scenario 'csv' needs a truth CSV file")
     truth_csv = c.truth_csv

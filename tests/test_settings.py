@@ -72,7 +72,7 @@ def test_holds_are_the_profiles_wherever_the_profile_is_known() -> None:
     with pytest.raises(InputError, match=r"fixed_hold_s: 7 is not allowed: expected one of 0, 5, 80 s"):
         check_adjust({"fixed_hold_s": 7}, HOLDS)
     # the run file does not know the profile yet (it may come from the scenario): the campaign checks
-    config = make_campaign_config(lattice_n=8, settings={"fixed_hold_s": 7})
+    config = make_campaign_config(lattice_n=8, policy="cost-aware", settings={"fixed_hold_s": 7})
     assert config.settings.fixed_hold_s == 7.0
     with pytest.raises(
         InputError, match=r"^planner\.fixed_hold_s: 7\.0 is not allowed: expected one of 0, 5, 80"
@@ -118,7 +118,8 @@ values = st.fixed_dictionaries(
 @given(data=values)
 def test_the_codec_round_trips_what_the_run_file_accepts(data: dict[str, Any]) -> None:
     """What a run file holds, the journal writes and reads back unchanged (one codec for both)."""
-    from_file = parse_run_config({"planner": data}).campaign.settings
+    # cost-aware honours every hold setting (aeni refuses fixed ones: see the test below)
+    from_file = parse_run_config({"campaign": {"policy": "cost-aware"}, "planner": data}).campaign.settings
     assert settings_from_dict(data) == from_file
     assert settings_from_dict(settings_to_dict(from_file)) == from_file
 
@@ -143,3 +144,53 @@ def test_send_adjust_checks_before_queueing(tmp_path: Path, capsys: pytest.Captu
     assert "no engine is running" in capsys.readouterr().err
     with sqlite3.connect(path) as conn:
         assert conn.execute("SELECT COUNT(*) FROM commands").fetchone()[0] == 0
+
+
+def test_hold_settings_a_policy_does_not_honour_are_refused_in_one_line() -> None:
+    """Issue 24: ``hold_policy = "fixed"`` with ``fixed_hold_s = 80`` under aeni was ignored without a word."""
+    data = {"campaign": {"policy": "aeni"}, "planner": {"hold_policy": "fixed", "fixed_hold_s": 80}}
+    with pytest.raises(InputError) as info:
+        parse_run_config(data, "night.toml")
+    assert str(info.value).startswith("planner.hold_policy: 'fixed' is not honoured by policy 'aeni'")
+    assert "\n" not in str(info.value)
+    with pytest.raises(
+        InputError, match=r"^planner\.fixed_hold_s: 5\.0 is not honoured by policy 'adaptive-hold'"
+    ):
+        parse_run_config({"campaign": {"policy": "adaptive-hold"}, "planner": {"fixed_hold_s": 5}})
+    with pytest.raises(
+        InputError, match=r"^planner\.hold_policy: 'adaptive' is not honoured by policy 'grid'"
+    ):
+        parse_run_config({"campaign": {"policy": "grid"}, "planner": {"hold_policy": "adaptive"}})
+    # honoured: the policy's own hold, a fixed hold under a fixed-hold policy, either under cost-aware
+    parse_run_config({"campaign": {"policy": "aeni"}, "planner": {"hold_policy": "adaptive"}})
+    parse_run_config({"campaign": {"policy": "grid"}, "planner": {"fixed_hold_s": 5}})
+    parse_run_config({"campaign": {"policy": "cost-aware"}, "planner": {"hold_policy": "adaptive"}})
+    # the same rule for an adjust command, in the campaign (the engine's) and before it is queued
+    campaign = Campaign(make_campaign_config(policy="aeni", lattice_n=8), make_scenario("ternary", 0).sample)
+    with pytest.raises(InputError, match=r"^adjust\.fixed_hold_s: 5\.0 is not honoured"):
+        campaign.adjust(fixed_hold_s=5.0)
+    assert campaign.adjust(beta=2.0).beta == 2.0
+
+
+async def test_the_adjust_form_shows_only_the_hold_settings_in_force() -> None:
+    from textual.app import App
+    from textual.widgets import Select
+
+    from aeni_console.widgets.adjust import AdjustScreen
+
+    for policy, fixed_shown, select_shown in (
+        ("aeni", False, False),
+        ("grid", True, False),
+        ("cost-aware", True, True),
+    ):
+        app: App[None] = App()
+        async with app.run_test() as pilot:
+            screen = AdjustScreen(
+                PlannerSettings(fixed_hold_s=80.0), allowed_holds_s=(0, 5, 80), policy=policy
+            )
+            app.push_screen(screen)
+            await pilot.pause()
+            assert bool(screen.query("#f-fixed_hold_s")) is fixed_shown, policy
+            assert any(w.id == "f-hold_policy" for w in screen.query(Select)) is select_shown, policy
+            changes, errors = screen.validate_form()
+            assert changes == {} and errors == []

@@ -653,10 +653,11 @@ def _cmd_send(args: argparse.Namespace) -> int:
         raise InputError("adjust", "give at least one field=value (e.g. beta=2.5 target_sem_gpa=0.1)")
     if args.kind == "adjust":  # the engine's own rules and the run's holds: a bad value is never queued
         from core.journal import JournalReader
-        from core.settings import check_adjust
+        from core.settings import check_adjust, check_hold_in_force
 
         with JournalReader(path) as reader:
             payload = check_adjust(payload, reader.profile.allowed_holds_s)
+            check_hold_in_force(reader.snapshot().policy, payload, "adjust")
     # the other commands' fields, by the same rules the engine applies: nothing the engine must reject is queued
     allowed = {"veto": ("hold_blocks", "decision_id"), "approve": ("decision_id",), "step": ("decision_id",)}
     if args.kind != "adjust" and args.kind not in _INSTRUMENT_REPORTS:

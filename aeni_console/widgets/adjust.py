@@ -26,6 +26,7 @@ from core.settings import (
     SettingRule,
     coerce_setting,
     coerce_supervision,
+    policy_hold,
 )
 
 # the text inputs, with core's labels, in core's order; the hold policy (a choice) is a Select
@@ -117,18 +118,22 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
         supervision: str = "supervised",
         cursor_blink: bool = True,
         allowed_holds_s: Sequence[float] | None = None,
+        policy: str = "",
     ) -> None:
         super().__init__()
         self.settings = settings
         self.supervision = supervision
         self.cursor_blink = cursor_blink
         self.allowed_holds_s = allowed_holds_s  # the run's instrument holds (None: not known)
+        # which hold settings are in force: only those are shown (a policy that picks every hold shows none)
+        self.honours = policy_hold(policy) if policy else "either"
+        self.fields = tuple(r for r in FIELDS if not (r.name == "fixed_hold_s" and self.honours == "policy"))
 
     def compose(self) -> ComposeResult:
         with Vertical(id="adjust-dialog"):
             yield Static("Adjust the planner (applies from the next decision)", id="adjust-title")
             with Grid(id="adjust-grid"):
-                for rule in FIELDS:
+                for rule in self.fields:
                     yield Label(rule.label)
                     yield Input(
                         _fmt(getattr(self.settings, rule.name)),
@@ -137,13 +142,21 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
                         placeholder="none" if rule.optional else "",
                     )
                 yield Label("hold policy")
-                yield Select(
-                    [(p, p) for p in HOLD_POLICIES],
-                    value=self.settings.hold_policy,
-                    allow_blank=False,
-                    id="f-hold_policy",
-                    compact=True,
-                )
+                if self.honours == "either":
+                    yield Select(
+                        [(p, p) for p in HOLD_POLICIES],
+                        value=self.settings.hold_policy,
+                        allow_blank=False,
+                        id="f-hold_policy",
+                        compact=True,
+                    )
+                else:
+                    what = (
+                        "from the drift (the policy's)"
+                        if self.honours == "policy"
+                        else "fixed (the policy's)"
+                    )
+                    yield Static(what, id="f-hold-fixed-by-policy")
                 yield Label("supervision")
                 yield Select(
                     [(m, m) for m in SUPERVISION_MODES],
@@ -160,11 +173,12 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
     def on_mount(self) -> None:
         for inp in self.query(Input):
             inp.cursor_blink = self.cursor_blink
-        self.query_one(f"#f-{FIELDS[0].name}", Input).focus()
+        self.query_one(f"#f-{self.fields[0].name}", Input).focus()
 
     def _values(self) -> tuple[dict[str, str], str, str]:
-        values = {rule.name: self.query_one(f"#f-{rule.name}", Input).value for rule in FIELDS}
-        hold = self.query_one("#f-hold_policy", Select).value
+        values = {rule.name: self.query_one(f"#f-{rule.name}", Input).value for rule in self.fields}
+        selects = self.query("#f-hold_policy")
+        hold = selects.first(Select).value if selects else self.settings.hold_policy
         sup = self.query_one("#f-supervision", Select).value
         return values, str(hold), str(sup)
 
@@ -174,7 +188,7 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
             values, hold, self.settings, sup, self.supervision, self.allowed_holds_s
         )
         bad = {e.split(":", 1)[0] for e in errors}
-        for rule in FIELDS:
+        for rule in self.fields:
             self.query_one(f"#f-{rule.name}", Input).set_class(rule.label in bad, "-invalid")
         self.query_one("#adjust-error", Static).update(errors[0] if errors else "")
         return changes, errors

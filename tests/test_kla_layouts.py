@@ -69,6 +69,8 @@ class Layout:
     h_unit: str  # GPa or MPa
     summary: tuple[str, ...]
     decoy_copy: bool  # a copy of the Results sheet with other numbers, under an unrelated name
+    cycle_column: bool  # per-cycle rows marked by a 'Cycle' column instead of '1-1' labels
+    stray_rows: bool  # a note line and a repeated header inside the table
     shape: str  # "results-xlsx", "results-csv", "test-sheets"
     n_tests: int
     seed: int
@@ -86,6 +88,8 @@ layouts = st.builds(
     h_unit=st.sampled_from(["GPa", "MPa"]),
     summary=st.lists(st.sampled_from(SUMMARY_LABELS), max_size=4, unique=True).map(tuple),
     decoy_copy=st.booleans(),
+    cycle_column=st.booleans(),
+    stray_rows=st.booleans(),
     shape=st.sampled_from(["results-xlsx", "results-csv", "test-sheets"]),
     n_tests=st.integers(1, 9),
     seed=st.integers(0, 10_000),
@@ -145,7 +149,9 @@ def build(layout: Layout, folder: Path) -> Path:
     cycle_h = "H" if v.cycles else None
     if cycle_h:  # a per-cycle 'H' that is empty on the per-test rows
         columns.insert(1, cycle_h)
-    units = ["" if c == "Test" else (v.pos_unit if "Position" in c else v.h_unit) for c in columns]
+    if v.cycles and v.cycle_column:
+        columns.insert(1, "Cycle")
+    units = ["" if c in ("Test", "Cycle") else (v.pos_unit if "Position" in c else v.h_unit) for c in columns]
     body: list[list[object]] = []
     for k, t in enumerate(tests):
         cell = {
@@ -155,10 +161,15 @@ def build(layout: Layout, folder: Path) -> Path:
             v.hardness_header: t["h"] * h_scale,
             v.modulus_header: t["e"] * h_scale,
             "H": None,
+            "Cycle": None,
         }
         body.append([cell[c] for c in columns])
+        if v.stray_rows and k == 0:
+            body.append(["Note: tip changed after this test"] + [None] * (len(columns) - 1))
+            body.append(list(columns))
         for c in range(1, v.cycles + 1):  # cycles: their own H, no per-test average
-            row = {**cell, "Test": f"{k + 1}-{c}", "H": 3.0 * t["h"] * h_scale / c}
+            label = (tid(k), c) if v.cycle_column else (f"{k + 1}-{c}", None)
+            row = {**cell, "Test": label[0], "Cycle": label[1], "H": 3.0 * t["h"] * h_scale / c}
             row[v.hardness_header] = None
             row[v.modulus_header] = 2.0 * t["e"] * h_scale
             body.append([row[col] for col in columns])
@@ -167,8 +178,13 @@ def build(layout: Layout, folder: Path) -> Path:
     if v.shape == "results-csv":
         return write_text(folder / "results.csv", rows, ",")
     sheets = {"Results": rows}
-    if v.decoy_copy:  # an older copy with other numbers under an unrelated name: never read
-        sheets["Sheet2"] = [columns, units, *[[r[0]] + [9.99] * (len(r) - 1) for r in body]]
+    if v.decoy_copy:  # an older copy with other numbers (and positions) under an unrelated name: never read
+        decoy_cols = ["Test", "X Test Position", "Y Test Position", v.hardness_header]
+        sheets["Sheet2"] = [
+            decoy_cols,
+            ["", "µm", "µm", "GPa"],
+            *[[k + 1, 9.99, 9.99, 9.99] for k in range(len(tests))],
+        ]
     return write_xlsx(folder / "results.xlsx", sheets)
 
 

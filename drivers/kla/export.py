@@ -1008,13 +1008,21 @@ def _results_from_test_sheets(
     return pd.DataFrame(rows, dtype=object)
 
 
+_INPUT_SHEET_WORDS = ("input", "information", "sample", "parameter", "setup", "position", "method")
+
+
 def _inputs_by_test(
-    sheets: Mapping[str, pd.DataFrame], skip: set[str], notes: list[str]
+    sheets: Mapping[str, pd.DataFrame], skip: set[str], notes: list[str], reads: frozenset[str] = frozenset()
 ) -> dict[str, dict[str, float]]:
-    """Per-test values from the input sheets (positions, Poisson ratio, calculation depths, area function)."""
+    """Per-test values from the input sheets (positions, Poisson ratio, calculation depths, area function).
+
+    Only the results sheet and sheets named as inputs or sample information are read: a copy of a sheet
+    under an unrelated name ('Sheet2', 'Chart Data') may hold another run's numbers."""
     out: dict[str, dict[str, float]] = {}
     for name, raw in sheets.items():
         if name in skip or _TEST_SHEET.match(name) or _norm(name).startswith("cycles"):
+            continue
+        if not (name in reads or any(w in _norm(name) for w in _INPUT_SHEET_WORDS)):
             continue
         table = _split_table(raw, _RESULT_ALIASES["test_id"])
         if table is None:
@@ -1195,28 +1203,52 @@ _VENDOR_HINTS = {
 }
 
 
+_TEST_ID = re.compile(r"^\s*(?:test\s*)?#?\s*\d+\s*$", re.IGNORECASE)
+_CYCLE_COLUMN = ("cycle", "cycle #", "cycle number", "cycle no", "cycle no.", "cycle id")
+
+
+def _blank(cell: object) -> bool:
+    return (
+        cell is None
+        or (isinstance(cell, float) and math.isnan(cell))
+        or (isinstance(cell, str) and not cell.strip())
+    )
+
+
 def _test_rows(
     table: _Table, test_col: int | None, sheet: str, path: Path, notes: list[str]
 ) -> list[tuple[int, str]]:
-    """(row, test id) for every per-test row: summary rows, blank rows and per-cycle rows ('1-1') are
-    skipped; a sheet of per-cycle rows only is refused (it has no per-test result)."""
+    """(row, test id) for every per-test row. Not tests: summary rows, blank rows, a repeated header or
+    units row, text lines without a number, and per-cycle rows ('1-1', or a filled 'Cycle' column beside
+    per-test rows with it empty). A sheet of per-cycle rows only is refused (it has no per-test result)."""
+    cycle_col = table.column(_CYCLE_COLUMN)
+    cycle_filled = (
+        [not _blank(v) for v in table.data[cycle_col]] if cycle_col is not None else [False] * len(table.data)
+    )
+    if all(cycle_filled):  # every row has a cycle: one cycle per test, or no per-test rows (duplicates show)
+        cycle_filled = [False] * len(table.data)
     rows: list[tuple[int, str]] = []
     cycles: list[str] = []
+    other = 0
     for row in range(len(table.data)):
-        label = table.data.iat[row, test_col] if test_col is not None else None
+        cells = list(table.data.iloc[row])
+        label = cells[test_col] if test_col is not None else None
         if _summary_row(table.data, row):
             continue
-        blank = all(
-            table.data.iat[row, c] is None
-            or (isinstance(table.data.iat[row, c], float) and math.isnan(table.data.iat[row, c]))
-            or (isinstance(table.data.iat[row, c], str) and not table.data.iat[row, c].strip())
-            for c in range(table.data.shape[1])
-            if c != test_col
-        )
-        if blank:
+        if all(_blank(c) for c in (cells[i] for i in range(len(cells)) if i != test_col)):
             continue
-        if isinstance(label, str) and _CYCLE_LABEL.match(label):
-            cycles.append(label.strip())
+        texts = [_norm(_parse_header(c)[0]) for c in cells if isinstance(c, str) and c.strip()]
+        if sum(t in table.keys for t in texts) >= 2 or (texts and _looks_like_units_row(cells)):
+            other += 1  # a second header or units row (a table pasted below, a copy)
+            continue
+        if (isinstance(label, str) and _CYCLE_LABEL.match(label)) or cycle_filled[row]:
+            cycles.append(
+                str(label).strip() if not cycle_filled[row] else f"{label}/{cells[cast(int, cycle_col)]}"
+            )
+            continue
+        id_like = _is_number(label) or (isinstance(label, str) and bool(_TEST_ID.match(label)))
+        if not id_like and not any(_is_number(c) for c in cells):
+            other += 1  # a note or a metadata line inside the table
             continue
         test_key = _test_key(label)
         rows.append((row, test_key if test_key is not None else str(len(rows) + 1)))
@@ -1230,6 +1262,18 @@ def _test_rows(
         notes.append(
             f"{sheet}: {len(cycles)} per-cycle row(s) ({cycles[0]!r} ...) are not tests: "
             f"read the {len(rows)} per-test row(s)"
+        )
+    if other:
+        notes.append(f"{sheet}: {other} row(s) without test data (a repeated header, a note) skipped")
+    seen: dict[str, int] = {}
+    for _, test in rows:
+        seen[test] = seen.get(test, 0) + 1
+    repeated = [t for t, n in seen.items() if n > 1]
+    if repeated and test_col is not None:
+        raise InputError(
+            str(path),
+            f"sheet {sheet!r}: test {repeated[0]!r} is on {seen[repeated[0]]} rows (per-cycle rows without "
+            "their per-test row?): export one row per test",
         )
     return rows
 
@@ -1277,6 +1321,8 @@ def _read(
         raise InputError(str(path), f"sheet {res_name!r} has no header row with known columns")
     candidates = _result_columns(table)
     test_col = candidates["test_id"][0] if candidates["test_id"] else None
+    if test_col is None and table.keys and table.keys[0] == "":
+        test_col = 0  # an unnamed first column holds the test labels (and 'Average', '1-1' ...)
     test_ids = _test_rows(table, test_col, res_name, path, notes)
     if not test_ids:
         raise InputError(str(path), f"sheet {res_name!r} has no test rows")
@@ -1302,7 +1348,7 @@ def _read(
         )
     area_cols = {int(m.group(1)): i for i, k in enumerate(table.keys) if (m := _AREA_COEFF.match(k))}
 
-    inputs = _inputs_by_test(sheets, set(), notes)  # Results may carry calculation depths too
+    inputs = _inputs_by_test(sheets, set(), notes, frozenset({res_name}))  # Results may carry depths too
     for row, test in test_ids:
         for k, col in area_cols.items():
             v = _numeric(table.data[col].iloc[[row]])[0]

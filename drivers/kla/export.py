@@ -880,10 +880,11 @@ def _detect_software(sheets: Mapping[str, pd.DataFrame]) -> str:
     for software, words in _VENDOR_WORDS:
         if any(re.search(rf"\b{re.escape(w)}\b", text) for w in words):
             return software
-    if {"hc", "er"} <= keys or {"pmax", "er"} <= keys:  # Hysitron's contact depth and reduced modulus
-        return SOFTWARE_HYSITRON
     if {"hit", "eit"} <= keys and keys & {"hvit", "fmax", "cit", "rit"}:  # ISO 14577 names, Anton Paar's
         return SOFTWARE_ANTON_PAAR
+    # Hysitron's contact depth, peak force and reduced modulus (short or spelt out)
+    if {"hc", "er"} <= keys or {"pmax", "er"} <= keys or {"contact depth", "reduced modulus"} <= keys:
+        return SOFTWARE_HYSITRON
     test_sheets = [n for n in names if _TEST_SHEET.match(n)]
     if test_sheets and not any("result" in n for n in names):
         return SOFTWARE_TESTWORKS  # MTS TestWorks writes one sheet per test and no Results sheet

@@ -148,3 +148,37 @@ def test_skipped_site_is_not_expected_and_not_run(exchange: ExchangeFolder, watc
     assert end.outcomes[3].status == "not_run" and end.outcomes[3].reason == "skipped by the operator"
     assert [o.status for o in end.outcomes].count("measured") == 8
     assert not any("not in the array's order" in n for n in end.notes)
+
+
+def test_an_aborted_report_without_an_export_waits_a_few_polls_not_to_the_deadline(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
+    run, clock = start(exchange, watcher)
+    ok, _ = run.report("aborted", run.ticket.token, "alice")
+    assert ok and run.poll() is None  # its export may follow the report
+    grace_s = (FAST.inview.stable_polls + 2) * FAST.inview.poll_s
+    clock.t += timedelta(seconds=grace_s)
+    end = run.poll()
+    assert end is not None and end.how == "array aborted; no export came"
+    assert run.seconds_left() > 60.0  # long before the deadline
+    assert {o.status for o in end.outcomes} == {"not_run"}
+
+
+def test_an_aborted_report_keeps_the_rows_of_a_refused_export_as_made(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
+    from dataclasses import replace
+
+    from drivers.kla.exchange import make_ticket
+
+    b = block(2)
+    t = make_ticket("r1", replace(b, indents=b.indents[:6]), FAST.inview, expected_s=100.0)
+    exchange.publish(t)
+    run = ArrayRun(exchange, watcher, t, now=Clock(t.created()))
+    write_export(exchange.inbox / "r1-002-export.csv", rows_for(t, flip_y=True)[:4])  # refused: Y flipped
+    assert run_until_end(run, 6) is None and len(run.made) == 4
+    run.report("aborted", t.token, "alice")
+    end = run.poll()
+    assert end is not None and end.how.startswith("array aborted")
+    assert [o.status for o in end.outcomes] == ["unverified"] * 4 + ["not_run"] * 2
+    assert watcher.archive.closed("r1", 2)["outcomes"][0]["status"] == "unverified"  # type: ignore[index]

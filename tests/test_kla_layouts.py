@@ -71,7 +71,7 @@ class Layout:
     decoy_copy: bool  # a copy of the Results sheet with other numbers, under an unrelated name
     cycle_column: bool  # per-cycle rows marked by a 'Cycle' column instead of '1-1' labels
     stray_rows: bool  # a note line and a repeated header inside the table
-    shape: str  # "results-xlsx", "results-csv", "test-sheets"
+    shape: str  # "results-xlsx", "results-csv", "test-sheets" (label | value rows), "test-sheets-table"
     n_tests: int
     seed: int
 
@@ -90,7 +90,7 @@ layouts = st.builds(
     decoy_copy=st.booleans(),
     cycle_column=st.booleans(),
     stray_rows=st.booleans(),
-    shape=st.sampled_from(["results-xlsx", "results-csv", "test-sheets"]),
+    shape=st.sampled_from(["results-xlsx", "results-csv", "test-sheets", "test-sheets-table"]),
     n_tests=st.integers(1, 9),
     seed=st.integers(0, 10_000),
 )
@@ -119,6 +119,24 @@ def build(layout: Layout, folder: Path) -> Path:
     def tid(k: int) -> object:
         return f"{k + 1:03d}" if v.text_ids else k + 1
 
+    if v.shape == "test-sheets-table":  # one sheet per test: a one-row results table above its curve
+        sheets = {}
+        for k, t in enumerate(tests):
+            names = [v.hardness_header, v.modulus_header]
+            values: list[object] = [t["h"] * h_scale, t["e"] * h_scale]
+            units = [v.h_unit, v.h_unit]
+            if v.positions:
+                pos = [("X Test Position", t["x"] * p_scale), ("Y Test Position", t["y"] * p_scale)]
+                for name, value in pos[::-1] if v.y_first else pos:
+                    names.append(name)
+                    values.append(value)
+                    units.append(v.pos_unit)
+            rows = [["TestWorks 4 test", tid(k)], [], names, units, values, []]
+            rows.append(["Displacement Into Surface", "Load On Sample", "Time On Sample", "Hardness"])
+            rows.append(["nm", "mN", "s", "GPa"])
+            rows += [[float(d), 0.01 * d, 0.1 * d, 99.0] for d in range(0, 50, 5)]  # a CSM channel: not it
+            sheets[f"Test {k + 1:03d}"] = rows
+        return write_xlsx(folder / "testworks_table.xlsx", sheets)
     if v.shape == "test-sheets":  # TestWorks: one sheet per test with its own result, no Results sheet
         sheets: dict[str, list[list[object]]] = {}
         for k, t in enumerate(tests):
@@ -206,9 +224,9 @@ def test_generated_lab_layouts_read_within_two_percent(
         else:
             assert got.x_um is None and got.y_um is None
     assert export.has_positions is layout.positions
-    if layout.shape == "test-sheets":
+    if layout.shape.startswith("test-sheets"):
         assert export.software == "TestWorks"
-    if layout.cycles and layout.shape != "test-sheets":
+    if layout.cycles and layout.shape.startswith("results"):
         assert any("per-cycle row" in w for w in export.warnings)
         # the per-test hardness is the averaged column, named; 'H' is empty on the per-test rows
         assert any("hardness from" in w and "'H'" in w for w in export.warnings), export.warnings

@@ -935,39 +935,59 @@ def _key_of(text: str) -> str | None:
     return None
 
 
+def _as_number(cell: object) -> float | None:
+    """A finite number from a cell (numeric text too, decimal comma allowed); None for anything else."""
+    if _is_number(cell):
+        value = float(cast(float, cell))
+    elif isinstance(cell, str) and cell.strip():
+        try:
+            value = float(cell.strip().replace(",", "."))
+        except ValueError:
+            return None
+    else:
+        return None
+    return value if math.isfinite(value) and abs(value) < INVALID_THRESHOLD else None
+
+
 def _sheet_own_result(raw: pd.DataFrame, sheet: str, notes: list[str]) -> dict[str, float]:
-    """A Test sheet's own result, as 'label | value | unit' rows (TestWorks, some InView templates):
-    values converted to µm / GPa / nm/s / mN / nm. A label whose right-hand cells are not a number (a
-    curve's header row) is not a result."""
+    """A Test sheet's own result (TestWorks, some InView templates), as 'label | value | unit' rows or as a
+    one-row table (labels, an optional units row, one row of values), converted to µm / GPa / nm/s / mN /
+    nm. A curve's header row is not a result: its labels have a column of numbers below them."""
+    grid = [list(r) for r in raw.iloc[:200, :60].itertuples(index=False)]
+    load_words = set(_CURVE_ALIASES["load"])
+    depth_words = set(_CURVE_ALIASES["depth"])
+
+    def at(r: int, j: int) -> object:
+        return grid[r][j] if r < len(grid) and j < len(grid[r]) else None
+
     out: dict[str, float] = {}
-    for row in raw.iloc[:200].itertuples(index=False):
-        cells = list(row)
-        for j, cell in enumerate(cells):
+    for r, row in enumerate(grid):
+        keys = {_norm(_parse_header(c)[0]) for c in row if isinstance(c, str)}
+        curve_header = bool(keys & load_words) and bool(keys & depth_words)
+        for j, cell in enumerate(row):
             if not isinstance(cell, str) or not cell.strip():
                 continue
             key = _key_of(cell)
             if key is None or key in out:
                 continue
-            right = [
-                c
-                for c in cells[j + 1 : j + 4]
-                if c is not None and not (isinstance(c, float) and math.isnan(c))
-            ]
-            if not right or not _is_number(right[0]):
-                if right and isinstance(right[0], str):
-                    try:
-                        right[0] = float(right[0].replace(",", "."))
-                    except ValueError:
-                        continue
-                else:
-                    continue
-            value = float(cast(float, right[0]))
-            unit = _parse_header(cell)[1]
-            if unit is None and len(right) > 1 and isinstance(right[1], str):
-                unit = right[1]
-            if abs(value) >= INVALID_THRESHOLD or not math.isfinite(value):
-                continue
-            out[key] = value * _unit_factor(key, unit, f"{sheet}: {cell.strip()}", notes)
+            unit: object = _parse_header(cell)[1]
+            right = [c for c in row[j + 1 : j + 4] if not _blank(c)]
+            value = _as_number(right[0]) if right else None
+            if value is not None:
+                if unit is None and len(right) > 1 and isinstance(right[1], str):
+                    unit = right[1]
+            elif not curve_header:
+                below = [at(r + k, j) for k in (1, 2, 3)]
+                if _as_number(below[0]) is not None and _as_number(below[1]) is None:
+                    value = _as_number(below[0])
+                elif (
+                    isinstance(below[0], str)
+                    and _as_number(below[1]) is not None
+                    and _as_number(below[2]) is None
+                ):
+                    value, unit = _as_number(below[1]), unit or below[0]
+            if value is not None:
+                out[key] = value * _unit_factor(key, unit, f"{sheet}: {cell.strip()}", notes)
     return out
 
 

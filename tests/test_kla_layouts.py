@@ -313,3 +313,14 @@ def test_cli_names_the_format_and_reads_a_file_without_positions(tmp_path: Path)
     assert done.returncode == 0, done.stderr
     assert "format unknown, 2 tests" in done.stdout and "no positions" in done.stdout
     assert "4.500" in done.stdout
+
+
+def test_two_different_results_tables_without_a_results_sheet_are_refused(tmp_path: Path) -> None:
+    table = [["Test", "X", "Y", "Hardness"], ["", "µm", "µm", "GPa"], [1, 0.0, 0.0, 5.0]]
+    copy = [row[:] for row in table]
+    same = write_xlsx(tmp_path / "same.xlsx", {"Sheet1": table, "Sheet1 (2)": copy})
+    assert read_kla_export(same).indents[0].hardness_gpa == 5.0
+    copy[2][3] = 7.0
+    other = write_xlsx(tmp_path / "other.xlsx", {"Sheet1": table, "Old": copy})
+    with pytest.raises(InputError, match="'Sheet1' and 'Old' both hold a different results table"):
+        read_kla_export(other)

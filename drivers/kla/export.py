@@ -861,7 +861,7 @@ _VENDOR_WORDS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (SOFTWARE_NANOSUITE, ("nanosuite",)),
     (SOFTWARE_INVIEW, ("inview",)),
     (SOFTWARE_HYSITRON, ("hysitron", "triboscan", "triboview", "tribo indenter", "triboindenter", "xpm")),
-    (SOFTWARE_ANTON_PAAR, ("anton paar", "csm instruments", "indentation software")),
+    (SOFTWARE_ANTON_PAAR, ("anton paar", "csm instruments")),
     (SOFTWARE_MICRO_MATERIALS, ("micro materials", "micromaterials", "nanotest")),
     (SOFTWARE_FISCHERSCOPE, ("fischerscope", "helmut fischer", "winhcu")),
 )
@@ -903,9 +903,11 @@ def _results_sheet(sheets: Mapping[str, pd.DataFrame]) -> str | None:
     return None
 
 
-def _table_sheet(sheets: Mapping[str, pd.DataFrame]) -> str | None:
+def _table_sheet(path: Path, sheets: Mapping[str, pd.DataFrame]) -> str | None:
     """A sheet of another name that holds a per-test results table (a test column and a hardness column,
-    no load-depth curve): a workbook without a Results sheet and without Test sheets."""
+    no load-depth curve): a workbook without a Results sheet and without Test sheets. Two such sheets
+    that differ are refused: which one is this run's cannot be told."""
+    found: list[str] = []
     for name, raw in sheets.items():
         table = _split_table(raw, _RESULT_ALIASES["test_id"])
         if table is None or table.column(_RESULT_ALIASES["test_id"]) is None:
@@ -916,8 +918,15 @@ def _table_sheet(sheets: Mapping[str, pd.DataFrame]) -> str | None:
         ):
             continue
         if _value_columns(table, "hardness_gpa", "hardness", "h"):
-            return name
-    return None
+            found.append(name)
+    differing = [n for n in found[1:] if not sheets[n].equals(sheets[found[0]])]
+    if differing:
+        raise InputError(
+            str(path),
+            f"no 'Results' sheet, and sheets {found[0]!r} and {differing[0]!r} both hold a different results "
+            "table: keep this run's one (or name it Results)",
+        )
+    return found[0] if found else None
 
 
 def _key_of(text: str) -> str | None:
@@ -1329,7 +1338,7 @@ def _read(
         res_name = "Test sheets"
         sheets = {**sheets, res_name: _results_from_test_sheets(path, sheets, notes)}
     elif res_name is None:
-        res_name = _table_sheet(sheets)
+        res_name = _table_sheet(path, sheets)
         if res_name is None:
             raise InputError(
                 str(path),

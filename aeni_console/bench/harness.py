@@ -296,9 +296,9 @@ def run_one(spec: RunSpec) -> RunRecord:
     """One campaign under the bench protocol, through the same loop as ``aeni simulate`` (``run_headless``)."""
     _set_threads()
     from core.campaign import Campaign, HeadlessResult, run_headless
+    from core.model import FitReport
     from core.plan import Decision, IndentResult
     from core.runconfig import make_campaign_config
-    from core.surrogate import FitReport
 
     start = time.monotonic()
     scen = spec.scenario

@@ -3,7 +3,7 @@
 Closed-form torch on the Cholesky factor (checked against gpytorch in the tests): the gradient is
 ½ Σ (ααᵀ − K⁻¹) ∘ ∂K/∂θ with no autograd through the Cholesky, and prediction forms only the diagonal of
 the predictive covariance (gpytorch's default forms the joint covariance of all 10,000 candidates, about
-10 s here). Cost grows as n³ in the fit and n² per candidate: the sparse model (``core.model.sparse``)
+10 s here). Cost grows as n³ in the fit and n² per candidate: the interpolated GP (``core.model.ski``)
 takes over for large designs.
 """
 

@@ -32,6 +32,16 @@ TOL_GRAD = 1e-4  # on −mll/n per raw parameter: warm and cold fits agree to < 
 TOL_CHANGE = 1e-8  # absolute, on −mll/n and on the raw step
 
 
+# the interpolated GP (large designs) keeps its hyperparameters and only conditions on the new data until
+# the data have grown by this factor since its last optimisation: one more centre among thousands moves the
+# optimum by far less than the fit's tolerance, and a warm L-BFGS run would cost most of a decision
+SKI_REFIT_GROWTH = 1.1
+
+
+def optimisation_due(n: int, fit_n: int) -> bool:
+    return n >= SKI_REFIT_GROWTH * max(fit_n, 1)
+
+
 def cold_search_due(n: int, cold_n: int) -> bool:
     """The refit schedule: a cold search whenever the data have grown by COLD_REFIT_GROWTH since the last."""
     return n >= COLD_REFIT_GROWTH * max(cold_n, 1)

@@ -17,7 +17,7 @@ from core.model.kernels import KernelName, lengthscales_of
 
 HYPER_VERSION = 1
 NoiseKind = Literal["gp", "pooled", "learned"]  # a noise GP on the spreads, their pooled variance, or learned
-ModelKind = Literal["exact", "sparse"]  # the exact GP, or the inducing-point GP for large designs
+ModelKind = Literal["exact", "ski"]  # the exact GP, or the interpolated (KISS-GP) one for large designs
 NOISE_KINDS: tuple[NoiseKind, ...] = get_args(NoiseKind)
 MODEL_KINDS: tuple[ModelKind, ...] = get_args(ModelKind)
 _FIELD = "surrogate.hyper"
@@ -37,6 +37,7 @@ class Hyperparameters:
     cold_n: int = 0  # data size at the last cold search (the refit schedule's clock)
     restored_from_n_points: int | None = None  # the guard kept the kernel of the fit on this many points
     model: ModelKind = "exact"
+    fit_n: int = 0  # data size at the last optimisation (the interpolated GP re-optimises on growth only)
 
     @property
     def lengthscales_uv(self) -> tuple[float, float]:
@@ -64,8 +65,9 @@ class Hyperparameters:
         }
         if self.restored_from_n_points is not None:
             record["restored_from_n_points"] = self.restored_from_n_points
-        if self.model != "exact":  # absent in records of the exact GP, as before the sparse model existed
+        if self.model != "exact":  # absent in records of the exact GP, as before the interpolated GP existed
             record["model"] = self.model
+            record["fit_n"] = self.fit_n
         return record
 
     @classmethod
@@ -83,6 +85,7 @@ class Hyperparameters:
             cold_n = int(record.get("cold_n", 0))
             restored = record.get("restored_from_n_points")
             model = record.get("model", "exact")
+            fit_n = int(record.get("fit_n", 0))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(_FIELD, f"malformed hyperparameter record: {exc!r}") from None
         if kernel not in ("matern52", "rbf"):
@@ -106,6 +109,7 @@ class Hyperparameters:
             cold_n=cold_n,
             restored_from_n_points=None if restored is None else int(restored),
             model=model,
+            fit_n=fit_n,
         )
 
 

@@ -1,6 +1,6 @@
 """One GP's data as its likelihood sees it, and what a conditioned GP offers prediction.
 
-The exact GP (``core.model.exact``) and the inducing-point GP (``core.model.sparse``) both take a
+The exact GP (``core.model.exact``) and the inducing-point GP (``core.model.ski``) both take a
 ``Problem`` and give a ``Predictor``; the fitting, the noise model and the guard do not know which.
 """
 

@@ -2,8 +2,8 @@
 
 The mean GP sees one robust value per executed local grid (the median of its g² indents) with a fixed
 per-point noise eff·σ²(x)/n, where σ²(x) comes from the noise model (``core.model.noise``). Up to
-``sparse_above`` centres both GPs are exact (``core.model.exact``); above it, inducing-point GPs on a fixed
-grid (``core.model.sparse``) with the same noise, priors, refit schedule and guard. Decisions take 0.05 s at
+``ski_above`` centres both GPs are exact (``core.model.exact``); above it, GPs interpolated on a fixed 2-D
+grid (KISS-GP, ``core.model.ski``) with the same noise, priors, refit schedule and guard. Decisions take 0.05 s at
 100 centres and 0.2 s at 400 with the exact GP (benchmarks/decision_latency.py; benchmarks/scale.py beyond).
 """
 
@@ -21,14 +21,14 @@ import torch
 
 from core.errors import InputError
 from core.model.exact import ExactProblem, objective
-from core.model.fitting import COLD_WIN_NATS, cold_search_due, fit_problem
+from core.model.fitting import COLD_WIN_NATS, cold_search_due, fit_problem, optimisation_due
 from core.model.guard import GUARDS, CollapseRule, GuardName, cold_search_confirms
 from core.model.hyper import Hyperparameters, ModelKind, NoiseKind
 from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName, unpack
 from core.model.noise import MIN_SPREADS_FOR_GP, NoiseData, NoiseField, noise_data, noise_kind_for
 from core.model.observations import Observations, pooled_var, spread_mask, standardise
 from core.model.problem import Predictor, Problem
-from core.model.sparse import SPARSE_ABOVE, SparseProblem
+from core.model.ski import NOISE_GRID_PER_SIDE, SKI_ABOVE, Grid, SkiProblem
 
 MAX_THREADS = 2  # torch intra-op threads; 1 is the default: on a busy 2-core machine a second thread
 # mostly waits for a core (measured 3–5× slower decisions under load, no gain when idle)
@@ -69,8 +69,8 @@ class FitReport:
         return self.hyperparameters.model
 
 
-def _problem(model: ModelKind, **fields: Any) -> Problem:
-    return SparseProblem(**fields) if model == "sparse" else ExactProblem(**fields)
+def _problem(model: ModelKind, grid: Grid, **fields: Any) -> Problem:
+    return SkiProblem(**fields, grid=grid) if model == "ski" else ExactProblem(**fields)
 
 
 class HeteroskedasticGP:
@@ -90,7 +90,7 @@ class HeteroskedasticGP:
         collapse_min_points: int = 8,
         threads: int = 1,
         nugget: bool = False,
-        sparse_above: int = SPARSE_ABOVE,
+        ski_above: int = SKI_ABOVE,
     ) -> None:
         if kernel not in ("matern52", "rbf"):
             raise InputError("surrogate.kernel", f"unknown kernel {kernel!r}; allowed: matern52, rbf")
@@ -104,8 +104,8 @@ class HeteroskedasticGP:
             raise InputError("surrogate.collapse_drop_ratio", f"must be in (0, 1), got {collapse_drop_ratio}")
         if max_iter < 1:
             raise InputError("surrogate.max_iter", f"must be >= 1, got {max_iter}")
-        if sparse_above < 1:
-            raise InputError("surrogate.sparse_above", f"must be >= 1, got {sparse_above}")
+        if ski_above < 1:
+            raise InputError("surrogate.ski_above", f"must be >= 1, got {ski_above}")
         self.kernel: KernelName = kernel
         self.heteroskedastic = heteroskedastic
         self.floor_uv = float(lengthscale_floor_uv)
@@ -120,7 +120,7 @@ class HeteroskedasticGP:
         # learn a site-to-site variance on top of the within-grid noise: scatter between centres that the
         # spreads of tight grids cannot see (indent-scale heterogeneity) then needs no short length-scale
         self.nugget = bool(nugget)
-        self.sparse_above = int(sparse_above)  # more centres than this: the inducing-point GP
+        self.ski_above = int(ski_above)  # more centres than this: the inducing-point GP
         if not 1 <= threads <= MAX_THREADS:
             raise InputError("surrogate.threads", f"must be 1..{MAX_THREADS}, got {threads}")
         if torch.get_num_threads() != threads:
@@ -147,7 +147,7 @@ class HeteroskedasticGP:
 
     def model_for(self, n_points: int) -> ModelKind:
         """Which GP a data set of this size gets (deterministic in n: a resumed run chooses the same)."""
-        return "sparse" if n_points > self.sparse_above else "exact"
+        return "ski" if n_points > self.ski_above else "exact"
 
     def fit(self, obs: Observations) -> FitReport:
         """Fit both GPs by (MAP) marginal likelihood, warm-started from the previous fit's hyperparameters."""
@@ -158,6 +158,20 @@ class HeteroskedasticGP:
         compatible = prev is not None and prev.kernel == self.kernel
         model = self.model_for(obs.n)
         kind = noise_kind_for(obs, self.heteroskedastic)
+        if (
+            model == "ski"
+            and compatible
+            and prev is not None
+            and prev.model == "ski"
+            and prev.noise_kind == kind
+            and not optimisation_due(obs.n, prev.fit_n)
+            and not cold_search_due(obs.n, prev.cold_n)
+        ):
+            # between optimisations the interpolated GP conditions on the new data with the same
+            # hyperparameters (deterministic in the record and the data: a resumed run does the same)
+            hyper = replace(prev, n_points=obs.n)
+            self._install(hyper, obs)
+            return self._report(hyper, obs, False, "", False, 0, time.perf_counter() - t0)
         iterations = 0
         noise_raw: tuple[float, ...] | None = None
         if kind == "gp":
@@ -200,6 +214,7 @@ class HeteroskedasticGP:
             n_points=obs.n,
             cold_n=cold_n,
             model=model,
+            fit_n=obs.n if model == "ski" else 0,
         )
         # a drop against the previous fit is a slide of the warm optimum; a cold start that wins on the
         # likelihood over 1.5× more data is the data's own choice, held only to the floor
@@ -282,7 +297,7 @@ class HeteroskedasticGP:
 
     @property
     def model(self) -> ModelKind | None:
-        """The GP in use ("exact" or "sparse"), None before a fit."""
+        """The GP in use ("exact" or "ski"), None before a fit."""
         return None if self._hyper is None else self._hyper.model
 
     @property
@@ -343,6 +358,7 @@ class HeteroskedasticGP:
         data = noise_data(obs)
         problem = _problem(
             model,
+            Grid(NOISE_GRID_PER_SIDE),
             kernel=self.kernel,
             floor_uv=self.floor_uv,
             with_prior=self.lengthscale_prior,
@@ -378,6 +394,7 @@ class HeteroskedasticGP:
             fixed = fixed.clamp_min(MIN_NOISE_STD)
         return _problem(
             model,
+            Grid(),
             kernel=self.kernel,
             floor_uv=self.floor_uv,
             with_prior=self.lengthscale_prior,

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from core.surrogate import HeteroskedasticGP, Observations  # noqa: E402
+from core.model import HeteroskedasticGP, Observations  # noqa: E402
 from drivers.sim.emulator import TernaryField  # noqa: E402
 
 SIDE_UM = 1000.0

@@ -41,8 +41,8 @@ from core.campaign import Campaign, CampaignConfig  # noqa: E402
 from core.cost import grid_baseline_blocks  # noqa: E402
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency  # noqa: E402
 from core.metrics import mape_pct  # noqa: E402
+from core.model import HeteroskedasticGP, Observations  # noqa: E402
 from core.policies.base import DEFAULT_PITCH_UM  # noqa: E402
-from core.surrogate import HeteroskedasticGP, Observations  # noqa: E402
 from drivers.sim.emulator import Bounds, Emulator  # noqa: E402
 from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario  # noqa: E402
 from drivers.sim.scenarios import SCENARIOS, Scenario, make_scenario  # noqa: E402

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from core.errors import InputError
-from core.surrogate import Prediction
+from core.model import Prediction
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 

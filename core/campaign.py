@@ -22,6 +22,7 @@ from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.geometry import CandidateLattice
 from core.metrics import MapEvaluator, MapScore
+from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.plan import Block, Decision, IndentResult, PlannerSettings
 from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext, base_mask
 from core.policies.registry import RECOMMENDED, make_policy
@@ -35,7 +36,6 @@ from core.settings import (
     settings_from_dict,
     settings_to_dict,
 )
-from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
 
 VETO_HOLD_BLOCKS = 3
 OUTLIER_REFIT_INFLATION = 4.0  # a value whose noise the outlier rule inflates this much is refitted at once
@@ -177,14 +177,11 @@ class Campaign:
 
     # -- planning --------------------------------------------------------------------------------
     def _gp_summary(self) -> GPSummary | None:
-        hyper = self.surrogate.hyper
+        hyper = self.surrogate.hyperparameters
         scale = self.surrogate.outputscale_gpa2
         if hyper is None or scale is None:
             return None
-        ls = hyper["lengthscales_uv"]
-        return GPSummary(
-            str(hyper["kernel"]), (float(ls[0]), float(ls[1])), float(scale), self.surrogate.site_var_gpa2
-        )
+        return GPSummary(hyper.kernel, hyper.lengthscales_uv, float(scale), self.surrogate.site_var_gpa2)
 
     def _tested_noise_var(self) -> np.ndarray | None:
         """Noise variance of each centre's value as the model sees it: eff(n)·σ²(x)/n (+ the site scatter)."""

@@ -38,7 +38,7 @@ from core.runview import CommandKind, EngineState, MapFields
 from core.settings import check_veto, coerce_supervision
 
 if TYPE_CHECKING:
-    from core.surrogate import FitReport  # the refit's report (torch stays out of the engine's import)
+    from core.model import FitReport  # the refit's report (torch stays out of the engine's import)
 
 
 class StageFrame(Protocol):

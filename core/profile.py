@@ -18,7 +18,7 @@ import numpy as np
 from core.drift import DRIFT_READING_FLOOR_NM_S, DRIFT_SEGMENT_S
 from core.errors import InputError
 
-BUILTIN_PROFILES = ("kla-imicro", "kla-imicro-film")
+BUILTIN_PROFILES = ("kla-imicro", "kla-imicro-film", "kla-nanoblitz")
 
 
 @dataclass(frozen=True)
@@ -339,7 +339,7 @@ def _builtin_text(name: str) -> str:
 
 
 def load_profile(name_or_path: str | Path | None = None) -> InstrumentProfile:
-    """A built-in profile by name (``kla-imicro``, ``kla-imicro-film``) or a TOML file."""
+    """A built-in profile by name (``kla-imicro``, ``kla-imicro-film``, ``kla-nanoblitz``) or a TOML file."""
     key = str(name_or_path) if name_or_path is not None else "kla-imicro"
     if key in BUILTIN_PROFILES:
         data = _read_toml(_builtin_text(key), f"profile {key}")

@@ -9,7 +9,7 @@ import pytest
 
 from core.acquisition import ACQUISITIONS, cost_aware, ei, score, ucb, ue
 from core.errors import InputError
-from core.surrogate import Prediction
+from core.model import Prediction
 
 
 def _pred(mean: list[float], epi: list[float], noise: list[float] | None = None) -> Prediction:

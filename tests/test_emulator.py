@@ -487,6 +487,11 @@ def test_scenario_defaults() -> None:
     assert make_scenario("ternary-bad-drift", 0).drift.name == "bad"
     film = make_scenario("film", 0)
     assert (film.profile_name, film.lattice_n, film.drift.name) == ("kla-imicro-film", 50, "good")
+    wafer = make_scenario("wafer-library", 0)
+    assert (wafer.profile_name, wafer.lattice_n) == ("kla-nanoblitz", 200)
+    assert wafer.truth.bounds_um == (0.0, 50_000.0, 0.0, 50_000.0)
+    emu = wafer.make_emulator()  # no hold: the drift segment corrects nothing
+    assert emu.full_correction_hold_s == 80.0 and emu.residual_fraction(0.0) == 1.0
     collapse = make_scenario("collapse", 0)
     assert collapse.site_texture is not None and t.site_texture is None
     # the texture is measurement error: the map (and the MAPE's truth) is the plain ternary field

@@ -20,6 +20,20 @@ def test_builtins() -> None:
     assert film.global_jump_s == 520 and film.lift_s == 30
 
 
+def test_nanoblitz_profile_prices_fast_indents_without_hold() -> None:
+    p = load_profile("kla-nanoblitz")
+    assert p.allowed_holds_s == (0.0,) and p.default_hold_s == 0.0 and p.fast_hold_s == 0.0
+    per_indent = p.indent_s(0.0) + p.move_s(5.0, 0.0)  # one indent and one 5 µm step inside a local grid
+    assert 1.0 <= per_indent <= 2.0
+    imicro = load_profile("kla-imicro")
+    assert per_indent < 0.05 * (imicro.indent_s(imicro.default_hold_s) + imicro.move_s(5.0, 0.0))
+    assert p.global_overhead_s == imicro.global_overhead_s  # fixed costs per program: the iMicro's (assumed)
+    assert p.inview.method_for(0.0) == "NanoBlitz 3D.nmt"
+    with pytest.raises(InputError, match="hold"):
+        p.check_hold(5.0)
+    assert profile_from_dict(profile_to_dict(p)) == p
+
+
 def test_round_trip_dict() -> None:
     p = load_profile("kla-imicro-film")
     assert profile_from_dict(profile_to_dict(p)) == p

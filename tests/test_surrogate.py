@@ -9,7 +9,7 @@ import pytest
 from scipy.stats import spearmanr
 
 from core.errors import InputError
-from core.surrogate import FitReport, HeteroskedasticGP, Observations
+from core.model import FitReport, HeteroskedasticGP, Observations
 from drivers.sim.emulator import TernaryField
 
 SIDE_UM = 1000.0

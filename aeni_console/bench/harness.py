@@ -40,7 +40,7 @@ class BenchScenario:
     scenario: str  # an emulator scenario name, or a robustness field of drivers.sim.robust_fields
     title: str
     policies: tuple[str, ...]
-    group: str = "paper"  # "paper", "provocation" (collapse, drift) or "robustness" (fields not tuned on)
+    group: str = "paper"  # "paper", "provocation" (drift, collapse), "robustness" (not tuned on) or "scale"
     truth_csv: str | None = None  # for scenario "csv": written by the bench into the output folder
     maps_for: tuple[str, ...] = ()  # policies whose final maps (seed 0) are drawn
     margin: float | None = None  # run-on after the target for this scenario (None: the bench's)
@@ -124,9 +124,18 @@ FULL_SCENARIOS: tuple[BenchScenario, ...] = (
     _robust("phase-noise", "Noise tied to one phase (8 % against 1 %)"),
     _robust("outliers", "Outliers: 5 % of indents on pores read 50 % low"),
 )
-# rough map loaded with --truth: `aeni bench --scenarios rough-csv` (not in the default sweep, which fits in 45 min)
+# rough map loaded with --truth: `aeni bench --scenarios rough-csv` (not in the default sweep, which fits in 45 min);
+# the 50 mm wafer library with fast indents: thousands of centres, the interpolated GP (core/model/ski.py)
 EXTRA_SCENARIOS: tuple[BenchScenario, ...] = (
     _robust("rough-csv", "Rough real-looking map loaded with --truth", "csv", truth_csv="rough_truth.csv"),
+    BenchScenario(
+        "wafer",
+        "wafer-library",
+        "Large design: 50 × 50 mm ternary library, 200 × 200 lattice, NanoBlitz-class indents",
+        ("grid", "aeni"),
+        group="scale",
+        max_seeds=2,
+    ),
 )
 QUICK_SCENARIOS: tuple[BenchScenario, ...] = (
     BenchScenario(
@@ -296,9 +305,9 @@ def run_one(spec: RunSpec) -> RunRecord:
     """One campaign under the bench protocol, through the same loop as ``aeni simulate`` (``run_headless``)."""
     _set_threads()
     from core.campaign import Campaign, HeadlessResult, run_headless
+    from core.model import FitReport
     from core.plan import Decision, IndentResult
     from core.runconfig import make_campaign_config
-    from core.surrogate import FitReport
 
     start = time.monotonic()
     scen = spec.scenario

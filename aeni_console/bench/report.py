@@ -535,6 +535,7 @@ def results_markdown(
         ("paper", "The paper's comparisons"),
         ("provocation", "Provocations: drift and length-scale collapse"),
         ("robustness", "Robustness: fields nothing was tuned on"),
+        ("scale", "Large designs: thousands of centres"),
     ):
         scens = [s for s in config.scenarios if s.group == group]
         if not scens:

@@ -18,8 +18,8 @@ from core.profile import InstrumentProfile
 
 if TYPE_CHECKING:
     from core.geometry import Calibration, CandidateLattice
+    from core.model import Prediction
     from core.policies.parts import PolicyParts
-    from core.surrogate import Prediction
 
 DEFAULT_PITCH_UM = 5.0
 N_ALTERNATIVES = 5

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from core.surrogate import GuardName
+from core.model import GuardName
 
 UNGUARDED_FLOOR_UV = 0.001  # 1 µm on the 1000 µm square: a floor in name only (the unguarded ablation)
 MIN_FLOOR_UV = 0.005

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from core.model import HeteroskedasticGP, KernelName
 from core.policies.guard import CollapseGuard
-from core.surrogate import HeteroskedasticGP, KernelName
 
 
 @dataclass(frozen=True)

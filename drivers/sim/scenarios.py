@@ -83,15 +83,19 @@ class Scenario:
         return self.sample.lattice_n
 
     def make_emulator(self, profile: InstrumentProfile | None = None) -> Emulator:
-        """The measurement physics; a full hold is the profile's longest (its drift segment corrects fully)."""
+        """The measurement physics; a full hold is the profile's longest (its drift segment corrects fully).
+
+        A profile without holds (fast indents) corrects nothing: any hold is measured against the iMicro's.
+        """
         profile = profile or load_profile(self.profile_name)
+        longest = max(profile.allowed_holds_s)
         return Emulator(
             self.truth,
             self.drift,
             self.seed,
             lateral_sd_um=self.lateral_sd_um,
             t_measure_s=profile.drift_segment_s,
-            full_correction_hold_s=max(profile.allowed_holds_s),
+            full_correction_hold_s=longest if longest > 0 else max(InstrumentProfile.allowed_holds_s),
             site_texture=self.site_texture,
         )
 
@@ -155,6 +159,10 @@ SCENARIOS: dict[str, str] = {
         "ternary library with indent-scale heterogeneity (0.1 GPa over ~40 µm) that within-grid spreads"
         " cannot see: provokes length-scale collapse"
     ),
+    "wafer-library": (
+        "the ternary library spread over a 50 × 50 mm wafer, a 200 × 200 candidate lattice, fast indents"
+        " (kla-nanoblitz profile, ~1 s, no hold): a design of thousands of centres"
+    ),
     "csv": "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa])",
 }
 
@@ -163,6 +171,7 @@ SCENARIOS: dict[str, str] = {
 _TILT_SQUARE = (0.005, 0.007)
 _TILT_FILM = (0.02, 0.01)
 _Z_MID_UM = 1500.0
+_WAFER_SIDE_UM = 50_000.0  # the large scenario: a 50 × 50 mm library (same total height change as the square)
 # the collapse provocation's site texture: larger than the median of a 5×5 grid can average (≈ 0.03 GPa),
 # shared by every indent of a 20 µm grid, independent between centres 100 µm apart
 _COLLAPSE_SITE_SD_GPA = 0.1
@@ -209,6 +218,10 @@ def make_scenario(
             site_texture = SiteTexture(_COLLAPSE_SITE_SD_GPA, _COLLAPSE_SITE_SCALE_UM, seed)
     elif name == "edge-spot":
         truth = EdgeSpotField(1000.0, noise or "hetero")
+    elif name == "wafer-library":
+        truth = TernaryField(_WAFER_SIDE_UM, noise or "hetero")
+        profile, lattice_n = "kla-nanoblitz", 200
+        tilt = (_TILT_SQUARE[0] * 1000.0 / _WAFER_SIDE_UM, _TILT_SQUARE[1] * 1000.0 / _WAFER_SIDE_UM)
     else:
         if name == "film":
             truth = QuaternaryFilm()

@@ -1,0 +1,196 @@
+"""The GP for large designs: structured kernel interpolation (KISS-GP) on a fixed 2-D grid, solved exactly.
+
+The kernel is approximated as K ≈ W Kmm Wᵀ (Wilson & Nickisch 2015), W the bilinear interpolation weights of
+each point onto an m-point regular grid (4 per point). With the per-point noise D, the marginal likelihood of
+N(c, W Kmm Wᵀ + D) needs only m-sized algebra (Woodbury): with S = Wᵀ D⁻¹ W (sparse, summed once per
+evaluation in O(16 n)), b = Wᵀ D⁻¹ (y − c), Kmm = Lm Lmᵀ and B = I + Lmᵀ S Lm = LB LBᵀ,
+
+    log p(y) = −½ [n log 2π + Σ log D + 2 Σ log diag LB + (y − c)ᵀ D⁻¹ (y − c) − ‖LB⁻¹ Lmᵀ b‖²].
+
+Where gpytorch's KISS-GP solves with conjugate gradients and estimates the log-determinant with random
+Lanczos probes, a 20 × 20 grid is small enough for dense Cholesky factors: the same value every time, so a
+resumed run fits and predicts exactly as before. The grid values' posterior is N(G c, G Gᵀ) with G = Lm LB⁻ᵀ;
+a candidate's latent mean and variance read 4 and 16 of its entries (the interpolated prior's, as KISS-GP's
+own predictive variance; a FITC-style k** − w*ᵀ Kmm w* term would add ~1 % of the prior variance as if it were
+independent of the data, more than the posterior variance itself on a dense design). O(m³) per fit
+whatever n is, and no matrix of size n × (candidates).
+Same raw vector, prior and constraints as the exact GP (``core.model.kernels``): warm starts and the
+collapse guard carry over when a design outgrows the exact GP.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from core.model.kernels import DTYPE, PRIOR, KernelName, Unpacked, unpack
+from core.model.problem import Problem
+
+# more centres than this: the interpolated GP (benchmarks/scale.py: where it decides faster than the exact GP)
+SKI_ABOVE = 1000
+GRID_PER_SIDE = 20  # the mean GP's grid: m = 400 points, 0.055 of the side apart
+NOISE_GRID_PER_SIDE = 14  # the noise GP's (a smoother field, the log-variance): m = 196
+GRID_MARGIN_UV = 0.02  # the grid spans [−margin, 1 + margin]: indents of a centre on the edge lie inside
+JITTER = 1e-6  # relative to the outputscale, on Kmm's diagonal
+
+
+@dataclass(frozen=True)
+class Grid:
+    per_side: int = GRID_PER_SIDE
+    lo: float = -GRID_MARGIN_UV
+    hi: float = 1.0 + GRID_MARGIN_UV
+
+    @property
+    def m(self) -> int:
+        return self.per_side * self.per_side
+
+    @property
+    def step(self) -> float:
+        return (self.hi - self.lo) / (self.per_side - 1)
+
+    def points(self) -> torch.Tensor:
+        c = torch.linspace(self.lo, self.hi, self.per_side, dtype=DTYPE)
+        u, v = torch.meshgrid(c, c, indexing="ij")
+        return torch.stack([u.reshape(-1), v.reshape(-1)], dim=1)
+
+    def weights(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Bilinear interpolation: (n, 4) grid indices and (n, 4) weights; points outside are clamped in."""
+        t = ((x - self.lo) / self.step).clamp(0.0, self.per_side - 1.0)
+        i = t.floor().clamp_max(self.per_side - 2)
+        f = t - i
+        i = i.long()
+        iu, iv = i[:, 0], i[:, 1]
+        fu, fv = f[:, 0], f[:, 1]
+        g = self.per_side
+        idx = torch.stack([iu * g + iv, (iu + 1) * g + iv, iu * g + iv + 1, (iu + 1) * g + iv + 1], dim=1)
+        w = torch.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], dim=1)
+        return idx, w
+
+
+def _kernel(kernel: KernelName, a: torch.Tensor, lengthscale: torch.Tensor) -> torch.Tensor:
+    """Unit-outputscale k(a, a), differentiable in the length-scales (m × m: small)."""
+    s = a / lengthscale
+    r2 = (s.unsqueeze(1) - s.unsqueeze(0)).square().sum(dim=-1)
+    if kernel == "rbf":
+        return torch.exp(-0.5 * r2)
+    r = torch.sqrt(5.0 * r2.clamp_min(1e-30))
+    return (1.0 + r + (5.0 / 3.0) * r2) * torch.exp(-r)
+
+
+def _quad_form(mat: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """wᵢᵀ M wᵢ per row for the 4 × 4 grid entries each row touches."""
+    m = mat.shape[0]
+    flat = mat.reshape(-1)
+    total = torch.zeros(idx.shape[0], dtype=DTYPE)
+    for a in range(4):
+        for b in range(4):
+            total = total + w[:, a] * w[:, b] * flat[idx[:, a] * m + idx[:, b]]
+    return total
+
+
+@dataclass(frozen=True, eq=False)
+class SkiProblem(Problem):
+    """The interpolated GP's problem: interpolation weights once per data set, m-sized algebra per step."""
+
+    grid: Grid = field(default_factory=Grid)
+    idx: torch.Tensor = field(init=False, repr=False)
+    w: torch.Tensor = field(init=False, repr=False)
+    pair_idx: torch.Tensor = field(init=False, repr=False)
+    pair_w: torch.Tensor = field(init=False, repr=False)
+    z: torch.Tensor = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        idx, w = self.grid.weights(self.x)
+        m = self.grid.m
+        object.__setattr__(self, "idx", idx)
+        object.__setattr__(self, "w", w)
+        object.__setattr__(self, "pair_idx", (idx.unsqueeze(2) * m + idx.unsqueeze(1)).reshape(-1))
+        object.__setattr__(self, "pair_w", (w.unsqueeze(2) * w.unsqueeze(1)).reshape(idx.shape[0], 16))
+        object.__setattr__(self, "z", self.grid.points())
+
+    def _solve(self, u: Unpacked) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(−2·log p(y) without the n log 2π, Lm, LB, LB⁻¹ Lmᵀ b) at the constrained values ``u``."""
+        m = self.grid.m
+        noise = self.noise(u)
+        inv_d = 1.0 / noise
+        s = torch.zeros(m * m, dtype=DTYPE).index_add(
+            0, self.pair_idx, (self.pair_w * inv_d[:, None]).reshape(-1)
+        )
+        s = s.reshape(m, m)
+        resid = self.y - u.constant
+        b = torch.zeros(m, dtype=DTYPE).index_add(
+            0, self.idx.reshape(-1), (self.w * (resid * inv_d)[:, None]).reshape(-1)
+        )
+        kmm = u.outputscale * _kernel(self.kernel, self.z, u.lengthscale)
+        kmm = kmm + (JITTER * u.outputscale) * torch.eye(m, dtype=DTYPE)
+        lm = torch.linalg.cholesky(kmm)
+        big_b = lm.T @ s @ lm + torch.eye(m, dtype=DTYPE)
+        lb = torch.linalg.cholesky(big_b)
+        c = torch.linalg.solve_triangular(lb, (lm.T @ b).unsqueeze(-1), upper=False).squeeze(-1)
+        logdet = noise.log().sum() + 2.0 * lb.diagonal().log().sum()
+        quad = (resid.square() * inv_d).sum() - c.square().sum()
+        return logdet + quad, lm, lb, c
+
+    def _neg_objective(self, theta: torch.Tensor) -> torch.Tensor:
+        u = unpack(theta, self.floor_uv, self.learn_noise)
+        two_nll, _, _, _ = self._solve(u)
+        mll = -0.5 * (self.n * math.log(2.0 * math.pi) + two_nll)
+        prior = PRIOR.log_prob(u.lengthscale).sum() if self.with_prior else torch.zeros((), dtype=DTYPE)
+        return -(mll + prior) / self.n
+
+    def objective(self, theta: torch.Tensor) -> float:
+        with torch.no_grad():
+            try:
+                return float(self._neg_objective(theta))
+            except (RuntimeError, torch.linalg.LinAlgError):
+                return math.inf
+
+    def loss(self, theta: torch.Tensor) -> tuple[torch.Tensor, float]:
+        value = self._neg_objective(theta)
+        return value, float(value.detach())
+
+    def condition(self, theta: torch.Tensor) -> SkiConditioned:
+        with torch.no_grad():
+            u = unpack(theta, self.floor_uv, self.learn_noise)
+            _, lm, lb, c = self._solve(u)
+            g = torch.linalg.solve_triangular(lb, lm.T, upper=False).T  # Lm LB⁻ᵀ
+            return SkiConditioned(
+                kernel=self.kernel,
+                grid=self.grid,
+                z=self.z,
+                lengthscale=u.lengthscale.clone(),
+                outputscale=float(u.outputscale),
+                constant=float(u.constant),
+                grid_mean=g @ c,
+                grid_cov=g @ g.T,
+            )
+
+
+@dataclass
+class SkiConditioned:
+    """The interpolated GP conditioned on its data: the grid values' posterior, whatever n was."""
+
+    kernel: KernelName
+    grid: Grid
+    z: torch.Tensor
+    lengthscale: torch.Tensor
+    outputscale: float
+    constant: float
+    grid_mean: torch.Tensor  # (m,) posterior mean of the latent values at the grid points
+    grid_cov: torch.Tensor  # (m, m) their posterior covariance
+
+    def mean(self, xs: torch.Tensor) -> torch.Tensor:
+        idx, w = self.grid.weights(xs)
+        return (w * self.grid_mean[idx]).sum(dim=1) + self.constant
+
+    def mean_f32(self, xs: torch.Tensor) -> torch.Tensor:
+        return self.mean(xs)  # 4 terms per point: no cheaper path needed
+
+    def mean_var(self, xs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent mean and variance per candidate from 4 and 16 grid entries (no joint covariance)."""
+        idx, w = self.grid.weights(xs)
+        mean = (w * self.grid_mean[idx]).sum(dim=1) + self.constant
+        var = _quad_form(self.grid_cov, idx, w).clamp_min_(0.0)
+        return mean, var

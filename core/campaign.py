@@ -30,6 +30,7 @@ from core.runview import MapFields
 from core.sample import Sample, grid_baseline_s, sample_from_dict
 from core.settings import adjust_settings, check_holds, settings_from_dict, settings_to_dict
 from core.surrogate import FitReport, HeteroskedasticGP, Observations, Prediction
+from core.taken import taken_xy_um
 
 VETO_HOLD_BLOCKS = 3
 OUTLIER_REFIT_INFLATION = 4.0  # a value whose noise the outlier rule inflates this much is refitted at once
@@ -144,7 +145,8 @@ class Campaign:
         self.centres: list[CentreRecord] = []
         self.noise_inflation: list[float] = []  # per centre, from the noise model's outlier rule (1: trusted)
         self.blocks: list[Block] = []
-        self.indents_xy: list[tuple[float, float]] = []
+        self.indents_xy: list[tuple[float, float]] = []  # measured indents (what the budgets count)
+        self.taken_xy: list[tuple[float, float]] = []  # every place an indent of this run took
         self.drift_rates: list[float] = []
         # measured depths at maximum load, one per learned indent (NaN where the instrument reported none)
         self.depths_nm: list[float] = []
@@ -244,7 +246,7 @@ class Campaign:
             locals_in_program=locals_run,
             tested_xy_um=np.array([(c.x_um, c.y_um) for c in self.centres]).reshape(-1, 2),
             indents_xy_um=np.concatenate(
-                [self.sample.earlier_xy_um, np.array(self.indents_xy).reshape(-1, 2)]
+                [self.sample.earlier_xy_um, np.array(self.taken_xy, dtype=float).reshape(-1, 2)]
             ),
             best_observed_gpa=best,
             last_drift_rate_nm_s=self.drift_rates[-1] if self.drift_rates else None,
@@ -257,6 +259,7 @@ class Campaign:
             dz_safe_um=self.sample.dz_safe_um,
             r_excl_um=self.sample.r_excl_um,
             placement_mask=self.placement_mask,
+            sample=self.sample,
         )
 
     def propose(
@@ -338,6 +341,8 @@ class Campaign:
     def _record(self, block: Block, results: Sequence[IndentResult]) -> None:
         if not results:
             return
+        # every indent the instrument made takes its place for the planner, as for the interlock (core.taken)
+        self.taken_xy.extend(map(tuple, taken_xy_um(results).tolist()))
         # a failed or not-run indent carries no value: the model never sees it; a block with no measured
         # indent still ran (the program moved there) but adds no centre, and the fit goes on without it
         results = [r for r in results if r.measured]

@@ -19,6 +19,7 @@ from core.profile import InstrumentProfile
 if TYPE_CHECKING:
     from core.geometry import Calibration, CandidateLattice
     from core.policies.parts import PolicyParts
+    from core.sample import Sample
     from core.surrogate import Prediction
 
 DEFAULT_PITCH_UM = 5.0
@@ -73,6 +74,7 @@ class PlanContext:
     placement_mask: np.ndarray | None = (
         None  # (n²,) lattice centres the sample allows (edge band, exclusions)
     )
+    sample: Sample | None = None  # for planners whose blocks are not on the lattice (the grid baseline)
 
     @property
     def fixed_hold_s(self) -> float:

@@ -361,12 +361,28 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return run_engine(journal, create=(config, options), quiet=args.quiet)
 
 
+def check_not_stopped(path: Path, anyway: bool) -> None:
+    """A run the operator aborted or stopped is not resumed by accident: only with ``--continue``."""
+    from core.journal import JournalReader
+    from core.runview import EngineState
+
+    with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
+        row = reader.q.engine_row()
+    if anyway or row.get("completed") or row.get("state") != EngineState.STOPPED.value:
+        return
+    why = str(row.get("stop_reason") or "stopped by the operator")
+    raise InputError(
+        str(path), f"the run was stopped ({why}); `aeni resume --continue {path}` resumes it anyway"
+    )
+
+
 def _cmd_resume(args: argparse.Namespace) -> int:
     from core.journal import JournalReader, engine_running
 
     path = resolve_run(args.run)
     if engine_running(path):
         raise InputError(str(path), "an engine is already running this journal")
+    check_not_stopped(path, args.continue_stopped)
     if args.detach:
         with JournalReader(path):
             pass  # refuse a bad journal here, not in the log of a detached process
@@ -716,6 +732,12 @@ def register(subparsers: Any) -> None:
     res.add_argument("--speed", type=positive_float("--speed"), help="simulated instrument speed-up")
     res.add_argument("--supervision", choices=SUPERVISION_MODES)
     res.add_argument("--detach", action="store_true", help="resume in the background")
+    res.add_argument(
+        "--continue",
+        dest="continue_stopped",
+        action="store_true",
+        help="resume a run the operator aborted or stopped",
+    )
     res.add_argument("--quiet", action="store_true")
     res.set_defaults(func=_cmd_resume)
 

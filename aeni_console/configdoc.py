@@ -48,6 +48,10 @@ MEANINGS: dict[str, str] = {
     "planner.indent_budget": "stop before the number of indents would pass this",
     "planner.sigma_target_gpa": "stop when the mean epistemic sd falls below this",
     "planner.mape_target_pct": "stop when the map error against truth falls below this (emulator only)",
+    "planner.stop_at": "stop before this local time: the last block is the last one that ends before it "
+    "(the next such time after the run starts; a resumed run keeps it)",
+    "planner.stop_rel_sd_pct": "stop when the 95th percentile of the map's relative epistemic sd (sd / mean, %) "
+    "over the sample's measurable area falls below this",
     "planner.avoid_centers_um": "stage (x, y) centres the planner must not choose, e.g. [[120.0, 340.0]]",
     "run.driver": "the instrument driver",
     "run.supervision": "auto: every decision approved; supervised: global jumps wait; step: every block waits",
@@ -151,7 +155,9 @@ def _rule_row(dotted: str, rule: Any, meaning: str) -> tuple[str, str, str, str,
     """A planner knob from its rule (core.settings) and the PlannerSettings default."""
     from core.plan import PlannerSettings
 
-    kind = {"number": "number", "whole": "whole number", "choice": "text", "hold": "number"}[rule.kind]
+    kind = {"number": "number", "whole": "whole number", "choice": "text", "hold": "number", "clock": "text"}[
+        rule.kind
+    ]
     default = getattr(PlannerSettings(), rule.name)
     shown = "none" if default is None else f"`{default!r}`".replace("'", '"')
     if default is None and rule.kind == "hold":

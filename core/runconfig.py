@@ -92,6 +92,8 @@ class PlannerSection(_Strict):
     indent_budget: Any = None
     sigma_target_gpa: Any = None
     mape_target_pct: Any = None
+    stop_at: Any = None
+    stop_rel_sd_pct: Any = None
     avoid_centers_um: list[tuple[float, float]] = Field(default_factory=list)
 
     @field_validator(*ADJUSTABLE)

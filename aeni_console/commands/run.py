@@ -239,6 +239,8 @@ def run_engine(
         spd = speed if speed is not None else meta.get("speed")
     if create is not None and speed is not None:
         spd = speed
+    # stop_at reads the wall clock: an instrument second takes 1/speed s of it (none as fast as possible)
+    campaign.wall_s_per_instrument_s = 1.0 / spd if spd else (0.0 if driver_kind == "sim" else 1.0)
     try:
         driver = _make_driver(driver_kind, campaign, spd, path)
         c = campaign.config

@@ -38,6 +38,9 @@ MEANINGS: dict[str, str] = {
     "campaign.seed": "random seed: the same seed gives the same run",
     "campaign.profile": "instrument profile: a built-in name or a TOML file (default: the scenario's)",
     "campaign.lattice_n": "candidate centres per side of the lattice (default: the scenario's)",
+    "campaign.failure_rate": "the simulated instrument's failures: this share of indents comes back invalid, "
+    "and a quarter of it of the blocks each finds no surface or is aborted half way (default: the scenario's, "
+    "0; `aeni demo` 0.015)",
     "planner.target_sem_gpa": "target standard error of a centre's value: sets the adaptive grid size",
     "planner.beta": "UCB exploration weight",
     "planner.hold_policy": "fixed holds, or adaptive holds from the measured drift",

@@ -58,6 +58,7 @@ class CampaignSection(_Strict):
     seed: int = Field(default=0, ge=0, le=2**32 - 1)
     profile: str | None = None
     lattice_n: int | None = Field(default=None, ge=5, le=400)
+    failure_rate: float | None = Field(default=None, ge=0.0, le=0.5)
 
     @field_validator("policy")
     @classmethod
@@ -224,7 +225,12 @@ def parse_run_config(
         sample = load_sample(file)
     # the simulated instrument's truth: which scenario (or CSV) it lays onto the sample
     driver_options: dict[str, Any] = {"scenario": c.scenario}
-    for key, value in (("noise", c.noise), ("drift", c.drift), ("truth_csv", truth_csv)):
+    for key, value in (
+        ("noise", c.noise),
+        ("drift", c.drift),
+        ("truth_csv", truth_csv),
+        ("failure_rate", c.failure_rate),
+    ):
         if value is not None:
             driver_options[key] = value
     r = rf.run

@@ -289,6 +289,7 @@ CASES: tuple[Case, ...] = (
     Case("sim-seed-neg", ("simulate", "--seed", "-1"), ("--seed",)),
     Case("sim-budget-nan", ("simulate", "--budget-s", "nan"), ("--budget-s",)),
     Case("sim-policy", ("simulate", "--policy", "best"), ("--policy",)),
+    Case("sim-failure-rate", ("simulate", "--failure-rate", "2"), ("failure_rate",)),
     Case(
         "sim-profile-missing", ("simulate", "--profile", "{t}/none.toml", "--budget-s", "100"), ("none.toml",)
     ),

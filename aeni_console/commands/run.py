@@ -379,17 +379,18 @@ def check_not_stopped(path: Path, anyway: bool) -> None:
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
-    from core.journal import JournalReader, engine_running
+    from core.journal import engine_running
 
     path = resolve_run(args.run)
     if engine_running(path):
         raise InputError(str(path), "an engine is already running this journal")
     check_not_stopped(path, args.continue_stopped)
     if args.detach:
-        with JournalReader(path):
-            pass  # refuse a bad journal here, not in the log of a detached process
-        check_resumable_journal(path)
+        if not preflight_resume(path, args.speed):
+            return 0
         argv = [sys.executable, "-m", ENGINE_MODULE, "resume", str(path), "--quiet"]
+        if args.continue_stopped:
+            argv.append("--continue")
         if args.speed is not None:
             argv += ["--speed", repr(args.speed)]
         if args.supervision is not None:
@@ -404,10 +405,48 @@ def _cmd_resume(args: argparse.Namespace) -> int:
                 start_new_session=True,
                 env=_child_env(),
             )
+        _wait_started(proc, path, log)
         print(f"journal {path}")
         print(f"engine PID {proc.pid} (detached; log {log.name})")
         return 0
     return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet)
+
+
+def preflight_resume(path: Path, speed: float | None) -> bool:
+    """What a resumed engine checks first, done here before detaching so a refusal is an exit 2 and not a
+    line in the log of a process that died: the journal, its config and sample, the driver (a KLA run's
+    exchange folder). False when the run already finished (nothing to start)."""
+    from core.campaign import Campaign, campaign_config_from_dict
+    from core.journal import JournalReader
+
+    with JournalReader(path) as reader:
+        meta = reader.meta
+        row = reader.q.engine_row()
+    if row.get("completed"):
+        _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
+        return False
+    check_resumable_journal(path)
+    try:
+        campaign = Campaign(campaign_config_from_dict(meta["config"]))
+    except InputError as exc:
+        raise InputError(str(path), exc.problem) from None
+    driver_kind = str(meta.get("driver", "sim"))
+    _make_driver(driver_kind, campaign, speed if speed is not None else meta.get("speed"), path)
+    return True
+
+
+def _wait_started(proc: subprocess.Popen[bytes], path: Path, log: Path, wait_s: float = 120.0) -> None:
+    """Until the detached engine holds the journal; InputError with its last log line if it died first."""
+    from core.journal import engine_running
+
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and not engine_running(path):
+        if proc.poll() is not None:
+            tail = [ln for ln in log.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
+            why = tail[-1] if tail else f"exit code {proc.returncode}"
+            raise InputError(str(path), f"the engine did not start: {why}")
+        time.sleep(0.05)
+    threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
 
 
 def _fmt_s(v: float | None) -> str:

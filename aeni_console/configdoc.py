@@ -41,6 +41,11 @@ MEANINGS: dict[str, str] = {
     "campaign.failure_rate": "the simulated instrument's failures: this share of indents comes back invalid, "
     "and a quarter of it of the blocks each finds no surface or is aborted half way (default: the scenario's, "
     "0; `aeni demo` 0.015)",
+    "notify.urls": "alert URLs (apprise's: mailto://, slack://, msteams://, matrix://, ntfy://, json:// ...); "
+    "they carry secrets: better in urls_file. Never stored in the journal, a log or a command line",
+    "notify.urls_file": "a file of alert URLs, one a line, that only its owner may read (chmod 600)",
+    "notify.instrument_silence_s": "alert when the instrument has not answered for this long",
+    "notify.repeat_s": "the same kind of alert at most once per this (the run's end is always sent)",
     "planner.target_sem_gpa": "target standard error of a centre's value: sets the adaptive grid size",
     "planner.beta": "UCB exploration weight",
     "planner.hold_policy": "fixed holds, or adaptive holds from the measured drift",

@@ -16,13 +16,19 @@ from __future__ import annotations
 
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from core.errors import InputError
+from core.notifyconfig import (
+    DEFAULT_INSTRUMENT_SILENCE_S,
+    DEFAULT_REPEAT_S,
+    NotifyConfig,
+    make_notify_config,
+)
 from core.settings import (
     ADJUSTABLE,
     SUPERVISION_MODES,
@@ -125,12 +131,20 @@ class RunSection(_Strict):
             raise ValueError(exc.problem.partition(" is not allowed: ")[2]) from None
 
 
+class NotifySection(_Strict):
+    urls: list[str] = Field(default_factory=list)
+    urls_file: str | None = None
+    instrument_silence_s: float = Field(default=DEFAULT_INSTRUMENT_SILENCE_S, gt=0)
+    repeat_s: float = Field(default=DEFAULT_REPEAT_S, ge=0)
+
+
 class RunFile(_Strict):
     name: str = Field(default="run", min_length=1, max_length=80)
     sample: SampleSection = Field(default_factory=SampleSection)
     campaign: CampaignSection = Field(default_factory=CampaignSection)
     planner: PlannerSection = Field(default_factory=PlannerSection)
     run: RunSection = Field(default_factory=RunSection)
+    notify: NotifySection = Field(default_factory=NotifySection)
 
 
 @dataclass(frozen=True)
@@ -150,6 +164,7 @@ class RunOptions:
 class RunConfig:
     campaign: Any  # core.campaign.CampaignConfig
     options: RunOptions
+    notify: NotifyConfig = field(default_factory=NotifyConfig)  # never part of the campaign config
 
 
 def _allowed(model: type[BaseModel], section: tuple[str | int, ...]) -> str:
@@ -269,7 +284,9 @@ def parse_run_config(
         exchange=exchange,
         group=r.group,
     )
-    return RunConfig(campaign=campaign, options=options)
+    n = rf.notify
+    notify = make_notify_config(n.urls, n.urls_file, n.instrument_silence_s, n.repeat_s, base_dir)
+    return RunConfig(campaign=campaign, options=options, notify=notify)
 
 
 def make_campaign_config(

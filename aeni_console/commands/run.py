@@ -55,13 +55,11 @@ def engine_argv(
     exchange: str | None = None,
     group: str | None = None,
 ) -> list[str]:
-    """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
-    from core.campaign import campaign_config_to_dict
-    from core.journal import to_json
-
+    """The command line of an engine process; its config goes to its stdin (``engine_stdin``), never here:
+    a command line is what ``ps`` shows every user."""
     argv = [
         sys.executable, "-m", ENGINE_MODULE, "run",
-        "--config-json", to_json(campaign_config_to_dict(config)),
+        "--config-stdin",
         "--journal", str(journal_path),
         "--supervision", supervision,
         "--driver", driver,
@@ -73,6 +71,17 @@ def engine_argv(
     if group is not None:
         argv += ["--group", group]
     return argv
+
+
+def engine_stdin(config: Any, notify: Any = None) -> bytes:
+    """What an engine started with ``--config-stdin`` reads: the campaign config and the alert URLs."""
+    from core.campaign import campaign_config_to_dict
+    from core.journal import to_json
+
+    out: dict[str, Any] = {"campaign": campaign_config_to_dict(config)}
+    if notify is not None and notify.enabled:
+        out["notify"] = json.loads(notify.to_json())
+    return to_json(out).encode("utf-8")
 
 
 def start_engine_process(
@@ -87,6 +96,7 @@ def start_engine_process(
     driver: str = "sim",
     exchange: str | None = None,
     group: str | None = None,
+    notify: Any = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -100,13 +110,18 @@ def start_engine_process(
         protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
             engine_argv(config, journal, supervision, speed, driver, exchange, group=group),
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.PIPE,
             stdout=fh,
             stderr=subprocess.STDOUT,
             start_new_session=detach,
             env=_child_env(),
             cwd=os.getcwd(),
         )
+    assert proc.stdin is not None
+    with contextlib.suppress(BrokenPipeError):  # an engine that died at once says why in its log
+        proc.stdin.write(engine_stdin(config, notify))
+    with contextlib.suppress(BrokenPipeError):
+        proc.stdin.close()
     deadline = time.monotonic() + wait_s
     while not journal.exists() and time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -195,12 +210,17 @@ def run_engine(
     speed: float | None = None,
     supervision: str | None = None,
     quiet: bool = False,
+    notify: Any = None,
 ) -> int:
-    """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process."""
+    """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process.
+
+    ``notify`` (core.notifyconfig.NotifyConfig) sends alerts from a thread beside the engine; a new run keeps
+    it beside its journal, owner-only, for ``aeni resume``."""
     from core.campaign import Campaign, campaign_config_from_dict
     from core.engine import Engine
     from core.interlock import Interlock
     from core.journal import Journal, JournalReader
+    from core.notifyconfig import load_run_notify, notify_path_for, write_private
     from core.runview import EngineState
     from drivers.registry import make_evaluator
 
@@ -220,6 +240,8 @@ def run_engine(
             path, config, campaign, options.supervision, options.driver, options.speed, group=options.group
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
+        if notify is not None and notify.enabled:
+            write_private(notify_path_for(path), notify.to_json())
     else:
         with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
             meta = reader.meta
@@ -233,6 +255,8 @@ def run_engine(
         except InputError as exc:
             raise InputError(str(path), exc.problem) from None
         campaign = Campaign(config)
+        if notify is None:
+            notify = load_run_notify(path)
         journal = Journal.open_writer(path)
         driver_kind = str(meta.get("driver", "sim"))
         sup = supervision or str(row.get("supervision") or "auto")
@@ -272,12 +296,19 @@ def run_engine(
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(ValueError):  # not the main thread
             previous[sig] = signal.signal(sig, on_signal)
+    alerts = None
+    if notify is not None and notify.enabled:
+        from aeni_console.alerts import AlertWatcher
+
+        alerts = AlertWatcher(path, notify).start()
     try:
         state = engine.run()
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         journal.close()
+        if alerts is not None:
+            alerts.stop()
     if not quiet or state != EngineState.STOPPED:
         _print(f"{state.label}: {engine.stop_reason or 'done'}")
     return 0 if state == EngineState.STOPPED else 1
@@ -326,21 +357,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from core.journal import default_journal_path
     from core.runconfig import RunOptions, load_run_config
 
-    if args.config_json is not None:  # an engine started by start_engine_process
+    notify: Any = None
+    if args.config_stdin:  # an engine started by start_engine_process: its config comes on stdin
         from core.campaign import campaign_config_from_dict
+        from core.notifyconfig import NotifyConfig
         from core.runconfig import parse_run_config
 
         try:
-            config = campaign_config_from_dict(json.loads(args.config_json))
-        except (ValueError, TypeError) as exc:
-            raise InputError("--config-json", f"not a campaign config ({exc})") from None
+            data = json.loads(sys.stdin.read())
+            config = campaign_config_from_dict(data["campaign"])
+        except (ValueError, TypeError, KeyError) as exc:
+            raise InputError("--config-stdin", f"not a campaign config ({exc})") from None
+        notify = NotifyConfig.from_mapping(data.get("notify") or {}, "--config-stdin")
         flags = parse_run_config(
             {}, "command line", {k: v for k, v in _overrides(args).items() if k.startswith("run.")}
         )
         options: RunOptions = flags.options
     else:
         rc = load_run_config(args.config, _overrides(args))
-        config, options = rc.campaign, rc.options
+        config, options, notify = rc.campaign, rc.options, rc.notify
     journal = (
         Path(options.journal) if options.journal else default_journal_path(config.name, options.runs_dir)
     )
@@ -355,12 +390,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
             driver=options.driver,
             exchange=options.exchange,
             group=options.group,
+            notify=notify,
         )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
         print(f"watch: aeni status {journal}    stop: send abort from a console, or kill {pid}")
         return 0
-    return run_engine(journal, create=(config, options), quiet=args.quiet)
+    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify)
 
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
@@ -765,7 +801,7 @@ def register(subparsers: Any) -> None:
     run.add_argument("--name", help="run name")
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
-    run.add_argument("--config-json", dest="config_json", help=argparse.SUPPRESS)
+    run.add_argument("--config-stdin", dest="config_stdin", action="store_true", help=argparse.SUPPRESS)
     run.set_defaults(func=_cmd_run)
 
     res = subparsers.add_parser("resume", help="continue a run whose engine stopped or died")

@@ -165,3 +165,40 @@ def test_the_detached_engine_gets_no_config_on_its_command_line(receiver: Receiv
     assert SECRET not in log.read_text() and SECRET.encode() not in path.read_bytes()
     assert os.path.exists(notify_path_for(path))
     assert sys.executable  # the engine ran as its own process
+
+
+def test_a_silent_instrument_and_a_lost_exchange_folder_alert(receiver: Receiver, tmp_path: Path) -> None:
+    """A KLA run whose ticket nobody runs: the silence alert; then the folder goes: its alert."""
+    import shutil
+
+    from aeni_console.commands.run import run_engine
+    from core.campaign import CampaignConfig
+    from core.journal import JournalReader, send_command
+    from core.runview import Command, CommandKind
+
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    path = tmp_path / "silent.sqlite"
+    cfg = CampaignConfig(name="silent", driver_options={"scenario": "ternary"})
+    notify = NotifyConfig(urls=(receiver.url,), instrument_silence_s=2.0)
+    engine = threading.Thread(
+        target=run_engine,
+        args=(path,),
+        kwargs={
+            "create": (cfg, RunOptions(driver="kla", exchange=str(exchange))),
+            "quiet": True,
+            "notify": notify,
+        },
+    )
+    engine.start()
+    try:
+        _wait(lambda: any("has not answered" in b for b in receiver.bodies()))
+        assert any("has not answered" in b for b in receiver.bodies()), receiver.bodies()
+        shutil.rmtree(exchange)
+        _wait(lambda: any("exchange folder" in b for b in receiver.bodies()))
+        assert any("exchange folder" in b and "missing" in b for b in receiver.bodies()), receiver.bodies()
+        with JournalReader(path) as r:
+            assert r.q.engine_row()["state"] == "waiting-for-instrument"  # a wait, not a crash
+    finally:
+        send_command(path, Command(CommandKind.ABORT, author="tester"))
+        engine.join(120)

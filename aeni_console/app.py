@@ -22,6 +22,7 @@ from textual.message import Message
 from textual.screen import Screen
 from textual.widgets import Footer
 
+from aeni_console.alerts import alert_worthy
 from aeni_console.feed import Feed, FeedProblem, MapArrived, ReplaySource, RunSource, SnapshotArrived
 from aeni_console.widgets.adjust import AdjustScreen
 from aeni_console.widgets.confirm import ConfirmScreen
@@ -259,6 +260,8 @@ class ConsoleApp(App[None]):
             self.decision_panel.show(snap)
         if old is None or old.log != snap.log:
             self.log_panel.show_events(snap.log)
+            if old is not None and not self.replay_mode and alert_worthy(set(snap.log) - set(old.log)):
+                self.bell()  # what the run's alerts are sent for (aeni_console.alerts)
         waiting = snap.instrument_wait is not None
         self.ticket_panel.display = waiting
         self.decision_panel.display = self.queue_panel.display = self.drift_panel.display = not waiting
@@ -289,6 +292,7 @@ class ConsoleApp(App[None]):
             self.bell()
         elif snap.finished and (old is None or not old.finished):
             self.notify(f"The run has ended ({snap.state.label}).", title="Run ended")
+            self.bell()
 
     def _show_status(self) -> None:
         if not self.status_bar.is_mounted:

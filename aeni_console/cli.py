@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "aeni_console.commands.console",
     "aeni_console.commands.bench",
     "aeni_console.commands.sample",
+    "aeni_console.commands.notify",
 )
 
 

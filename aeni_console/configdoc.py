@@ -38,6 +38,14 @@ MEANINGS: dict[str, str] = {
     "campaign.seed": "random seed: the same seed gives the same run",
     "campaign.profile": "instrument profile: a built-in name or a TOML file (default: the scenario's)",
     "campaign.lattice_n": "candidate centres per side of the lattice (default: the scenario's)",
+    "campaign.failure_rate": "the simulated instrument's failures: this share of indents comes back invalid, "
+    "and a quarter of it of the blocks each finds no surface or is aborted half way (default: the scenario's, "
+    "0; `aeni demo` 0.015)",
+    "notify.urls": "alert URLs (apprise's: mailto://, slack://, msteams://, matrix://, ntfy://, json:// ...); "
+    "they carry secrets: better in urls_file. Never stored in the journal, a log or a command line",
+    "notify.urls_file": "a file of alert URLs, one a line, that only its owner may read (chmod 600)",
+    "notify.instrument_silence_s": "alert when the instrument has not answered for this long",
+    "notify.repeat_s": "the same kind of alert at most once per this (the run's end is always sent)",
     "planner.target_sem_gpa": "target standard error of a centre's value: sets the adaptive grid size",
     "planner.beta": "UCB exploration weight",
     "planner.hold_policy": "fixed holds, or adaptive holds from the measured drift (a policy that picks every "
@@ -49,6 +57,10 @@ MEANINGS: dict[str, str] = {
     "planner.indent_budget": "stop before the number of indents would pass this",
     "planner.sigma_target_gpa": "stop when the mean epistemic sd falls below this",
     "planner.mape_target_pct": "stop when the map error against truth falls below this (emulator only)",
+    "planner.stop_at": "stop before this local time: the last block is the last one that ends before it "
+    "(the next such time after the run starts; a resumed run keeps it)",
+    "planner.stop_rel_sd_pct": "stop when the 95th percentile of the map's relative epistemic sd (sd / mean, %) "
+    "over the sample's measurable area falls below this",
     "planner.avoid_centers_um": "stage (x, y) centres the planner must not choose, e.g. [[120.0, 340.0]]",
     "run.driver": "the instrument driver",
     "run.supervision": "auto: every decision approved; supervised: global jumps wait; step: every block waits",
@@ -152,7 +164,9 @@ def _rule_row(dotted: str, rule: Any, meaning: str) -> tuple[str, str, str, str,
     """A planner knob from its rule (core.settings) and the PlannerSettings default."""
     from core.plan import PlannerSettings
 
-    kind = {"number": "number", "whole": "whole number", "choice": "text", "hold": "number"}[rule.kind]
+    kind = {"number": "number", "whole": "whole number", "choice": "text", "hold": "number", "clock": "text"}[
+        rule.kind
+    ]
     default = getattr(PlannerSettings(), rule.name)
     shown = "none" if default is None else f"`{default!r}`".replace("'", '"')
     if default is None and rule.kind == "hold":

@@ -9,8 +9,10 @@ moves data between them) and never sees a ground truth: map errors are scored ou
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import functools
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,6 +38,7 @@ from core.settings import (
     settings_from_dict,
     settings_to_dict,
 )
+from core.taken import taken_xy_um
 
 VETO_HOLD_BLOCKS = 3
 OUTLIER_REFIT_INFLATION = 4.0  # a value whose noise the outlier rule inflates this much is refitted at once
@@ -150,7 +153,8 @@ class Campaign:
         self.centres: list[CentreRecord] = []
         self.noise_inflation: list[float] = []  # per centre, from the noise model's outlier rule (1: trusted)
         self.blocks: list[Block] = []
-        self.indents_xy: list[tuple[float, float]] = []
+        self.indents_xy: list[tuple[float, float]] = []  # measured indents (what the budgets count)
+        self.taken_xy: list[tuple[float, float]] = []  # every place an indent of this run took
         self.drift_rates: list[float] = []
         # measured depths at maximum load, one per learned indent (NaN where the instrument reported none)
         self.depths_nm: list[float] = []
@@ -160,6 +164,11 @@ class Campaign:
         self.last_score: MapScore | None = None
         self.last_stop_reason: str | None = None
         self.budget_note = ""  # how the last block was sized to fit a budget, for the stop reason
+        # stop_at runs on the local wall clock: the engine says how much wall time an instrument second
+        # takes (1 on a real instrument, 1/speed on a sped-up simulation, 0 as fast as possible)
+        self.wall_clock: Callable[[], float] = time.time
+        self.wall_s_per_instrument_s = 1.0
+        self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
@@ -206,9 +215,50 @@ class Campaign:
                 locals_run += 1
         return centre, hold, locals_run
 
+    # -- stopping rules a real sample can use -----------------------------------------------------
+    def _resolve_stop_at(self, stop_at: str | None) -> float | None:
+        """The next local wall-clock time ``HH:MM`` from now, as a UNIX time (kept in the run's state)."""
+        if stop_at is None:
+            return None
+        h, m = (int(v) for v in stop_at.split(":"))
+        now = datetime.datetime.fromtimestamp(self.wall_clock()).astimezone()
+        at = now.replace(hour=h, minute=m, second=0, microsecond=0)
+        if at <= now:
+            at += datetime.timedelta(days=1)
+        return at.timestamp()
+
+    def _stop_at_left_s(self) -> float | None:
+        """Instrument seconds left before stop_at (inf when the instrument's time costs no wall time)."""
+        if self.stop_at_epoch_s is None:
+            return None
+        wall_left = self.stop_at_epoch_s - self.wall_clock()
+        if self.wall_s_per_instrument_s <= 0:
+            return math.inf if wall_left > 0 else 0.0
+        return wall_left / self.wall_s_per_instrument_s
+
+    def rel_sd_p95_pct(self) -> float | None:
+        """The 95th percentile of the map's relative epistemic sd (sd / |mean|, %) over the sample's
+        measurable area (the lattice centres off its edge band and exclusions); None before any map."""
+        pred = self.prediction
+        if pred is None:
+            return None
+        keep = self.placement_mask if self.placement_mask.any() else np.ones(len(pred.mean), dtype=bool)
+        rel = 100.0 * pred.epistemic_sd[keep] / np.maximum(np.abs(pred.mean[keep]), 1e-12)
+        return float(np.percentile(rel, 95))
+
     def stop_reason(self, clock_s: float) -> str | None:
         s = self.settings
         note = f"; {self.budget_note}" if self.budget_note else ""
+        left = self._stop_at_left_s()
+        if left is not None and left <= self.profile.comeback_s:
+            return f"stop_at {s.stop_at} (local time) reached{note}"
+        if s.stop_rel_sd_pct is not None:
+            p95 = self.rel_sd_p95_pct()
+            if p95 is not None and p95 < s.stop_rel_sd_pct:
+                return (
+                    f"the map's relative epistemic sd is {p95:.2f} % at the 95th percentile, below "
+                    f"stop_rel_sd_pct {s.stop_rel_sd_pct:g} %"
+                )
         if s.budget_s is not None and clock_s >= s.budget_s:
             return f"instrument-time budget reached ({clock_s:,.0f} s of {s.budget_s:,.0f} s){note}"
         if s.indent_budget is not None and len(self.indents_xy) >= s.indent_budget:
@@ -247,7 +297,7 @@ class Campaign:
             locals_in_program=locals_run,
             tested_xy_um=np.array([(c.x_um, c.y_um) for c in self.centres]).reshape(-1, 2),
             indents_xy_um=np.concatenate(
-                [self.sample.earlier_xy_um, np.array(self.indents_xy).reshape(-1, 2)]
+                [self.sample.earlier_xy_um, np.array(self.taken_xy, dtype=float).reshape(-1, 2)]
             ),
             best_observed_gpa=best,
             last_drift_rate_nm_s=self.drift_rates[-1] if self.drift_rates else None,
@@ -260,6 +310,7 @@ class Campaign:
             dz_safe_um=self.sample.dz_safe_um,
             r_excl_um=self.sample.r_excl_um,
             placement_mask=self.placement_mask,
+            sample=self.sample,
         )
 
     def propose(
@@ -293,15 +344,28 @@ class Campaign:
         keep = block.n_indents
         if s.indent_budget is not None:
             keep = min(keep, s.indent_budget - len(self.indents_xy))
-        if s.budget_s is not None:
-            left_s = s.budget_s - clock_s - self.profile.comeback_s
+        # the time the block may take: the budget's, or the wall clock's before stop_at if that is less
+        left_s = math.inf if s.budget_s is None else s.budget_s - clock_s - self.profile.comeback_s
+        before_stop_at = self._stop_at_left_s()
+        by_stop_at = before_stop_at is not None and before_stop_at - self.profile.comeback_s < left_s
+        if by_stop_at:
+            assert before_stop_at is not None
+            left_s = before_stop_at - self.profile.comeback_s
+        if math.isfinite(left_s):
             spent, pos, fits = 0.0, position_um, 0
             for i in range(keep):
                 spent += sum(st.seconds for st in indent_steps(self.profile, block, i, pos, program_open))
                 if spent > left_s + 1e-9:
                     break
                 fits, pos = i + 1, (block.indents[i].x_um, block.indents[i].y_um)
+            if fits == 0 and by_stop_at:
+                self.last_stop_reason = (
+                    f"stop_at {s.stop_at} (local time): the next block does not end before it "
+                    f"({decision.predicted_cost_s:,.0f} s of instrument time, {max(left_s, 0.0):,.0f} s left)"
+                )
+                return None
             if fits == 0:
+                assert s.budget_s is not None
                 self.last_stop_reason = (
                     f"instrument-time budget: {max(left_s, 0.0):,.0f} s left of {s.budget_s:,.0f} s after the "
                     f"comeback, not enough for one more indent (the next block needs "
@@ -312,11 +376,15 @@ class Campaign:
         if keep >= block.n_indents:
             return decision
         which = (
-            "indent"
+            "indent budget"
             if s.indent_budget is not None and keep == s.indent_budget - len(self.indents_xy)
-            else "time"
+            else f"stop_at {s.stop_at}"
+            if by_stop_at
+            else "time budget"
         )
-        self.budget_note = f"the last block was cut to {keep} of its {block.n_indents} indents to stay within the {which} budget"
+        self.budget_note = (
+            f"the last block was cut to {keep} of its {block.n_indents} indents to stay within the {which}"
+        )
         cut = dataclasses.replace(block, indents=block.indents[:keep])
         pos, cost = position_um, 0.0
         for i in range(keep):
@@ -335,13 +403,18 @@ class Campaign:
 
     def adjust(self, **changes: Any) -> PlannerSettings:
         check_hold_in_force(self.policy.name, changes, "adjust")
+        before = self.settings.stop_at
         self.settings = adjust_settings(self.settings, changes, self.profile.allowed_holds_s)
+        if self.settings.stop_at != before:
+            self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
         return self.settings
 
     # -- learning --------------------------------------------------------------------------------
     def _record(self, block: Block, results: Sequence[IndentResult]) -> None:
         if not results:
             return
+        # every indent the instrument made takes its place for the planner, as for the interlock (core.taken)
+        self.taken_xy.extend(map(tuple, taken_xy_um(results).tolist()))
         # a failed or not-run indent carries no value: the model never sees it; a block with no measured
         # indent still ran (the program moved there) but adds no centre, and the fit goes on without it
         results = [r for r in results if r.measured]
@@ -497,6 +570,7 @@ class Campaign:
             "settings": settings_to_dict(self.settings),
             "blocks_done": len(self.blocks),
             "noise_inflation": list(self.noise_inflation),
+            **({} if self.stop_at_epoch_s is None else {"stop_at_epoch_s": self.stop_at_epoch_s}),
         }
 
     def restore(self, state: dict[str, Any], blocks: Sequence[tuple[Block, Sequence[IndentResult]]]) -> None:
@@ -504,6 +578,10 @@ class Campaign:
         for block, results in blocks:
             self._record(block, results)
         self.settings = settings_from_dict(state["settings"])
+        stop_at = state.get("stop_at_epoch_s")  # the time stop_at meant when the run started
+        self.stop_at_epoch_s = (
+            float(stop_at) if stop_at is not None else self._resolve_stop_at(self.settings.stop_at)
+        )
         self.vetoes = [_Veto(float(x), float(y), int(u)) for x, y, u in state.get("vetoes", [])]
         inflation = state.get("noise_inflation")
         if isinstance(inflation, list) and len(inflation) == len(self.centres):

@@ -3,7 +3,8 @@
 The planner already tries to keep indents on the sample, off the exclusions, away from earlier indents and
 inside the safe band. The interlock does not trust it: it re-derives every rule from the Sample's raw
 numbers with its own geometry (its own plane, its own edge test, its own polygon test, brute-force
-distances), sharing no code with ``core.geometry`` or the policies. A block it refuses never reaches a
+distances), sharing no code with ``core.geometry`` or the policies; only which places are taken is one rule
+for both (``core.taken``). A block it refuses never reaches a
 driver; the engine holds it for the operator with the interlock's reason.
 
 Rules, per site of the block (commanded positions):
@@ -28,6 +29,7 @@ from numpy.typing import NDArray
 from core.plan import Block, IndentResult
 from core.profile import InstrumentProfile
 from core.sample import CircleExclusion, PolygonExclusion, Sample
+from core.taken import taken_xy_um
 
 FloatArray = NDArray[np.float64]
 
@@ -60,16 +62,10 @@ class Interlock:
         """A block ran: its indents join the ones to keep away from; a global block opens a program."""
         if block.kind == "global":
             self._program_centre = (float(block.center_x_um), float(block.center_y_um))
-        # where the tip went down: the measured position, else (a failed indent) where it was sent
-        spots = [
-            (r.actual_x_um, r.actual_y_um)
-            if math.isfinite(r.actual_x_um) and math.isfinite(r.actual_y_um)
-            else (r.commanded_x_um, r.commanded_y_um)
-            for r in results
-            if r.status != "not_run"
-        ]
-        if spots:
-            self._earlier.append(np.array(spots, dtype=float))
+        # the places these indents take, by the rule the planners use too (core.taken)
+        spots = taken_xy_um(results)
+        if len(spots):
+            self._earlier.append(spots)
 
     def restore(self, observed: Iterable[tuple[Block, Sequence[IndentResult]]]) -> None:
         """Rebuild after a crash from the journal's observed blocks, in order."""

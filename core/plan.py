@@ -192,6 +192,8 @@ class PlannerSettings:
     indent_budget: int | None = None
     sigma_target_gpa: float | None = None
     mape_target_pct: float | None = None
+    stop_at: str | None = None  # local wall clock "HH:MM": the last block is one that ends before it
+    stop_rel_sd_pct: float | None = None  # stop when the map's relative epistemic sd (p95) falls below
     avoid_centers_um: tuple[tuple[float, float], ...] = field(default_factory=tuple)
 
 

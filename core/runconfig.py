@@ -16,13 +16,19 @@ from __future__ import annotations
 
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from core.errors import InputError
+from core.notifyconfig import (
+    DEFAULT_INSTRUMENT_SILENCE_S,
+    DEFAULT_REPEAT_S,
+    NotifyConfig,
+    make_notify_config,
+)
 from core.settings import (
     ADJUSTABLE,
     SUPERVISION_MODES,
@@ -59,6 +65,7 @@ class CampaignSection(_Strict):
     seed: int = Field(default=0, ge=0, le=2**32 - 1)
     profile: str | None = None
     lattice_n: int | None = Field(default=None, ge=5, le=400)
+    failure_rate: float | None = Field(default=None, ge=0.0, le=0.5)
 
     @field_validator("policy")
     @classmethod
@@ -93,6 +100,8 @@ class PlannerSection(_Strict):
     indent_budget: Any = None
     sigma_target_gpa: Any = None
     mape_target_pct: Any = None
+    stop_at: Any = None
+    stop_rel_sd_pct: Any = None
     avoid_centers_um: list[tuple[float, float]] = Field(default_factory=list)
 
     @field_validator(*ADJUSTABLE)
@@ -123,12 +132,20 @@ class RunSection(_Strict):
             raise ValueError(exc.problem.partition(" is not allowed: ")[2]) from None
 
 
+class NotifySection(_Strict):
+    urls: list[str] = Field(default_factory=list)
+    urls_file: str | None = None
+    instrument_silence_s: float = Field(default=DEFAULT_INSTRUMENT_SILENCE_S, gt=0)
+    repeat_s: float = Field(default=DEFAULT_REPEAT_S, ge=0)
+
+
 class RunFile(_Strict):
     name: str = Field(default="run", min_length=1, max_length=80)
     sample: SampleSection = Field(default_factory=SampleSection)
     campaign: CampaignSection = Field(default_factory=CampaignSection)
     planner: PlannerSection = Field(default_factory=PlannerSection)
     run: RunSection = Field(default_factory=RunSection)
+    notify: NotifySection = Field(default_factory=NotifySection)
 
 
 @dataclass(frozen=True)
@@ -148,6 +165,7 @@ class RunOptions:
 class RunConfig:
     campaign: Any  # core.campaign.CampaignConfig
     options: RunOptions
+    notify: NotifyConfig = field(default_factory=NotifyConfig)  # never part of the campaign config
 
 
 def _allowed(model: type[BaseModel], section: tuple[str | int, ...]) -> str:
@@ -225,7 +243,12 @@ def parse_run_config(
         sample = load_sample(file)
     # the simulated instrument's truth: which scenario (or CSV) it lays onto the sample
     driver_options: dict[str, Any] = {"scenario": c.scenario}
-    for key, value in (("noise", c.noise), ("drift", c.drift), ("truth_csv", truth_csv)):
+    for key, value in (
+        ("noise", c.noise),
+        ("drift", c.drift),
+        ("truth_csv", truth_csv),
+        ("failure_rate", c.failure_rate),
+    ):
         if value is not None:
             driver_options[key] = value
     r = rf.run
@@ -264,7 +287,9 @@ def parse_run_config(
         exchange=exchange,
         group=r.group,
     )
-    return RunConfig(campaign=campaign, options=options)
+    n = rf.notify
+    notify = make_notify_config(n.urls, n.urls_file, n.instrument_silence_s, n.repeat_s, base_dir)
+    return RunConfig(campaign=campaign, options=options, notify=notify)
 
 
 def make_campaign_config(

@@ -21,7 +21,7 @@ from core.plan import PlannerSettings
 HOLD_POLICIES: tuple[str, ...] = ("fixed", "adaptive")
 SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
 
-RuleKind = Literal["number", "whole", "choice", "hold"]
+RuleKind = Literal["number", "whole", "choice", "hold", "clock"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,8 @@ class SettingRule:
         """What is allowed, in words (the second half of every error message)."""
         if self.kind == "choice":
             text = " or ".join(self.choices)
+        elif self.kind == "clock":
+            text = 'a local time "HH:MM" (24 h)'
         elif self.kind == "hold":
             if allowed_holds_s is None:
                 text = "a number ≥ 0 (s) that is one of the instrument profile's holds"
@@ -76,7 +78,22 @@ RULES: tuple[SettingRule, ...] = (
         "mape_target_pct", "MAPE target (%)", "number", lo=0.0, lo_open=True, optional=True, unit="%"
     ),
 )
-RULE_BY_NAME: dict[str, SettingRule] = {r.name: r for r in RULES}
+# stopping rules a real sample can use: set in the run file's [planner] table or by ``aeni send adjust``
+# (not in the console's adjust form, which shows RULES)
+STOP_RULES: tuple[SettingRule, ...] = (
+    SettingRule("stop_at", "stop at (local time)", "clock", optional=True),
+    SettingRule(
+        "stop_rel_sd_pct",
+        "stop at relative sd (%)",
+        "number",
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+        optional=True,
+        unit="%",
+    ),
+)
+RULE_BY_NAME: dict[str, SettingRule] = {r.name: r for r in RULES + STOP_RULES}
 ADJUSTABLE: tuple[str, ...] = tuple(RULE_BY_NAME)
 
 
@@ -110,6 +127,8 @@ def coerce_setting(name: str, value: Any, allowed_holds_s: Sequence[float] | Non
         if value not in rule.choices:
             raise _bad(rule, value, allowed_holds_s)
         return value
+    if rule.kind == "clock":
+        return _clock(rule, value)
     x = _number(rule, value, allowed_holds_s)
     if rule.kind == "hold":
         ok = x >= 0 if allowed_holds_s is None else any(math.isclose(x, h) for h in allowed_holds_s)
@@ -121,6 +140,17 @@ def coerce_setting(name: str, value: Any, allowed_holds_s: Sequence[float] | Non
     if too_low or too_high or (rule.kind == "whole" and x != int(x)):
         raise _bad(rule, value, allowed_holds_s)
     return int(x) if rule.kind == "whole" else x
+
+
+def _clock(rule: SettingRule, value: Any) -> str:
+    """A local wall-clock time "HH:MM", normalised to two digits each."""
+    hh, sep, mm = value.strip().partition(":") if isinstance(value, str) else ("", "", "")
+    if not (sep and hh.isdigit() and mm.isdigit() and len(mm) == 2 and len(hh) <= 2):
+        raise _bad(rule, value, None)
+    h, m = int(hh), int(mm)
+    if not (0 <= h <= 23 and 0 <= m <= 59):
+        raise _bad(rule, value, None)
+    return f"{h:02d}:{m:02d}"
 
 
 def coerce_supervision(value: Any) -> str:

@@ -18,7 +18,7 @@ from core.profile import InstrumentProfile
 from core.sample import Sample
 
 DRIVER_KINDS: tuple[str, ...] = ("sim", "kla")
-SIM_OPTIONS: tuple[str, ...] = ("scenario", "noise", "drift", "truth_csv", "lateral_sd_um")
+SIM_OPTIONS: tuple[str, ...] = ("scenario", "noise", "drift", "truth_csv", "lateral_sd_um", "failure_rate")
 # the KLA driver's own options; the sim options beside them name the emulated sample a fake InView plays
 KLA_OPTIONS: tuple[str, ...] = ("exchange",)
 
@@ -64,6 +64,7 @@ def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = 
         drift=options.get("drift"),
         truth_csv=options.get("truth_csv"),
         lateral_sd_um=options.get("lateral_sd_um"),
+        failure_rate=options.get("failure_rate"),
     )
     return scenario if sample is None else scenario.on_sample(sample)
 

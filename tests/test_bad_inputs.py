@@ -29,6 +29,7 @@ class Case:
 
 
 SAMPLE = 'name = "s"\n[corners]\ntl = { x_um = 0.0, y_um = 1000.0, z_um = 10.0 }\ntr = { x_um = 1000.0, y_um = 1000.0, z_um = 10.0 }\nbr = { x_um = 1000.0, y_um = 0.0, z_um = 10.0 }\nbl = { x_um = 0.0, y_um = 0.0, z_um = 10.0 }\n'
+SAMPLE_FAR = 'name = "s"\n[corners]\ntl = { x_um = 30000.0, y_um = 21000.0, z_um = 10.0 }\ntr = { x_um = 31000.0, y_um = 21000.0, z_um = 10.0 }\nbr = { x_um = 31000.0, y_um = 20000.0, z_um = 10.0 }\nbl = { x_um = 30000.0, y_um = 20000.0, z_um = 10.0 }\n'
 LATTICE_CSV = "x_um,y_um,hardness_gpa\n0,0,3\n1000,0,4\n0,1000,5\n1000,1000,6\n500,500,4.5\n"
 
 CASES: tuple[Case, ...] = (
@@ -134,6 +135,48 @@ CASES: tuple[Case, ...] = (
         ("sample", "check", "{t}/s.toml"),
         ("s.toml", "corners.bl"),
         {"s.toml": SAMPLE.rsplit("bl =", 1)[0]},
+    ),
+    Case(
+        "sample-corner-in-mm",  # issue 23: one corner typed in mm passed with a warning
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "corners.bl", "mm"),
+        {
+            "s.toml": SAMPLE_FAR.replace(
+                "bl = { x_um = 30000.0, y_um = 20000.0", "bl = { x_um = 30.0, y_um = 20.0"
+            )
+        },
+    ),
+    Case(
+        "run-corner-in-mm",
+        ("run", "--sample", "{t}/s.toml", "--journal", "{t}/j.sqlite"),
+        ("s.toml", "corners.bl", "mm"),
+        {
+            "s.toml": SAMPLE_FAR.replace(
+                "bl = { x_um = 30000.0, y_um = 20000.0", "bl = { x_um = 30.0, y_um = 20.0"
+            )
+        },
+    ),
+    Case(
+        "sample-corner-in-nm",
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "corners.tr", "nm"),
+        {
+            "s.toml": SAMPLE_FAR.replace(
+                "tr = { x_um = 31000.0, y_um = 21000.0", "tr = { x_um = 31000000.0, y_um = 21000000.0"
+            )
+        },
+    ),
+    Case(
+        "sample-affine-misfit",  # 150 µm off a 1414 µm parallelogram: the fit misses by 2.7 %
+        ("sample", "check", "{t}/s.toml"),
+        ("s.toml", "affine fit", "2 %", "corners.bl"),
+        {"s.toml": SAMPLE.replace("bl = { x_um = 0.0, y_um = 0.0", "bl = { x_um = 0.0, y_um = 150.0")},
+    ),
+    Case(
+        "run-affine-misfit",
+        ("run", "--sample", "{t}/s.toml", "--journal", "{t}/j.sqlite"),
+        ("s.toml", "affine fit", "corners.bl"),
+        {"s.toml": SAMPLE.replace("bl = { x_um = 0.0, y_um = 0.0", "bl = { x_um = 0.0, y_um = 150.0")},
     ),
     Case(
         "sample-typo",
@@ -246,6 +289,7 @@ CASES: tuple[Case, ...] = (
     Case("sim-seed-neg", ("simulate", "--seed", "-1"), ("--seed",)),
     Case("sim-budget-nan", ("simulate", "--budget-s", "nan"), ("--budget-s",)),
     Case("sim-policy", ("simulate", "--policy", "best"), ("--policy",)),
+    Case("sim-failure-rate", ("simulate", "--failure-rate", "2"), ("failure_rate",)),
     Case(
         "sim-profile-missing", ("simulate", "--profile", "{t}/none.toml", "--budget-s", "100"), ("none.toml",)
     ),
@@ -270,6 +314,8 @@ CASES: tuple[Case, ...] = (
     Case("export-out-missing", ("export", "{run}"), ("--out",)),
     Case("resume-text", ("resume", "{t}/n.txt"), ("n.txt",), {"n.txt": "notes"}),
     Case("resume-speed", ("resume", "{run}", "--speed", "-2"), ("--speed",)),
+    Case("resume-aborted", ("resume", "{aborted}"), ("aborted by", "--continue")),
+    Case("resume-aborted-detach", ("resume", "{aborted}", "--detach"), ("aborted by", "--continue")),
     Case(
         "report-not-journal",
         ("report", "{t}/x.sqlite", "--out", "{t}/rep"),
@@ -331,6 +377,48 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def aborted_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A run the operator aborted after its first block (a real engine, a real abort command)."""
+    import threading
+    import time
+
+    from aeni_console.commands.run import run_engine
+    from core.journal import JournalReader, engine_running, send_command
+    from core.runconfig import RunOptions
+    from core.runview import Command, CommandKind
+
+    path = tmp_path_factory.mktemp("bad-inputs-aborted") / "aborted.sqlite"
+    cfg = CampaignConfig(name="aborted", settings=PlannerSettings(indent_budget=400))
+    engine = threading.Thread(
+        target=run_engine, args=(path,), kwargs={"create": (cfg, RunOptions(speed=2000.0)), "quiet": True}
+    )
+    engine.start()
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if path.exists() and engine_running(path):
+            with JournalReader(path) as r:
+                if r.blocks():
+                    break
+        time.sleep(0.05)
+    send_command(path, Command(CommandKind.ABORT, author="tester"))
+    engine.join(120)
+    assert not engine.is_alive()
+    return path
+
+
+def test_resume_continue_resumes_an_aborted_run(aborted_run: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from core.journal import JournalReader
+
+    copy = tmp_path / "again.sqlite"
+    shutil.copy(aborted_run, copy)
+    assert main(["resume", str(copy), "--continue", "--quiet", "--speed", "1e9"]) == 0
+    with JournalReader(copy) as r:
+        assert r.q.engine_row()["completed"]
+
+
 def _tree(root: Path) -> dict[str, str]:
     out = {}
     for p in sorted(root.rglob("*")):
@@ -340,7 +428,11 @@ def _tree(root: Path) -> dict[str, str]:
 
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_bad_input(
-    case: Case, tmp_path: Path, finished_run: Path, capsys: pytest.CaptureFixture[str]
+    case: Case,
+    tmp_path: Path,
+    finished_run: Path,
+    capsys: pytest.CaptureFixture[str],
+    request: pytest.FixtureRequest,
 ) -> None:
     for name, content in case.files.items():
         target = tmp_path / name
@@ -352,6 +444,9 @@ def test_bad_input(
             assert isinstance(content, str)
             target.write_text(content, encoding="utf-8")
     argv = [a.replace("{t}", str(tmp_path)).replace("{run}", str(finished_run)) for a in case.argv]
+    if any("{aborted}" in a for a in argv):
+        aborted = request.getfixturevalue("aborted_run")
+        argv = [a.replace("{aborted}", str(aborted)) for a in argv]
     before, run_before = _tree(tmp_path), _tree(finished_run.parent)
     try:
         code = main(argv)

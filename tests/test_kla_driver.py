@@ -241,3 +241,84 @@ def test_resume_keeps_the_ticket_and_takes_an_export_accepted_before_the_crash(
     third = make_kla_driver(PROFILE, journal, None, speed=1e6)
     replayed, _, waits = run_block(third, b)
     assert waits == [] and [r.hardness_gpa for r in replayed] == [r.hardness_gpa for r in results]
+
+
+def test_a_missing_exchange_folder_is_a_wait_and_the_block_goes_on_when_it_is_back(
+    exchange: Path, tmp_path: Path
+) -> None:
+    """A USB stick carried to the instrument PC and back while a block waits: no crash, a wait with the reason."""
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    events = d.execute_block(b)
+    first = next(ev for ev in events if isinstance(ev, InstrumentWait))
+    assert "missing" not in first.waiting
+    away = tmp_path / "carried-away"
+    exchange.rename(away)
+    waits = [next(events) for _ in range(5)]
+    assert all(isinstance(w, InstrumentWait) and "is missing" in w.waiting for w in waits)
+    assert sum(1 for w in waits if isinstance(w, InstrumentWait) and w.notes) == 1  # journaled once
+    away.rename(exchange)
+    results = []
+    for fake in running_fake(exchange):
+        for ev in events:
+            if isinstance(ev, IndentResult):
+                results.append(ev)
+        assert fake is not None
+    assert [r.indent_index for r in results] == list(range(9))
+    assert all(r.status == "measured" for r in results)
+
+
+def test_an_unreadable_exchange_folder_is_a_wait_too(exchange: Path, tmp_path: Path) -> None:
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root reads any folder: an unreadable one cannot be made")
+    d = driver(exchange, tmp_path)
+    events = d.execute_block(block(0))
+    next(ev for ev in events if isinstance(ev, InstrumentWait))
+    exchange.chmod(0)
+    try:
+        w = next(events)
+        assert isinstance(w, InstrumentWait) and "not readable" in w.waiting
+    finally:
+        exchange.chmod(0o755)
+
+
+def test_resume_detach_refuses_at_once_when_the_exchange_folder_is_gone(
+    exchange: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It used to print a PID, exit 0 and leave an engine that died at once."""
+    import shutil
+    import time
+
+    from aeni_console.cli import main
+    from aeni_console.commands.run import run_engine
+    from core.campaign import CampaignConfig
+    from core.journal import JournalReader, engine_running, send_command
+    from core.runconfig import RunOptions
+    from core.runview import Command, CommandKind
+
+    path = tmp_path / "kla.sqlite"
+    cfg = CampaignConfig(name="kla", driver_options={"scenario": "ternary"})
+    engine = threading.Thread(
+        target=run_engine,
+        args=(path,),
+        kwargs={"create": (cfg, RunOptions(driver="kla", exchange=str(exchange))), "quiet": True},
+    )
+    engine.start()
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if path.exists() and engine_running(path):
+            with JournalReader(path) as r:
+                if r.q.engine_row()["state"] == "waiting-for-instrument":
+                    break
+        time.sleep(0.05)
+    send_command(path, Command(CommandKind.ABORT, author="tester"))
+    engine.join(60)
+    assert not engine.is_alive()
+    shutil.rmtree(exchange)
+    capsys.readouterr()
+    code = main(["resume", str(path), "--detach", "--continue"])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "" and "exchange folder does not exist" in err, (code, out, err)
+    assert not engine_running(path)

@@ -22,6 +22,7 @@ from core.runconfig import PlannerSection, make_campaign_config, parse_run_confi
 from core.settings import (
     ADJUSTABLE,
     RULES,
+    STOP_RULES,
     adjust_settings,
     check_adjust,
     coerce_setting,
@@ -45,12 +46,17 @@ BAD: list[tuple[str, Any, str]] = [
     ("mape_target_pct", "x", "a number > 0 (%) or empty"),
     ("beta", math.inf, "a number ≥ 0"),
     ("beta", True, "a number ≥ 0"),
+    ("stop_at", "8 am", 'a local time "HH:MM" (24 h) or empty'),
+    ("stop_at", "24:00", 'a local time "HH:MM" (24 h) or empty'),
+    ("stop_at", 8, 'a local time "HH:MM" (24 h) or empty'),
+    ("stop_rel_sd_pct", 0, "a number from 0 to 100 (%) or empty"),
+    ("stop_rel_sd_pct", 150, "a number from 0 to 100 (%) or empty"),
 ]
 
 
 def test_every_planner_setting_has_exactly_one_rule() -> None:
     fields = set(PlannerSettings.__dataclass_fields__) - {"avoid_centers_um"}
-    assert set(ADJUSTABLE) == fields and len(RULES) == len(fields)
+    assert set(ADJUSTABLE) == fields and len(RULES) + len(STOP_RULES) == len(fields)
     # the run file's [planner] table names the same fields (its values go through the same rules)
     assert set(PlannerSection.model_fields) == fields | {"avoid_centers_um"}
 

@@ -160,6 +160,7 @@ class BenchConfig:
     # too slow to fit (O(n³)); replicate-grid policies stay far below it
     max_centres: int = MAX_CENTRES
     scenarios: tuple[BenchScenario, ...] = FULL_SCENARIOS
+    failure_rate: float = 0.0  # the simulated instrument's failures (drivers.sim.failures); 0: none
 
     @classmethod
     def make(
@@ -231,6 +232,7 @@ class RunSpec:
     max_blocks: int = 350
     max_centres: int = MAX_CENTRES
     keep_maps: bool = False
+    failure_rate: float = 0.0
 
 
 @dataclass
@@ -285,7 +287,14 @@ def _scenario(spec: RunSpec, driver_options: dict[str, Any]) -> Any:
 
     name = spec.scenario.scenario
     if name in ROBUST_FIELDS:
-        return robust_scenario(name, spec.seed)
+        scen = robust_scenario(name, spec.seed)
+        if spec.failure_rate:
+            from dataclasses import replace
+
+            from drivers.sim.failures import FailureModes
+
+            scen = replace(scen, failures=FailureModes.at_rate(spec.failure_rate, spec.seed))
+        return scen
     return sim_scenario(driver_options, spec.seed)
 
 
@@ -320,6 +329,7 @@ def run_one(spec: RunSpec) -> RunRecord:
         seed=spec.seed,
         lattice_n=spec.lattice_n,
         settings={"budget_s": spec.budget_s},
+        failure_rate=spec.failure_rate or None,
     )
     sim = _scenario(spec, cfg.driver_options)
     campaign = Campaign(cfg, sim.sample)
@@ -563,6 +573,7 @@ def run_bench(
             max_blocks=config.max_blocks,
             max_centres=config.max_centres,
             keep_maps=seed == 0 and policy in sc.maps_for,
+            failure_rate=config.failure_rate,
             **kw,
         )
 

@@ -23,6 +23,13 @@ def _handler(args: argparse.Namespace) -> int:
     config = BenchConfig.make(
         quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios, policies=args.policies
     )
+    if args.failure_rate:
+        from dataclasses import replace
+
+        from drivers.sim.failures import FailureModes
+
+        FailureModes.at_rate(args.failure_rate, 0)  # refuse a bad rate before anything runs
+        config = replace(config, failure_rate=args.failure_rate)
     n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()
     done = 0
@@ -124,6 +131,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default=None,
         metavar="ADDRESS",
         help="run the sweep on a Dask cluster (scheduler address, e.g. tcp://host:8786; the dask extra)",
+    )
+    p.add_argument(
+        "--failure-rate",
+        dest="failure_rate",
+        type=float,
+        default=0.0,
+        help="share of indents the simulated instrument fails (invalid values; a quarter of it of the blocks "
+        "find no surface or are aborted); default 0",
     )
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

@@ -100,9 +100,19 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from aeni_console.commands.run import start_engine_process
     from core.journal import default_journal_path
     from core.runconfig import make_campaign_config
+    from drivers.sim.scenarios import DEMO_FAILURE_RATE
 
+    # the simulated instrument fails now and then, as a real one does (a KLA demo's fake InView has its own)
+    failure_rate = args.failure_rate
+    if failure_rate is None and args.driver == "sim":
+        failure_rate = DEMO_FAILURE_RATE
     config = make_campaign_config(
-        "demo", source="command line", policy=args.policy, scenario=args.scenario, seed=args.seed
+        "demo",
+        source="command line",
+        policy=args.policy,
+        scenario=args.scenario,
+        seed=args.seed,
+        failure_rate=failure_rate,
     )
     journal = Path(args.journal) if args.journal else default_journal_path("demo", args.runs_dir)
     check_new_journal(journal)  # a bad --journal is refused before anything is said or started
@@ -234,6 +244,13 @@ def register(subparsers: Any) -> None:
         choices=("sim", "kla"),
         default="sim",
         help="sim (default) | kla: the KLA driver against a fake InView on a temporary exchange folder",
+    )
+    demo.add_argument(
+        "--failure-rate",
+        dest="failure_rate",
+        type=float,
+        default=None,
+        help="share of indents the simulated instrument fails (default 0.015, about a real one's)",
     )
     demo.add_argument("--journal", help="journal path (default ./runs/<UTC time>-demo.sqlite)")
     demo.add_argument(

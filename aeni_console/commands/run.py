@@ -55,13 +55,11 @@ def engine_argv(
     exchange: str | None = None,
     group: str | None = None,
 ) -> list[str]:
-    """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
-    from core.campaign import campaign_config_to_dict
-    from core.journal import to_json
-
+    """The command line of an engine process; its config goes to its stdin (``engine_stdin``), never here:
+    a command line is what ``ps`` shows every user."""
     argv = [
         sys.executable, "-m", ENGINE_MODULE, "run",
-        "--config-json", to_json(campaign_config_to_dict(config)),
+        "--config-stdin",
         "--journal", str(journal_path),
         "--supervision", supervision,
         "--driver", driver,
@@ -73,6 +71,17 @@ def engine_argv(
     if group is not None:
         argv += ["--group", group]
     return argv
+
+
+def engine_stdin(config: Any, notify: Any = None) -> bytes:
+    """What an engine started with ``--config-stdin`` reads: the campaign config and the alert URLs."""
+    from core.campaign import campaign_config_to_dict
+    from core.journal import to_json
+
+    out: dict[str, Any] = {"campaign": campaign_config_to_dict(config)}
+    if notify is not None and notify.enabled:
+        out["notify"] = json.loads(notify.to_json())
+    return to_json(out).encode("utf-8")
 
 
 def start_engine_process(
@@ -87,6 +96,7 @@ def start_engine_process(
     driver: str = "sim",
     exchange: str | None = None,
     group: str | None = None,
+    notify: Any = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -100,13 +110,18 @@ def start_engine_process(
         protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
             engine_argv(config, journal, supervision, speed, driver, exchange, group=group),
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.PIPE,
             stdout=fh,
             stderr=subprocess.STDOUT,
             start_new_session=detach,
             env=_child_env(),
             cwd=os.getcwd(),
         )
+    assert proc.stdin is not None
+    with contextlib.suppress(BrokenPipeError):  # an engine that died at once says why in its log
+        proc.stdin.write(engine_stdin(config, notify))
+    with contextlib.suppress(BrokenPipeError):
+        proc.stdin.close()
     deadline = time.monotonic() + wait_s
     while not journal.exists() and time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -195,12 +210,17 @@ def run_engine(
     speed: float | None = None,
     supervision: str | None = None,
     quiet: bool = False,
+    notify: Any = None,
 ) -> int:
-    """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process."""
+    """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process.
+
+    ``notify`` (core.notifyconfig.NotifyConfig) sends alerts from a thread beside the engine; a new run keeps
+    it beside its journal, owner-only, for ``aeni resume``."""
     from core.campaign import Campaign, campaign_config_from_dict
     from core.engine import Engine
     from core.interlock import Interlock
     from core.journal import Journal, JournalReader
+    from core.notifyconfig import load_run_notify, notify_path_for, write_private
     from core.runview import EngineState
     from drivers.registry import make_evaluator
 
@@ -220,6 +240,8 @@ def run_engine(
             path, config, campaign, options.supervision, options.driver, options.speed, group=options.group
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
+        if notify is not None and notify.enabled:
+            write_private(notify_path_for(path), notify.to_json())
     else:
         with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
             meta = reader.meta
@@ -233,12 +255,16 @@ def run_engine(
         except InputError as exc:
             raise InputError(str(path), exc.problem) from None
         campaign = Campaign(config)
+        if notify is None:
+            notify = load_run_notify(path)
         journal = Journal.open_writer(path)
         driver_kind = str(meta.get("driver", "sim"))
         sup = supervision or str(row.get("supervision") or "auto")
         spd = speed if speed is not None else meta.get("speed")
     if create is not None and speed is not None:
         spd = speed
+    # stop_at reads the wall clock: an instrument second takes 1/speed s of it (none as fast as possible)
+    campaign.wall_s_per_instrument_s = 1.0 / spd if spd else (0.0 if driver_kind == "sim" else 1.0)
     try:
         driver = _make_driver(driver_kind, campaign, spd, path)
         c = campaign.config
@@ -270,12 +296,19 @@ def run_engine(
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(ValueError):  # not the main thread
             previous[sig] = signal.signal(sig, on_signal)
+    alerts = None
+    if notify is not None and notify.enabled:
+        from aeni_console.alerts import AlertWatcher
+
+        alerts = AlertWatcher(path, notify).start()
     try:
         state = engine.run()
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         journal.close()
+        if alerts is not None:
+            alerts.stop()
     if not quiet or state != EngineState.STOPPED:
         _print(f"{state.label}: {engine.stop_reason or 'done'}")
     return 0 if state == EngineState.STOPPED else 1
@@ -324,21 +357,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from core.journal import default_journal_path
     from core.runconfig import RunOptions, load_run_config
 
-    if args.config_json is not None:  # an engine started by start_engine_process
+    notify: Any = None
+    if args.config_stdin:  # an engine started by start_engine_process: its config comes on stdin
         from core.campaign import campaign_config_from_dict
+        from core.notifyconfig import NotifyConfig
         from core.runconfig import parse_run_config
 
         try:
-            config = campaign_config_from_dict(json.loads(args.config_json))
-        except (ValueError, TypeError) as exc:
-            raise InputError("--config-json", f"not a campaign config ({exc})") from None
+            data = json.loads(sys.stdin.read())
+            config = campaign_config_from_dict(data["campaign"])
+        except (ValueError, TypeError, KeyError) as exc:
+            raise InputError("--config-stdin", f"not a campaign config ({exc})") from None
+        notify = NotifyConfig.from_mapping(data.get("notify") or {}, "--config-stdin")
         flags = parse_run_config(
             {}, "command line", {k: v for k, v in _overrides(args).items() if k.startswith("run.")}
         )
         options: RunOptions = flags.options
     else:
         rc = load_run_config(args.config, _overrides(args))
-        config, options = rc.campaign, rc.options
+        config, options, notify = rc.campaign, rc.options, rc.notify
     journal = (
         Path(options.journal) if options.journal else default_journal_path(config.name, options.runs_dir)
     )
@@ -353,25 +390,43 @@ def _cmd_run(args: argparse.Namespace) -> int:
             driver=options.driver,
             exchange=options.exchange,
             group=options.group,
+            notify=notify,
         )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
         print(f"watch: aeni status {journal}    stop: send abort from a console, or kill {pid}")
         return 0
-    return run_engine(journal, create=(config, options), quiet=args.quiet)
+    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify)
+
+
+def check_not_stopped(path: Path, anyway: bool) -> None:
+    """A run the operator aborted or stopped is not resumed by accident: only with ``--continue``."""
+    from core.journal import JournalReader
+    from core.runview import EngineState
+
+    with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
+        row = reader.q.engine_row()
+    if anyway or row.get("completed") or row.get("state") != EngineState.STOPPED.value:
+        return
+    why = str(row.get("stop_reason") or "stopped by the operator")
+    raise InputError(
+        str(path), f"the run was stopped ({why}); `aeni resume --continue {path}` resumes it anyway"
+    )
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
-    from core.journal import JournalReader, engine_running
+    from core.journal import engine_running
 
     path = resolve_run(args.run)
     if engine_running(path):
         raise InputError(str(path), "an engine is already running this journal")
+    check_not_stopped(path, args.continue_stopped)
     if args.detach:
-        with JournalReader(path):
-            pass  # refuse a bad journal here, not in the log of a detached process
-        check_resumable_journal(path)
+        if not preflight_resume(path, args.speed):
+            return 0
         argv = [sys.executable, "-m", ENGINE_MODULE, "resume", str(path), "--quiet"]
+        if args.continue_stopped:
+            argv.append("--continue")
         if args.speed is not None:
             argv += ["--speed", repr(args.speed)]
         if args.supervision is not None:
@@ -386,10 +441,48 @@ def _cmd_resume(args: argparse.Namespace) -> int:
                 start_new_session=True,
                 env=_child_env(),
             )
+        _wait_started(proc, path, log)
         print(f"journal {path}")
         print(f"engine PID {proc.pid} (detached; log {log.name})")
         return 0
     return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet)
+
+
+def preflight_resume(path: Path, speed: float | None) -> bool:
+    """What a resumed engine checks first, done here before detaching so a refusal is an exit 2 and not a
+    line in the log of a process that died: the journal, its config and sample, the driver (a KLA run's
+    exchange folder). False when the run already finished (nothing to start)."""
+    from core.campaign import Campaign, campaign_config_from_dict
+    from core.journal import JournalReader
+
+    with JournalReader(path) as reader:
+        meta = reader.meta
+        row = reader.q.engine_row()
+    if row.get("completed"):
+        _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
+        return False
+    check_resumable_journal(path)
+    try:
+        campaign = Campaign(campaign_config_from_dict(meta["config"]))
+    except InputError as exc:
+        raise InputError(str(path), exc.problem) from None
+    driver_kind = str(meta.get("driver", "sim"))
+    _make_driver(driver_kind, campaign, speed if speed is not None else meta.get("speed"), path)
+    return True
+
+
+def _wait_started(proc: subprocess.Popen[bytes], path: Path, log: Path, wait_s: float = 120.0) -> None:
+    """Until the detached engine holds the journal; InputError with its last log line if it died first."""
+    from core.journal import engine_running
+
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and not engine_running(path):
+        if proc.poll() is not None:
+            tail = [ln for ln in log.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
+            why = tail[-1] if tail else f"exit code {proc.returncode}"
+            raise InputError(str(path), f"the engine did not start: {why}")
+        time.sleep(0.05)
+    threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
 
 
 def _fmt_s(v: float | None) -> str:
@@ -728,7 +821,7 @@ def register(subparsers: Any) -> None:
     run.add_argument("--name", help="run name")
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
-    run.add_argument("--config-json", dest="config_json", help=argparse.SUPPRESS)
+    run.add_argument("--config-stdin", dest="config_stdin", action="store_true", help=argparse.SUPPRESS)
     run.set_defaults(func=_cmd_run)
 
     res = subparsers.add_parser("resume", help="continue a run whose engine stopped or died")
@@ -736,6 +829,12 @@ def register(subparsers: Any) -> None:
     res.add_argument("--speed", type=positive_float("--speed"), help="simulated instrument speed-up")
     res.add_argument("--supervision", choices=SUPERVISION_MODES)
     res.add_argument("--detach", action="store_true", help="resume in the background")
+    res.add_argument(
+        "--continue",
+        dest="continue_stopped",
+        action="store_true",
+        help="resume a run the operator aborted or stopped",
+    )
     res.add_argument("--quiet", action="store_true")
     res.set_defaults(func=_cmd_resume)
 

@@ -35,6 +35,7 @@ def run_simulation(
     profile: str | None = None,
     progress: bool = False,
     sample_file: str | None = None,
+    failure_rate: float | None = None,
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract).
 
@@ -57,6 +58,7 @@ def run_simulation(
         profile=profile,
         lattice_n=lattice_n,
         settings={"budget_s": budget_s},
+        failure_rate=failure_rate,
     )
     sample = load_sample(sample_file) if sample_file is not None else None
     scen = sim_scenario(config.driver_options, seed, sample)
@@ -110,6 +112,7 @@ def _handler(args: argparse.Namespace) -> int:
         lattice_n=args.lattice_n,
         profile=args.profile,
         sample_file=args.sample,
+        failure_rate=args.failure_rate,
         progress=not args.json and sys.stderr.isatty(),
     )
     ledger = out.pop("_ledger_obj")
@@ -155,6 +158,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--profile", default=None, help="instrument profile name or TOML file")
     p.add_argument(
         "--sample", default=None, metavar="FILE", help="sample file to lay the scenario's truth onto"
+    )
+    p.add_argument(
+        "--failure-rate",
+        dest="failure_rate",
+        type=float,
+        default=None,
+        help="share of indents the simulated instrument fails (invalid values; a quarter of it of the "
+        "blocks find no surface or are aborted); default 0",
     )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_handler)

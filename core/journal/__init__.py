@@ -32,7 +32,7 @@ from core.journal.schema import (
     lock_path_for,
     user_name,
 )
-from core.journal.writer import Journal, JournalLockedError, NotOwnerError, send_command
+from core.journal.writer import Journal, JournalLockedError, NotOwnerError, append_event, send_command
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -47,6 +47,7 @@ __all__ = [
     "ReplayView",
     "StoredCommand",
     "StoredDecision",
+    "append_event",
     "block_from_dict",
     "check_journal_file",
     "decision_from_dict",

@@ -564,6 +564,21 @@ class NotOwnerError(PermissionError):
     """Only the run's owner (the journal file's owner) may command it; everyone else may watch."""
 
 
+def append_event(journal_path: str | Path, level: str, text: str, category: str) -> None:
+    """One log row from beside the engine (its alert sender, in a thread of the engine's process), on a
+    connection of its own; at the instrument time of the latest row."""
+    conn = sqlite3.connect(str(journal_path), isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
+    try:
+        conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+        (t_s,) = conn.execute("SELECT COALESCE(MAX(t_s), 0.0) FROM events").fetchone()
+        conn.execute(
+            "INSERT INTO events (wall_utc, t_s, level, category, block_id, text, detail) VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (utc_now(), float(t_s), level, category, None, text, None),
+        )
+    finally:
+        conn.close()
+
+
 def send_command(journal_path: str | Path, command: Command, *, uid: int | None = None) -> int:
     """Queue an operator command for the engine running this journal; returns the command id.
 

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from core.geometry import Calibration, CandidateLattice
     from core.model import Prediction
     from core.policies.parts import PolicyParts
+    from core.sample import Sample
 
 DEFAULT_PITCH_UM = 5.0
 N_ALTERNATIVES = 5
@@ -73,6 +74,7 @@ class PlanContext:
     placement_mask: np.ndarray | None = (
         None  # (n²,) lattice centres the sample allows (edge band, exclusions)
     )
+    sample: Sample | None = None  # for planners whose blocks are not on the lattice (the grid baseline)
 
     @property
     def fixed_hold_s(self) -> float:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from core.errors import InputError
-from core.geometry import CORNER_NAMES, Calibration, Corner, _validate_corners
+from core.geometry import CORNER_NAMES, PARALLELOGRAM_WARN_FRACTION, Calibration, Corner, _validate_corners
 from core.profile import InstrumentProfile, load_profile
 from core.sample.model import (
     UNLIMITED_STAGE_UM,
@@ -94,6 +94,71 @@ def _check_units(source: str, xy: np.ndarray) -> None:
             f"field corners: the corners span only {span:g} µm; these look like mm, "
             f"but stage coordinates are µm (multiply by 1000)",
         )
+
+
+def _parallelogram_defect(xy: np.ndarray) -> np.ndarray:
+    """TL − TR + BR − BL: zero for a parallelogram; a quarter of its length is the affine fit's miss per corner."""
+    return np.asarray(xy[0] - xy[1] + xy[2] - xy[3], dtype=float)
+
+
+def _completed_corner(xy: np.ndarray, k: int) -> np.ndarray:
+    """Where corner k would be if the other three, as typed, were corners of a parallelogram."""
+    sign = 1.0 if k in (0, 2) else -1.0
+    return np.asarray(xy[k] - sign * _parallelogram_defect(xy), dtype=float)
+
+
+def _fits_parallelogram(xy: np.ndarray) -> bool:
+    """The four corners make a parallelogram within 2 % of its shortest side."""
+    side = min(float(np.linalg.norm(xy[k] - xy[(k + 1) % 4])) for k in range(4))
+    return float(np.linalg.norm(_parallelogram_defect(xy))) / 4.0 <= PARALLELOGRAM_WARN_FRACTION * side
+
+
+def _check_corner_scale(source: str, xy: np.ndarray) -> None:
+    """One corner typed in mm (or nm) among corners in µm: that corner ×1000 (÷1000) makes a parallelogram."""
+    if _fits_parallelogram(xy):
+        return
+    for k, name in enumerate(CORNER_NAMES):
+        for factor, unit, size in ((1000.0, "mm", "smaller"), (0.001, "nm", "larger")):
+            fixed = xy.copy()
+            fixed[k] = xy[k] * factor
+            # the corner itself is about 1000× off where the other three put it (not just near the origin)
+            where = float(np.linalg.norm(_completed_corner(xy, k)))
+            ratio = float(np.linalg.norm(xy[k])) * factor / where if where > 0 else math.inf
+            if 0.5 <= ratio <= 2.0 and _fits_parallelogram(fixed):
+                raise InputError(
+                    source,
+                    f"field corners.{name.lower()} = ({xy[k, 0]:g}, {xy[k, 1]:g}) is about 1000× {size} than "
+                    f"the other corners: it looks like {unit}, but stage coordinates are µm "
+                    f"(({fixed[k, 0]:g}, {fixed[k, 1]:g}) µm would fit)",
+                )
+
+
+def _check_affine(source: str, cal: Calibration, xy: np.ndarray) -> None:
+    """Corners that miss a parallelogram by more than 2 % of the diagonal are a typo, not a sample."""
+    limit = PARALLELOGRAM_WARN_FRACTION * cal.diagonal_um
+    miss = cal.parallelogram_residual_um
+    if miss <= limit:
+        return
+    # the corners to check: those whose angle is furthest from a right angle (samples are cut square)
+    angles = []
+    for k in range(4):
+        a, b = xy[k - 1] - xy[k], xy[(k + 1) % 4] - xy[k]
+        cos = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
+        angles.append(abs(math.degrees(math.acos(max(-1.0, min(1.0, cos)))) - 90.0))
+    worst = max(angles)
+    suspects = [k for k in range(4) if angles[k] >= worst - 0.1]
+    where = ", ".join(
+        f"{CORNER_NAMES[k].lower()} at ({x:.0f}, {y:.0f}) µm"
+        for k in suspects
+        for x, y in [_completed_corner(xy, k)]
+    )
+    names = " or ".join(f"corners.{CORNER_NAMES[k].lower()}" for k in suspects)
+    raise InputError(
+        source,
+        f"field corners: the affine fit misses the corners by {miss:.1f} µm ({100 * miss / cal.diagonal_um:.1f} % "
+        f"of the {cal.diagonal_um:.0f} µm diagonal; at most {100 * PARALLELOGRAM_WARN_FRACTION:.0f} % is "
+        f"accepted): check {names} (a parallelogram through the other three puts {where})",
+    )
 
 
 def _tilt_um_per_mm(cal: Calibration) -> float:
@@ -234,11 +299,13 @@ def parse_sample(data: Mapping[str, Any], source: str = "sample", base_dir: Path
     corners = _corners(source, data)
     xy = np.array([[c.x_um, c.y_um] for c in corners])
     _check_units(source, xy)
+    _check_corner_scale(source, xy)
     try:
         _validate_corners(corners, f"{source}: field corners")
     except InputError as exc:
         raise InputError(source, f"field corners: {exc.problem}") from None
     cal = Calibration(*corners)
+    _check_affine(source, cal, xy)
 
     safety = _table(source, data, "safety", _SAFETY)
     dz = check_positive(source, "safety.dz_safe_um", safety.get("dz_safe_um", 5.0))

@@ -17,7 +17,7 @@ from collections.abc import Callable, Generator, Iterator
 from dataclasses import replace
 from datetime import datetime, timedelta
 from pathlib import Path
-from typing import cast
+from typing import TypeVar, cast
 
 from core.cost import comeback_step, indent_steps
 from core.driver import DriverAborted, DriverEvent, InstrumentState, InstrumentWait
@@ -36,6 +36,8 @@ from drivers.kla.exchange import (
     write_atomic,
 )
 from drivers.kla.inbox import ExportArchive, InboxWatcher, SiteOutcome
+
+_T = TypeVar("_T")
 
 
 def archive_dir_for(journal_path: str | Path) -> Path:
@@ -176,7 +178,7 @@ class KlaDriver(InstrumentState):
     def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         if self._abort.is_set():
             raise DriverAborted("driver was aborted")
-        ticket = self._ticket(block, start_index)
+        ticket = yield from self._with_folder(block.block_id, lambda: self._ticket(block, start_index))
         end = self._recorded_end(ticket)
         if end is None:
             array = ArrayRun(self.folder, self.watcher, ticket, now=self.now)
@@ -184,7 +186,7 @@ class KlaDriver(InstrumentState):
             shown = 0
             try:
                 while True:
-                    end = array.poll()
+                    end = yield from self._with_folder(block.block_id, array.poll)
                     notes = tuple(e.text for e in array.events[shown:])
                     shown = len(array.events)
                     if end is not None:  # the run log keeps what the export was and how it was matched
@@ -206,6 +208,32 @@ class KlaDriver(InstrumentState):
             finally:
                 self._array = None
         yield from self._results(block, ticket, end)
+
+    def _with_folder(self, block_id: int, action: Callable[[], _T]) -> Generator[DriverEvent, None, _T]:
+        """``action`` on the exchange folder; while the folder is missing or unreadable the block waits
+        (an InstrumentWait with the reason, journaled once) and tries again when it is back."""
+        told = False
+        while True:
+            problem = self.folder.problem()
+            if problem is None:
+                try:
+                    return action()
+                except (OSError, InputError):
+                    problem = self.folder.problem()
+                    if problem is None:
+                        raise
+            yield InstrumentWait(
+                block_id=block_id,
+                ticket="",
+                deadline_utc="",
+                seconds_left=0.0,
+                waiting=f"{problem}; the run goes on when it is back",
+                started=False,
+                notes=() if told else (f"block {block_id}: {problem}; waiting for it to come back",),
+            )
+            told = True
+            if self._abort.wait(self.profile.inview.poll_s):
+                raise DriverAborted(f"aborted while block {block_id} waited for the exchange folder")
 
     def _results(self, block: Block, ticket: Ticket, end: ArrayEnd) -> Iterator[DriverEvent]:
         """The cost model's steps for the sites that ran, and one result per site in indent order."""

@@ -386,6 +386,23 @@ class ExchangeFolder:
         self.outbox.mkdir(exist_ok=True)
         self.inbox.mkdir(exist_ok=True)
 
+    def problem(self) -> str | None:
+        """Why the folder cannot be used right now (a USB stick carried to the other PC, a share gone), or
+        None; when it is back, its outbox and inbox are made again if they went with it."""
+        try:
+            if not self.root.is_dir():
+                return f"exchange folder {self.root} is missing"
+            if not os.access(self.root, os.R_OK | os.W_OK | os.X_OK):
+                return f"exchange folder {self.root} is not readable and writable"
+            self.outbox.mkdir(exist_ok=True)
+            self.inbox.mkdir(exist_ok=True)
+            for sub in (self.outbox, self.inbox):
+                if not os.access(sub, os.R_OK | os.W_OK | os.X_OK):
+                    return f"exchange folder {sub} is not readable and writable"
+        except OSError as exc:
+            return f"exchange folder {self.root} is unreadable ({exc.strerror or exc})"
+        return None
+
     def ticket_path(self, block_id: int) -> Path:
         return self.outbox / f"{self.run}-{block_tag(block_id)}-ticket.json"
 

@@ -14,6 +14,7 @@ from core.cost import comeback_step, indent_steps
 from core.driver import DriverAborted, DriverEvent, InstrumentState
 from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
+from drivers.sim.failures import INVALID_VALUE, FailureModes
 
 if TYPE_CHECKING:
     from drivers.sim.emulator import Emulator
@@ -27,10 +28,12 @@ class SimulatedDriver(InstrumentState):
         speed: float | None = None,
         start_um: tuple[float, float] = (0.0, 0.0),
         clock_s: float = 0.0,
+        failures: FailureModes | None = None,
     ) -> None:
         if speed is not None and speed <= 0:
             raise ValueError(f"speed must be > 0, got {speed}")
         self.emulator = emulator
+        self.failures = failures or FailureModes()
         self.profile = profile
         self.speed = speed
         super().__init__(start_um, clock_s)
@@ -75,10 +78,27 @@ class SimulatedDriver(InstrumentState):
             raise DriverAborted("driver was aborted")
         if block.kind == "local" and not self._open and start_index == 0:
             raise ValueError(f"block {block.block_id} is local but the tip is not engaged")
-        if start_index > 0 and not self._open:
+        fault = self.failures.block_fault(block.block_id)
+        if fault == "surface-not-found":
+            # no indent at all: the instrument gives up on the array and lifts the tip
+            yield from self.end_program()
+            for i in range(start_index, block.n_indents):
+                yield IndentResult.unmeasured(
+                    block.block_id, i, block.indents[i], self._clock_s, "not_run",
+                    "surface not found (simulated instrument fault)",
+                )  # fmt: skip
+            return
+        stop_after = block.n_indents // 2 if fault == "aborted" else block.n_indents
+        if start_index > 0 and not self._open and start_index < stop_after:
             # resuming inside a block after a crash: re-engage where we are
             yield from self.recover(block.block_id)
         for i in range(start_index, block.n_indents):
+            if i >= stop_after:  # the array stopped half way: the rest never ran
+                yield IndentResult.unmeasured(
+                    block.block_id, i, block.indents[i], self._clock_s, "not_run",
+                    f"array aborted after {stop_after} of {block.n_indents} indents (simulated instrument fault)",
+                )  # fmt: skip
+                continue
             steps = indent_steps(self.profile, block, i, self._pos, self._open)
             for step in steps:
                 yield self._advance(step)
@@ -86,20 +106,27 @@ class SimulatedDriver(InstrumentState):
             self._pos = (spec.x_um, spec.y_um)
             self._open = True
             m = self.emulator.measure(spec.x_um, spec.y_um, spec.hold_s, self._physics_s, block.block_id, i)
-            yield IndentResult(
-                block_id=block.block_id,
-                indent_index=i,
-                commanded_x_um=spec.x_um,
-                commanded_y_um=spec.y_um,
-                actual_x_um=m.actual_x_um,
-                actual_y_um=m.actual_y_um,
-                hold_s=spec.hold_s,
-                hardness_gpa=m.hardness_gpa,
-                modulus_gpa=m.modulus_gpa,
-                drift_rate_nm_s=m.drift_rate_nm_s,
-                t_s=self._clock_s,
-                depth_at_max_load_nm=m.depth_at_max_load_nm,
-            )
+            if self.failures.invalid(block.block_id, i):
+                # the indent was made, its value is not: recorded as failed, never learned from
+                yield IndentResult.unmeasured(
+                    block.block_id, i, spec, self._clock_s, "failed",
+                    f"invalid value {INVALID_VALUE:g} (simulated instrument fault)",
+                )  # fmt: skip
+            else:
+                yield IndentResult(
+                    block_id=block.block_id,
+                    indent_index=i,
+                    commanded_x_um=spec.x_um,
+                    commanded_y_um=spec.y_um,
+                    actual_x_um=m.actual_x_um,
+                    actual_y_um=m.actual_y_um,
+                    hold_s=spec.hold_s,
+                    hardness_gpa=m.hardness_gpa,
+                    modulus_gpa=m.modulus_gpa,
+                    drift_rate_nm_s=m.drift_rate_nm_s,
+                    t_s=self._clock_s,
+                    depth_at_max_load_nm=m.depth_at_max_load_nm,
+                )
             if self._abort.is_set():
                 # the current indent is finished: lift and stop
                 yield from self.end_program()

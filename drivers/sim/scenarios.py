@@ -7,7 +7,7 @@ sample (``Scenario.on_sample``), so the simulated instrument can stand in for a 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -37,6 +37,13 @@ from drivers.sim.emulator import (
     _check_seed,
 )
 from drivers.sim.evaluator import TruthEvaluator
+from drivers.sim.failures import FailureModes
+
+# the share of indents a scenario's simulated instrument fails by default (drivers.sim.failures); none yet:
+# the bench's figures are without failures until they are regenerated with them
+SCENARIO_FAILURE_RATE: dict[str, float] = {}
+# what `aeni demo` runs with: about what a real instrument does
+DEMO_FAILURE_RATE = 0.015
 
 # scenario samples: the whole square is usable (no edge band, no exclusions), as in the paper's studies
 SCENARIO_EDGE_BAND_UM = 0.0
@@ -69,6 +76,9 @@ class Scenario:
     description: str
     seed: int = 0
     site_texture: SiteTexture | None = None
+    failures: FailureModes = field(
+        default_factory=FailureModes
+    )  # how often the simulated instrument fails, as a real one does
 
     @property
     def calibration(self) -> Calibration:
@@ -115,7 +125,9 @@ class Scenario:
         if start_um is None:
             x0, x1, y0, y1 = self.sample.calibration.bounds_um
             start_um = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
-        return SimulatedDriver(self.make_emulator(profile), profile, speed=speed, start_um=start_um)
+        return SimulatedDriver(
+            self.make_emulator(profile), profile, speed=speed, start_um=start_um, failures=self.failures
+        )
 
     def evaluator(self, n: int = 100) -> TruthEvaluator:
         """The map-error scorer for a campaign on this scenario (the truth never reaches the campaign)."""
@@ -192,8 +204,10 @@ def make_scenario(
     drift: str | None = None,
     truth_csv: str | None = None,
     lateral_sd_um: float | None = None,
+    failure_rate: float | None = None,
 ) -> Scenario:
-    """Build a named scenario; ``noise``, ``drift`` and ``lateral_sd_um`` override its defaults."""
+    """Build a named scenario; ``noise``, ``drift``, ``lateral_sd_um`` and ``failure_rate`` (the simulated
+    instrument's failures, drivers.sim.failures) override its defaults."""
     if name not in SCENARIOS:
         raise InputError("scenario", f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
     seed = _check_seed(seed)
@@ -254,4 +268,7 @@ def make_scenario(
         description=description,
         seed=seed,
         site_texture=site_texture,
+        failures=FailureModes.at_rate(
+            SCENARIO_FAILURE_RATE.get(name, 0.0) if failure_rate is None else failure_rate, seed
+        ),
     )

@@ -54,6 +54,7 @@ def engine_argv(
     driver: str = "sim",
     exchange: str | None = None,
     group: str | None = None,
+    rules: dict[str, Any] | None = None,
 ) -> list[str]:
     """The command line of an engine process for a campaign config (core.campaign.CampaignConfig)."""
     from core.campaign import campaign_config_to_dict
@@ -72,6 +73,9 @@ def engine_argv(
         argv += ["--exchange", str(exchange)]
     if group is not None:
         argv += ["--group", group]
+    for flag, value in (rules or {}).items():
+        if value is not None:
+            argv += [f"--{flag.replace('_', '-')}", str(value)]
     return argv
 
 
@@ -87,6 +91,7 @@ def start_engine_process(
     driver: str = "sim",
     exchange: str | None = None,
     group: str | None = None,
+    rules: dict[str, Any] | None = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -99,7 +104,7 @@ def start_engine_process(
     with open(log, "ab") as fh:
         protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
-            engine_argv(config, journal, supervision, speed, driver, exchange, group=group),
+            engine_argv(config, journal, supervision, speed, driver, exchange, group=group, rules=rules),
             stdin=subprocess.DEVNULL,
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -168,8 +173,12 @@ def create_run_journal(
     driver: str = "sim",
     speed: float | None = None,
     group: str | None = None,
+    rules: dict[str, Any] | None = None,
 ) -> Any:
-    """A new journal for ``campaign``'s run (the engine process, and the console tests' engine)."""
+    """A new journal for ``campaign``'s run (the engine process, and the console tests' engine).
+
+    ``rules`` (max_refusals, approval_timeout_s, on_timeout) are kept in the journal so a resume keeps them.
+    """
     from core.campaign import campaign_config_to_dict
     from core.journal import Journal
 
@@ -185,7 +194,17 @@ def create_run_journal(
         stage_bounds_um=campaign.stage_bounds_um,
         name=config.name,
         group_gid=journal_gid(group),
+        extra={"engine_rules": dict(rules or {})},
     )
+
+
+def engine_rules(options: Any) -> dict[str, Any]:
+    """The engine's no-wait-without-an-answer rules of a run's options (core.runconfig.RunOptions)."""
+    return {
+        "max_refusals": options.max_refusals,
+        "approval_timeout_s": options.approval_timeout_s,
+        "on_timeout": options.on_timeout,
+    }
 
 
 def run_engine(
@@ -198,9 +217,9 @@ def run_engine(
 ) -> int:
     """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process."""
     from core.campaign import Campaign, campaign_config_from_dict
-    from core.engine import Engine
     from core.interlock import Interlock
     from core.journal import Journal, JournalReader
+    from core.run.engine import Engine
     from core.runview import EngineState
     from drivers.registry import make_evaluator
 
@@ -216,8 +235,16 @@ def run_engine(
             opts = {**config.driver_options, "exchange": str(Path(options.exchange).resolve())}
             config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
         campaign = Campaign(with_sample(config, options.driver))
+        rules = engine_rules(options)
         journal = create_run_journal(
-            path, config, campaign, options.supervision, options.driver, options.speed, group=options.group
+            path,
+            config,
+            campaign,
+            options.supervision,
+            options.driver,
+            options.speed,
+            group=options.group,
+            rules=rules,
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
     else:
@@ -235,6 +262,7 @@ def run_engine(
         campaign = Campaign(config)
         journal = Journal.open_writer(path)
         driver_kind = str(meta.get("driver", "sim"))
+        rules = dict(meta.get("engine_rules") or {})  # a journal from before the rules: the defaults
         sup = supervision or str(row.get("supervision") or "auto")
         spd = speed if speed is not None else meta.get("speed")
     if create is not None and speed is not None:
@@ -250,6 +278,7 @@ def run_engine(
             progress=None if quiet else _print,
             interlock=Interlock(campaign.sample, campaign.profile),
             evaluator=make_evaluator(driver_kind, campaign.sample, c.driver_options, seed=c.seed),
+            **rules,
         )
     except BaseException:
         journal.close(compact=False)
@@ -317,6 +346,9 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "run.journal": args.journal,
         "run.speed": args.speed,
         "run.group": args.group,
+        "run.max_refusals": args.max_refusals,
+        "run.approval_timeout_s": args.approval_timeout_s,
+        "run.on_timeout": args.on_timeout,
     }
 
 
@@ -353,6 +385,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             driver=options.driver,
             exchange=options.exchange,
             group=options.group,
+            rules=engine_rules(options),
         )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
@@ -706,6 +739,15 @@ def register(subparsers: Any) -> None:
     run.add_argument("--speed", help="simulated instrument speed-up (default: as fast as possible)")
     run.add_argument("--group", help="OS group that may watch the run (journal 0640); see docs/security.md")
     run.add_argument("--name", help="run name")
+    run.add_argument(
+        "--max-refusals", dest="max_refusals", help="refused blocks in a row that stop the run (default 5)"
+    )
+    run.add_argument(
+        "--approval-timeout-s", dest="approval_timeout_s", help="an unanswered approval times out (seconds)"
+    )
+    run.add_argument(
+        "--on-timeout", dest="on_timeout", help="approve | veto | pause | stop (default approve)"
+    )
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
     run.add_argument("--config-json", dest="config_json", help=argparse.SUPPRESS)

@@ -36,8 +36,9 @@ class JournalLockedError(InputError):
 
 
 class CommandWatch:
-    """Sees the owner's pause and abort while a slow driver step runs (the engine only reads commands
-    between indents): it marks the state ``pausing`` or ``stopping`` at once, so a console shows it."""
+    """Sees the owner's abort while a slow driver step runs (the engine only reads commands between
+    indents): it marks the state ``stopping`` at once, so a console shows it. A pause waits for the
+    checkpoint (the console shows it queued)."""
 
     def __init__(self, path: Path, owner_uid: int) -> None:
         self.conn = sqlite3.connect(str(path), isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
@@ -48,11 +49,6 @@ class CommandWatch:
     def poll(self) -> bool:
         """True once, the first time an abort from the owner is waiting (the caller aborts the driver)."""
         try:
-            self.conn.execute(
-                "UPDATE engine_state SET state = 'pausing' WHERE state = 'running' AND EXISTS "
-                "(SELECT 1 FROM commands WHERE processed = 0 AND kind = 'pause' AND uid = ?)",
-                (self.owner_uid,),
-            )
             if self._aborted:
                 return False
             row = self.conn.execute(
@@ -61,9 +57,7 @@ class CommandWatch:
             ).fetchone()
             if row is None:
                 return False
-            self.conn.execute(
-                "UPDATE engine_state SET state = 'stopping' WHERE state IN ('running', 'pausing')"
-            )
+            self.conn.execute("UPDATE engine_state SET state = 'stopping' WHERE state = 'running'")
         except sqlite3.Error:
             return False  # busy or gone: the next poll tries again
         self._aborted = True

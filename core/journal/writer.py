@@ -10,11 +10,19 @@ import sqlite3
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from core.access import JOURNAL_MODE, protect, protect_side_files
+from core.access import JOURNAL_MODE, command_channel_problem, protect, protect_side_files
 from core.errors import InputError
-from core.journal.codec import INDENT_COLS, DriverState, map_fields_to_bytes, result_to_row, to_json, utc_now
+from core.journal.codec import (
+    INDENT_COLS,
+    DriverState,
+    StoredCommand,
+    map_fields_to_bytes,
+    result_to_row,
+    to_json,
+    utc_now,
+)
 from core.journal.reader import Queries
 from core.journal.schema import (
     BUSY_TIMEOUT_MS,
@@ -29,6 +37,9 @@ from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import InstrumentProfile, profile_to_dict
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import settings_to_dict
+
+if TYPE_CHECKING:
+    from core.run.events import RunEvent, RunHistory
 
 
 class JournalLockedError(InputError):
@@ -243,6 +254,31 @@ class Journal:
     def note_clock(self, t_s: float) -> None:
         self._t_s = t_s
 
+    # -- the engine's record (core.run.events.RunRecord): a sink, a command source, a history ----------
+    @property
+    def name(self) -> str:
+        return str(self.path)
+
+    def emit(self, event: RunEvent) -> None:
+        """Write one engine event in one transaction (core.journal.sink says which rows each becomes)."""
+        from core.journal.sink import write_event
+
+        write_event(self, event)
+
+    def history(self) -> RunHistory | None:
+        from core.journal.sink import fold_history
+
+        return fold_history(self)
+
+    def owner_uid(self) -> int:
+        return os.stat(self.path).st_uid
+
+    def pending_commands(self) -> list[StoredCommand]:
+        return self.q.unprocessed_commands()
+
+    def command_channel_problem(self, owner_uid: int) -> str:
+        return command_channel_problem(self.path, owner_uid)
+
     def begin_session(self, kind: str) -> int:
         now = time.time()
         with self._tx() as c:
@@ -369,16 +405,19 @@ class Journal:
         needs_approval_reason: str = "",
         text: str = "",
         plan: tuple[dict[str, Any], PlannerSettings] | None = None,
+        decision_id: int | None = None,
     ) -> int:
         """A planner proposal with its scores and alternatives; with ``plan`` (an auto decision) also the
-        block plan and the planner state, in the same transaction."""
+        block plan and the planner state, in the same transaction. ``decision_id``: the engine's number
+        for it (None: the next free one)."""
         b = decision.block
         with self._tx() as c:
             cur = c.execute(
-                "INSERT INTO decisions (block_id, wall_utc, t_s, policy, phase, kind, center_x_um, center_y_um, "
+                "INSERT INTO decisions (decision_id, block_id, wall_utc, t_s, policy, phase, kind, center_x_um, center_y_um, "
                 "score, acquisition, predicted_cost_s, decision_json, status, needs_approval_reason) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
+                    decision_id,
                     b.block_id,
                     utc_now(),
                     t_s,

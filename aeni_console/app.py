@@ -459,7 +459,7 @@ class ConsoleApp(App[None]):
             done,
         )
 
-    def _ask_instrument(self, question: str, placeholder: str, send: Callable[[str], None]) -> None:
+    def _ask_instrument(self, question: str, placeholder: str, send: Callable[[str], object]) -> None:
         def done(answer: str | None) -> None:
             if answer:
                 send(answer)

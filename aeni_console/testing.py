@@ -65,12 +65,12 @@ class ManualWallClock:
 
         fake_time = _Time("time")
         saved = writer.utc_now, writer.time, reader.time
-        writer.utc_now = self.utc_now  # type: ignore[assignment]
-        writer.time = reader.time = fake_time  # type: ignore[assignment]
+        writer.utc_now = self.utc_now
+        writer.time = reader.time = fake_time
         try:
             yield
         finally:
-            writer.utc_now, writer.time, reader.time = saved  # type: ignore[assignment]
+            writer.utc_now, writer.time, reader.time = saved
 
 
 class _Gate:

@@ -805,7 +805,7 @@ def merge_results(
         raise InputError("--render-from", "no results to merge")
     first = parts[0][1]
     keep = ("quick", "lattice_n", "margin")
-    caps = {
+    caps: dict[str, Any] = {
         "max_blocks": max(c.max_blocks for _, c, _ in parts),
         "max_centres": max(c.max_centres for _, c, _ in parts),
     }

@@ -141,26 +141,6 @@ def _prepare_process() -> None:
         pass
 
 
-def _make_driver(kind: str, campaign: Any, speed: float | None, journal: Path) -> Any:
-    from drivers.registry import make_driver
-
-    c = campaign.config
-    return make_driver(
-        kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed, journal=journal
-    )
-
-
-def with_sample(config: Any, driver: str) -> Any:
-    """The config with its sample resolved (the driver's built-in one when none was given)."""
-    import dataclasses
-
-    from drivers.registry import default_sample
-
-    if config.sample is not None:
-        return config
-    return dataclasses.replace(config, sample=default_sample(driver, config.driver_options, config.seed))
-
-
 def _print(line: str) -> None:
     print(line, flush=True)
 
@@ -217,11 +197,9 @@ def run_engine(
 ) -> int:
     """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process."""
     from core.campaign import Campaign, campaign_config_from_dict
-    from core.interlock import Interlock
     from core.journal import Journal, JournalReader
-    from core.run.engine import Engine
     from core.runview import EngineState
-    from drivers.registry import make_evaluator
+    from drivers.registry import campaign_for, compose_engine
 
     _prepare_process()
     path = Path(journal_path)
@@ -234,7 +212,7 @@ def run_engine(
                 )  # before any journal
             opts = {**config.driver_options, "exchange": str(Path(options.exchange).resolve())}
             config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
-        campaign = Campaign(with_sample(config, options.driver))
+        campaign = campaign_for(options.driver, config)
         rules = engine_rules(options)
         journal = create_run_journal(
             path,
@@ -268,16 +246,14 @@ def run_engine(
     if create is not None and speed is not None:
         spd = speed
     try:
-        driver = _make_driver(driver_kind, campaign, spd, path)
-        c = campaign.config
-        engine = Engine(
-            journal,
+        engine = compose_engine(
+            driver_kind,
             campaign,
-            driver,
-            supervision or sup,
+            journal,
+            supervision=supervision or sup,
+            speed=spd,
+            journal=path,
             progress=None if quiet else _print,
-            interlock=Interlock(campaign.sample, campaign.profile),
-            evaluator=make_evaluator(driver_kind, campaign.sample, c.driver_options, seed=c.seed),
             **rules,
         )
     except BaseException:
@@ -285,7 +261,7 @@ def run_engine(
         raise
     if not quiet:
         _print(f"journal {path} (engine PID {os.getpid()}, supervision {engine.supervision})")
-    asked = []
+    asked: list[int] = []
 
     def on_signal(signum: int, _frame: Any) -> None:
         if asked:  # a second Ctrl-C: stop now (the journal stays resumable)

@@ -142,7 +142,7 @@ def _handler(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     from core.policies.registry import RECOMMENDED, policy_names
 
     p = sub.add_parser("simulate", help="run one headless emulator campaign")

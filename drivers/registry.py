@@ -15,13 +15,14 @@ from typing import TYPE_CHECKING, Any
 
 from core.driver import Driver
 from core.errors import InputError
+from core.interlock import Interlock
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
+from core.run.engine import Engine
 from core.sample import Sample
 
 if TYPE_CHECKING:
     from core.campaign import Campaign, CampaignConfig
-    from core.run.engine import Engine
     from core.run.events import RunRecord, Sink
 
 DRIVER_KINDS: tuple[str, ...] = ("sim", "kla")
@@ -154,9 +155,6 @@ def compose_engine(
 ) -> Engine:
     """A run put together: the campaign's driver, its interlock and (where a truth is known) the evaluator,
     driven by an Engine into ``record`` (the journal) and ``sinks``."""
-    from core.interlock import Interlock
-    from core.run.engine import Engine
-
     c = campaign.config
     driver = make_driver(
         kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed, journal=journal

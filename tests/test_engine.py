@@ -813,3 +813,32 @@ def test_approval_timeout_pause_pauses_the_run(tmp_path: Path) -> None:
         j.close()
     assert EngineState.PAUSED in states and states[0] == EngineState.AWAITING_APPROVAL
     assert eng.state == EngineState.STOPPED and eng.stop_reason == "aborted by tester"
+
+
+def test_a_headless_record_counts_refusals_and_the_runs_ledger() -> None:
+    from core.run.headless import MemoryRecord
+
+    record = MemoryRecord()
+    driver = make_driver()
+    eng = Engine(
+        record,
+        FakeCampaign(n_blocks=3),
+        driver,
+        "auto",
+        watch_s=None,
+        map_display_n=None,
+        interlock=RefusingInterlock([CENTRES[1]]),  # type: ignore[arg-type]
+        evaluator=FakeEvaluator(),  # type: ignore[arg-type]
+    )
+    assert eng.run() == EngineState.STOPPED and eng.completed
+    assert (record.refusals, record.approvals, record.blocks, record.indents) == (1, 0, 3, 12)
+    assert [(d.block.center_x_um, d.block.center_y_um) for d in record.decisions] == [
+        CENTRES[0],
+        CENTRES[2],
+        CENTRES[3],
+    ]
+    # every step the driver took is in the ledger: it adds up to the instrument clock
+    assert record.ledger.total_s == pytest.approx(driver.clock_s(), rel=1e-12)
+    assert record.trajectory and all(
+        m == pytest.approx(10.0 / (1 + i + 2)) for i, (_, m) in enumerate(record.trajectory)
+    )

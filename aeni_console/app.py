@@ -35,11 +35,21 @@ from aeni_console.widgets.mapview import MapPanel
 from aeni_console.widgets.queue import QueuePanel
 from aeni_console.widgets.status import StatusBar
 from aeni_console.widgets.ticket import AskScreen, TicketPanel
+from core.run.machine import allowed
 from core.runview import Command, CommandKind, EngineState, RunSnapshot
 
-LIVE_ACTIONS = frozenset(
-    {"pause", "resume", "approve", "veto", "adjust", "step", "stop_after_block", "abort"}
-)
+# the command each live key sends: whether it is offered is the state machine's to say
+ACTION_COMMANDS: dict[str, CommandKind] = {
+    "pause": CommandKind.PAUSE,
+    "resume": CommandKind.RESUME,
+    "approve": CommandKind.APPROVE,
+    "veto": CommandKind.VETO,
+    "adjust": CommandKind.ADJUST,
+    "step": CommandKind.STEP,
+    "stop_after_block": CommandKind.STOP_AFTER_BLOCK,
+    "abort": CommandKind.ABORT,
+}
+LIVE_ACTIONS = frozenset(ACTION_COMMANDS)
 # the operator's word on the instrument while a block waits for it (the KLA driver)
 INSTRUMENT_ACTIONS = frozenset({"confirm_start", "report_aborted", "report_no_surface", "skip_site"})
 REPLAY_ACTIONS = frozenset({"replay_prev", "replay_next", "replay_first", "replay_last"})
@@ -317,32 +327,16 @@ class ConsoleApp(App[None]):
             return False
         st = snap.state
         if action in INSTRUMENT_ACTIONS:
-            return st is EngineState.WAITING_FOR_INSTRUMENT and snap.instrument_wait is not None
+            return allowed(st, CommandKind.CONFIRM) and snap.instrument_wait is not None
         if self.inflight is not None and action in ("approve", "veto", "step"):
             return False
-        if action == "pause":
-            return st in (
-                EngineState.RUNNING,
-                EngineState.AWAITING_APPROVAL,
-                EngineState.WAITING_FOR_INSTRUMENT,
-            )
-        if action == "resume":
-            return st in (EngineState.PAUSED, EngineState.PAUSING)
-        if action in ("approve", "veto"):
-            return st is EngineState.AWAITING_APPROVAL and snap.pending is not None
-        if action == "step":  # nothing to release while a block already runs in step mode
+        if action == "step":  # switch to step mode, or release what waits: nothing while a step block runs
             if st is EngineState.RUNNING:
                 return snap.supervision != "step"
-            return st in (EngineState.PAUSED, EngineState.PAUSING, EngineState.AWAITING_APPROVAL)
-        if action == "stop_after_block":
-            return st in (
-                EngineState.RUNNING,
-                EngineState.PAUSING,
-                EngineState.PAUSED,
-                EngineState.AWAITING_APPROVAL,
-                EngineState.WAITING_FOR_INSTRUMENT,
-            )
-        return st not in (EngineState.STOPPED, EngineState.FAILED)  # adjust, abort
+            return allowed(st, CommandKind.STEP) or allowed(st, CommandKind.RESUME)
+        if action in ("approve", "veto") and snap.pending is None:
+            return False
+        return allowed(st, ACTION_COMMANDS[action])  # the state machine's table (core.run.machine)
 
     def get_system_commands(self, screen: Screen) -> Iterable[SystemCommand]:
         for action, title, help_ in PALETTE:
@@ -430,7 +424,7 @@ class ConsoleApp(App[None]):
         if snap.state is EngineState.AWAITING_APPROVAL and snap.pending is not None:
             b = snap.pending.block
             self.send_command(CommandKind.STEP, {"block_id": b.block_id}, self._pending_scores())
-        elif snap.state in (EngineState.PAUSED, EngineState.PAUSING):
+        elif snap.state is EngineState.PAUSED:
             self.send_command(CommandKind.RESUME)
 
     def action_stop_after_block(self) -> None:
@@ -470,7 +464,7 @@ class ConsoleApp(App[None]):
             done,
         )
 
-    def _ask_instrument(self, question: str, placeholder: str, send: Callable[[str], None]) -> None:
+    def _ask_instrument(self, question: str, placeholder: str, send: Callable[[str], object]) -> None:
         def done(answer: str | None) -> None:
             if answer:
                 send(answer)

@@ -15,7 +15,7 @@ import os
 import sys
 import warnings
 from collections.abc import Sequence
-from typing import Any, TextIO
+from typing import Any, NoReturn, TextIO
 
 from aeni_console.commands.common import os_error_line
 from core.errors import InputError
@@ -37,7 +37,7 @@ COMMAND_MODULES: tuple[str, ...] = (
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # argparse's default prints usage; keep it to one line
+    def error(self, message: str) -> NoReturn:  # argparse's default prints usage; keep it to one line
         self.exit(2, f"aeni: {message}\n")
 
 

@@ -69,6 +69,9 @@ MEANINGS: dict[str, str] = {
     "run.runs_dir": "the folder for new journals",
     "run.exchange": "driver kla: the folder shared with the instrument PC (InView's array import and export)",
     "run.group": "the OS group that may watch the run (journal 0640; only the owner commands): docs/security.md",
+    "run.max_refusals": "refused blocks in a row (the interlock's, or a vetoed block proposed again) that stop the run",
+    "run.approval_timeout_s": "an approval nobody answers times out after this (default: waits for the operator)",
+    "run.on_timeout": "what a timed-out approval does; a collapse alarm or a refused block is vetoed, never approved",
     "sample.file": "the sample file the run indents (default: the simulated scenario's built-in sample)",
 }
 

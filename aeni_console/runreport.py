@@ -93,7 +93,7 @@ def read_run(path: str | Path) -> RunData:
                 uncertainty.append((t_s, float(np.nanmean(epi)), float(np.nanmean(tot))))
             final_map = mf
         cal = meta.get("calibration") or {}
-        corners = [cal.get(k) for k in ("tl", "tr", "br", "bl")]
+        corners: list[Any] = [cal.get(k) for k in ("tl", "tr", "br", "bl")]
         if all(isinstance(c, dict) for c in corners):
             outline = np.array([[float(c["x_um"]), float(c["y_um"])] for c in corners])
         else:

@@ -1,6 +1,6 @@
 """Helpers that drive the console headless against the real engine (tests, screenshots, the latency benchmark).
 
-``LiveRun`` is the one place that builds a run for them: the real ``core.engine.Engine`` on a temporary
+``LiveRun`` is the one place that builds a run for them: the real ``core.run.engine.Engine`` on a temporary
 journal, the real ``Campaign`` with a cheap policy on a small lattice, and the simulated instrument
 behind a gate, so an indent happens only when the test says ``advance()``. The journal's wall clock is a
 ``ManualWallClock`` that follows the instrument clock, so the log, the status bar and every snapshot
@@ -65,12 +65,12 @@ class ManualWallClock:
 
         fake_time = _Time("time")
         saved = writer.utc_now, writer.time, reader.time
-        writer.utc_now = self.utc_now  # type: ignore[assignment]
-        writer.time = reader.time = fake_time  # type: ignore[assignment]
+        writer.utc_now = self.utc_now
+        writer.time = reader.time = fake_time
         try:
             yield
         finally:
-            writer.utc_now, writer.time, reader.time = saved  # type: ignore[assignment]
+            writer.utc_now, writer.time, reader.time = saved
 
 
 class _Gate:
@@ -175,8 +175,8 @@ class LiveRun:
 
             from aeni_console.commands.run import create_run_journal
             from core.campaign import Campaign
-            from core.engine import Engine
             from core.interlock import Interlock
+            from core.run.engine import Engine
             from drivers.registry import sim_scenario
 
             torch.set_num_threads(1)  # as in the engine process: the same fits on every machine

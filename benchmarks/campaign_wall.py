@@ -25,7 +25,9 @@ def main() -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args()
 
-    from core.campaign import Campaign, CampaignConfig, run_headless
+    from core.campaign import Campaign, CampaignConfig
+    from core.run.events import Observed, RunEvent
+    from core.run.headless import run_auto
     from drivers.sim.scenarios import make_scenario
 
     rows = []
@@ -36,13 +38,17 @@ def main() -> int:
         block_walls: list[float] = []
         last = [time.perf_counter()]
 
-        def on_block(*_: object, walls: list[float] = block_walls, mark: list[float] = last) -> None:
-            now = time.perf_counter()
-            walls.append(now - mark[0])
-            mark[0] = now
+        class BlockWall:
+            def emit(
+                self, event: RunEvent, walls: list[float] = block_walls, mark: list[float] = last
+            ) -> None:
+                if isinstance(event, Observed):
+                    now = time.perf_counter()
+                    walls.append(now - mark[0])
+                    mark[0] = now
 
         t0 = time.perf_counter()
-        res = run_headless(campaign, driver, on_block=on_block)
+        res = run_auto(campaign, driver, sinks=[BlockWall()])
         wall = time.perf_counter() - t0
         mape = scenario.evaluator().score(campaign).mape_pct
         rows.append(

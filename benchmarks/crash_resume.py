@@ -93,7 +93,7 @@ def _context() -> Any:
     if _CTX is None:
         _CTX = mp.get_context("forkserver")
         _CTX.set_forkserver_preload(
-            ["core.campaign", "core.engine", "aeni_console.commands.run", "benchmarks.crash_resume"]
+            ["core.campaign", "core.run.engine", "aeni_console.commands.run", "benchmarks.crash_resume"]
         )
     return _CTX
 

@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from core.cost import CostLedger, indent_steps
+from core.cost import indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.geometry import CandidateLattice
-from core.metrics import MapEvaluator, MapScore
+from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.plan import Block, Decision, IndentResult, PlannerSettings
 from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext, base_mask
@@ -169,6 +169,7 @@ class Campaign:
         self.wall_clock: Callable[[], float] = time.time
         self.wall_s_per_instrument_s = 1.0
         self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
+        self.refit_every = 1  # the bench's grid: refit only after every so many blocks
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
@@ -474,11 +475,12 @@ class Campaign:
     ) -> FitReport | None:
         """Collapse the block to its centre, refit (warm start), and predict on the lattice.
 
-        ``refit=False`` only records the block (a policy that never looks at the model, e.g. the grid
-        baseline in the bench, is refitted only where its map is measured).
+        ``refit=False`` only records the block; ``refit_every`` > 1 refits only after every so many blocks
+        (a policy that never looks at the model, e.g. the grid baseline in the bench, is refitted only
+        where its map is measured).
         """
         self._record(block, results)
-        if len(self.centres) < 2 or not refit:
+        if len(self.centres) < 2 or not refit or len(self.blocks) % self.refit_every:
             return None
         report = self.surrogate.fit(self.observations())
         reweighed = self._reweigh_outliers()
@@ -590,77 +592,3 @@ class Campaign:
         if hyper is not None and len(self.centres) >= 2:
             self.surrogate.set_hyper(hyper, self.observations())
             self.prediction = self.surrogate.predict(self.lattice.uv)
-
-
-@dataclass
-class HeadlessResult:
-    stop_reason: str
-    ledger: CostLedger
-    trajectory: list[tuple[float, float]]  # (instrument t_s, MAPE %) after every refit
-    instrument_s: float
-    indents: int
-    blocks: int
-    decisions: list[Decision]
-
-
-def run_headless(
-    campaign: Campaign,
-    driver: Any,
-    evaluator: MapEvaluator | None = None,
-    on_block: Callable[[Decision, Sequence[IndentResult], FitReport | None, HeadlessResult], None]
-    | None = None,
-    stop_when: Callable[[HeadlessResult], str | None] | None = None,
-    refit_every: int = 1,
-) -> HeadlessResult:
-    """Run a campaign to its end with no operator (``aeni simulate``, the bench).
-
-    Every block passes the safety interlock first; with no operator to veto, a refused block ends the
-    run with the interlock's reason. ``evaluator`` (a simulated instrument's) scores the map after each
-    refit into ``trajectory``. ``stop_when`` may end the run early (after any block) with a reason: the
-    bench stops a run once its question is answered. ``refit_every`` > 1 fits the model only after every so
-    many blocks (a policy that never looks at it, such as the grid baseline in the bench).
-    """
-    from core.interlock import Interlock
-
-    interlock = Interlock(campaign.sample, campaign.profile)
-    result = HeadlessResult("", CostLedger(), [], 0.0, 0, 0, [])
-    block_id = 0
-    early: str | None = None
-    while True:
-        decision = campaign.propose(driver.clock_s(), driver.position_um(), driver.program_open(), block_id)
-        if decision is None:
-            break
-        refusal = interlock.check(decision.block, driver.position_um(), driver.program_open())
-        if refusal is not None:
-            early = f"safety interlock refused block {decision.block.block_id}: {refusal}"
-            break
-        results: list[IndentResult] = []
-        for event in driver.execute_block(decision.block):
-            if isinstance(event, IndentResult):
-                results.append(event)
-            else:
-                result.ledger.add(event)
-        interlock.passed(decision.block, results)
-        refit = (result.blocks + 1) % refit_every == 0
-        report = campaign.observe_block(decision.block, results, refit=refit)
-        result.decisions.append(decision)
-        result.blocks += 1
-        result.indents += len(results)
-        result.instrument_s = driver.clock_s()
-        if evaluator is not None and refit:
-            score = evaluator.score(campaign)
-            campaign.note_score(score)
-            if score.mape_pct is not None:
-                result.trajectory.append((driver.clock_s(), score.mape_pct))
-        if on_block is not None:
-            on_block(decision, results, report, result)
-        block_id += 1
-        if stop_when is not None and (early := stop_when(result)) is not None:
-            break
-    for event in driver.end_program():
-        result.ledger.add(event)
-    result.instrument_s = driver.clock_s()
-    result.stop_reason = (
-        early or campaign.stop_reason(driver.clock_s()) or campaign.last_stop_reason or "policy finished"
-    )
-    return result

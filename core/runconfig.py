@@ -6,7 +6,7 @@ Layout (every section and field is optional)::
     [sample]     # file: the sample.toml the run indents (default: the simulated scenario's built-in sample)
     [campaign]   # policy, seed, profile, lattice_n; scenario, noise, drift, truth_csv for the sim driver
     [planner]    # the PlannerSettings knobs: target_sem_gpa, beta, hold_policy, budgets ...
-    [run]        # driver, supervision, journal, speed, runs_dir
+    [run]        # driver, supervision, journal, speed, runs_dir; max_refusals, approval_timeout_s, on_timeout
 
 Command-line flags override the file through the same validation, so a bad flag and a bad field
 get the same one-line message naming the field, the value and what is allowed.
@@ -122,6 +122,10 @@ class RunSection(_Strict):
     speed: float | None = Field(default=None, gt=0)
     runs_dir: str = "runs"
     group: str | None = Field(default=None, min_length=1)
+    # no wait without an answer: refused blocks in a row before the run stops; unanswered approvals
+    max_refusals: int = Field(default=5, ge=1, le=1000)
+    approval_timeout_s: float | None = Field(default=None, gt=0)
+    on_timeout: Literal["approve", "veto", "pause", "stop"] = "approve"
 
     @field_validator("supervision")
     @classmethod
@@ -159,6 +163,9 @@ class RunOptions:
     runs_dir: str = "runs"
     exchange: str | None = None  # driver kla: the exchange folder
     group: str | None = None  # the OS group that may watch the run (its journal is 0640); None: the owner's
+    max_refusals: int = 5  # consecutive refused blocks (interlock, or a vetoed block again) that stop the run
+    approval_timeout_s: float | None = None  # None: an approval waits for the operator however long it takes
+    on_timeout: str = "approve"  # approve | veto | pause | stop (a collapse alarm or a refusal: veto instead)
 
 
 @dataclass(frozen=True)
@@ -286,6 +293,9 @@ def parse_run_config(
         runs_dir=r.runs_dir,
         exchange=exchange,
         group=r.group,
+        max_refusals=r.max_refusals,
+        approval_timeout_s=r.approval_timeout_s,
+        on_timeout=r.on_timeout,
     )
     n = rf.notify
     notify = make_notify_config(n.urls, n.urls_file, n.instrument_silence_s, n.repeat_s, base_dir)

@@ -8,43 +8,15 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 
 from core.driver import InstrumentWait
 from core.plan import Block, Decision, IndentSpec, PlannerSettings
 
-
-class EngineState(StrEnum):
-    IDLE = "idle"
-    RUNNING = "running"
-    PAUSING = "pausing"
-    PAUSED = "paused"
-    AWAITING_APPROVAL = "awaiting-approval"
-    WAITING_FOR_INSTRUMENT = "waiting-for-instrument"  # a ticket is out: the operator runs the array
-    STOPPING = "stopping"
-    STOPPED = "stopped"
-    FAILED = "failed"
-
-    @property
-    def label(self) -> str:
-        """What the status bar shows: the state in capitals."""
-        return self.value.replace("-", " ").upper()
-
-
-class CommandKind(StrEnum):
-    PAUSE = "pause"
-    RESUME = "resume"
-    APPROVE = "approve"
-    VETO = "veto"
-    ADJUST = "adjust"
-    STEP = "step"  # in step mode: run one block
-    STOP_AFTER_BLOCK = "stop-after-block"
-    ABORT = "abort"
-    CONFIRM = "confirm"  # the array started: payload token
-    REPORT = "report"  # payload kind (aborted | surface-not-found), token
-    SKIP = "skip"  # payload site (1-based, as in the sites file)
+# the state machine's names, re-exported for the read side
+from core.run.machine import CommandKind as CommandKind
+from core.run.machine import EngineState as EngineState
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,8 @@ from core.plan import PlannerSettings
 
 HOLD_POLICIES: tuple[str, ...] = ("fixed", "adaptive")
 SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
+# what an approval nobody answered within approval_timeout_s does (a collapse alarm or a refused block: never approve)
+ON_TIMEOUT: tuple[str, ...] = ("approve", "veto", "pause", "stop")
 
 RuleKind = Literal["number", "whole", "choice", "hold", "clock"]
 

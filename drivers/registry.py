@@ -1,4 +1,5 @@
-"""Which driver runs a campaign: ``make_driver(kind, sample, profile, options)`` and its helpers.
+"""Which driver runs a campaign: ``make_driver(kind, sample, profile, options)`` and its helpers, and
+the one typed place a run is composed (``campaign_for`` + ``compose_engine``).
 
 A run is a sample, a driver, a policy and settings. The simulated driver ('sim') lays an emulator
 scenario's truth (or a truth CSV) onto the run's sample and, having the truth, also supplies the
@@ -7,15 +8,22 @@ evaluator that scores the map; a real instrument supplies neither truth nor eval
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from core.driver import Driver
 from core.errors import InputError
+from core.interlock import Interlock
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
+from core.run.engine import Engine
 from core.sample import Sample
+
+if TYPE_CHECKING:
+    from core.campaign import Campaign, CampaignConfig
+    from core.run.events import RunRecord, Sink
 
 DRIVER_KINDS: tuple[str, ...] = ("sim", "kla")
 SIM_OPTIONS: tuple[str, ...] = ("scenario", "noise", "drift", "truth_csv", "lateral_sd_um", "failure_rate")
@@ -120,3 +128,48 @@ def make_evaluator(
         return None
     evaluator: MapEvaluator = sim_scenario(_sim_part(kind, options), seed, sample).evaluator()
     return evaluator
+
+
+def campaign_for(kind: str, config: CampaignConfig) -> Campaign:
+    """The campaign of a run: its sample resolved (the driver's built-in one when none was given), its
+    profile and policy from the config."""
+    from core.campaign import Campaign
+
+    if config.sample is None:
+        config = dataclasses.replace(config, sample=default_sample(kind, config.driver_options, config.seed))
+    return Campaign(config)
+
+
+def compose_engine(
+    kind: str,
+    campaign: Campaign,
+    record: RunRecord,
+    *,
+    supervision: str = "auto",
+    speed: float | None = None,
+    journal: str | Path | None = None,
+    max_refusals: int = 5,
+    approval_timeout_s: float | None = None,
+    on_timeout: str = "approve",
+    progress: Callable[[str], None] | None = None,
+    sinks: Sequence[Sink] = (),
+) -> Engine:
+    """A run put together: the campaign's driver, its interlock and (where a truth is known) the evaluator,
+    driven by an Engine into ``record`` (the journal) and ``sinks``."""
+    c = campaign.config
+    driver = make_driver(
+        kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed, journal=journal
+    )
+    return Engine(
+        record,
+        campaign,
+        driver,
+        supervision,
+        progress=progress,
+        interlock=Interlock(campaign.sample, campaign.profile),
+        evaluator=make_evaluator(kind, campaign.sample, c.driver_options, seed=c.seed),
+        max_refusals=max_refusals,
+        approval_timeout_s=approval_timeout_s,
+        on_timeout=on_timeout,
+        sinks=sinks,
+    )

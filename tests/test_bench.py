@@ -78,6 +78,17 @@ def test_quick_bench_writes_the_report(quick: tuple[Path, dict[str, object]]) ->
     for policy in ("grid", "uncertainty", "cost-aware", "aeni-paper", "aeni"):
         assert f"| `{policy}` |" in md
     assert "## Targets" in md and "≥ 10×" in md and "## Every policy on every field" in md
+    # every campaign ran through the engine and its interlock: the product's planners are never refused
+    lines = md.splitlines()
+    heads = [i for i, line in enumerate(lines) if line.endswith("| interlock refusals | approvals |")]
+    assert heads
+    for i in heads:
+        rows = []
+        for line in lines[i + 2 :]:
+            if not line.startswith("|"):
+                break
+            rows.append(line)
+        assert rows and all(line.endswith("| 0 | 0 |") for line in rows)
     for name in ("curves_ternary.png", "maps_ternary.png", "costs.png"):
         png = out / "figures" / name
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

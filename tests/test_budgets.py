@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from core.campaign import Campaign, CampaignConfig, run_headless
+from core.campaign import Campaign, CampaignConfig
 from core.plan import PlannerSettings
+from core.run.headless import run_auto
 from drivers.registry import default_sample, make_driver
 
 OPTIONS = {"scenario": "ternary"}
@@ -19,7 +20,7 @@ def _run(policy: str, **budgets: float) -> tuple[int, float, str]:
         driver_options=dict(OPTIONS),
     )
     campaign = Campaign(config)
-    result = run_headless(campaign, make_driver("sim", campaign.sample, campaign.profile, OPTIONS))
+    result = run_auto(campaign, make_driver("sim", campaign.sample, campaign.profile, OPTIONS))
     return result.indents, result.instrument_s, result.stop_reason
 
 
@@ -67,7 +68,7 @@ def test_single_indents_that_use_up_the_lattice_say_so() -> None:
         policy="aeni", lattice_n=10, sample=default_sample("sim", OPTIONS, 0), driver_options=dict(OPTIONS)
     )
     campaign = Campaign(config)
-    result = run_headless(campaign, make_driver("sim", campaign.sample, campaign.profile, OPTIONS))
+    result = run_auto(campaign, make_driver("sim", campaign.sample, campaign.profile, OPTIONS))
     assert result.stop_reason == (
         "policy aeni has nothing left to propose: every candidate of the 10×10 lattice is indented, excluded or"
         " too near an indent"

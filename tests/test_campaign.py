@@ -12,11 +12,11 @@ from core.campaign import (
     CampaignConfig,
     campaign_config_from_dict,
     campaign_config_to_dict,
-    run_headless,
 )
 from core.cost import block_costs_for
 from core.errors import InputError
 from core.plan import IndentResult, PlannerSettings, StepRecord
+from core.run.headless import run_auto
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.scenarios import make_scenario
 
@@ -58,7 +58,7 @@ def test_executed_cost_equals_predicted_cost_and_stays_in_area() -> None:
 def test_same_seed_same_run_and_other_seed_differs() -> None:
     def run(seed: int) -> list[tuple[float, float, float]]:
         c = _campaign(seed=seed, budget_s=25_000)
-        out = run_headless(c, _driver(c))
+        out = run_auto(c, _driver(c))
         return [(d.block.center_x_um, d.block.center_y_um, d.block.hold_s) for d in out.decisions]
 
     a, b = run(5), run(5)
@@ -68,7 +68,7 @@ def test_same_seed_same_run_and_other_seed_differs() -> None:
 
 def test_grid_policy_runs_the_baseline_blocks_in_order() -> None:
     c = _campaign("grid", budget_s=3 * 3600.0)
-    out = run_headless(c, _driver(c))
+    out = run_auto(c, _driver(c))
     centres = [(d.block.center_x_um, d.block.center_y_um) for d in out.decisions]
     assert centres[:3] == [(100.0, 100.0), (200.0, 200.0 - 100.0), (300.0, 100.0)]
     assert all(d.block.grid_g == 5 for d in out.decisions)

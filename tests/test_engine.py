@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from core.engine import Engine
 from core.errors import InputError
 from core.journal import Journal, JournalReader, NotOwnerError, send_command
 from core.metrics import MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, local_grid
 from core.profile import load_profile
+from core.run.engine import Engine
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import adjust_settings, settings_from_dict, settings_to_dict
 from drivers.sim.driver import SimulatedDriver
@@ -173,6 +173,7 @@ def run_engine(
     rules: list[Callable[[Engine], Command | None]] | None = None,
     name: str = "run.sqlite",
     driver: SimulatedDriver | None = None,
+    **engine_kw: Any,
 ) -> tuple[Engine, Path]:
     j = new_journal(tmp_path, name, supervision)
     op = Operator(j.path, rules or [])
@@ -185,6 +186,7 @@ def run_engine(
         sleep=op.sleep,
         watch_s=None,
         evaluator=FakeEvaluator(),  # type: ignore[arg-type]
+        **engine_kw,
     )
     op.engine = eng
     try:
@@ -614,3 +616,232 @@ def test_cli_status_replay_and_export(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main(["export", str(path), "--format", "parquet", "--out", str(tmp_path / "pq")]) in (0, 2)
     assert main(["status", str(tmp_path / "missing.sqlite")]) == 2
     assert "no such journal" in capsys.readouterr().err
+
+
+# -- no wait without an answer (issue 23): refusals in auto supervision, approval timeouts ------------
+
+
+class RefusingInterlock:
+    """An interlock that refuses every block centred on one of ``refused`` (the real one's verdict, scripted)."""
+
+    def __init__(self, refused: list[tuple[float, float]]) -> None:
+        self.refused = refused
+
+    def check(self, block: Block, position_um: tuple[float, float], program_open: bool) -> str | None:
+        if (block.center_x_um, block.center_y_um) in self.refused:
+            return "an indent is already there"
+        return None
+
+    def passed(self, block: Block, results: Sequence[IndentResult]) -> None:
+        pass
+
+    def restore(self, observed: Any) -> None:
+        pass
+
+
+class StubbornCampaign(FakeCampaign):
+    """A planner that ignores vetoes: it proposes the same block again (what the engine must not run or wait on)."""
+
+    def propose(
+        self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
+    ) -> Decision | None:
+        self.vetoed.clear()
+        return super().propose(clock_s, position_um, program_open, block_id)
+
+
+def test_auto_vetoes_a_refused_block_journals_why_and_asks_again(tmp_path: Path) -> None:
+    camp = FakeCampaign(n_blocks=3)
+    eng, path = run_engine(
+        tmp_path,
+        camp,
+        "auto",
+        interlock=RefusingInterlock([CENTRES[1]]),  # type: ignore[arg-type]
+    )
+    assert eng.completed
+    with JournalReader(path) as r:
+        decisions = r.decisions()
+        log = [e.text for e in r.events()]
+    refused = [d for d in decisions if d.status == "vetoed"]
+    assert len(refused) == 1 and refused[0].needs_approval_reason.startswith(
+        "safety interlock refused block 1"
+    )
+    ran = [
+        (d.decision.block.center_x_um, d.decision.block.center_y_um) for d in decisions if d.status == "auto"
+    ]
+    assert CENTRES[1] not in ran and len(ran) == 3
+    assert any("vetoed by the engine: safety interlock refused block 1" in t for t in log)
+    assert camp.vetoed == [CENTRES[1]]
+
+
+def test_a_vetoed_block_proposed_again_is_refused_and_max_refusals_stops_the_run(tmp_path: Path) -> None:
+    camp = StubbornCampaign(n_blocks=3)
+    eng, path = run_engine(
+        tmp_path,
+        camp,
+        "auto",
+        interlock=RefusingInterlock([CENTRES[0]]),  # type: ignore[arg-type]
+        max_refusals=4,
+    )
+    assert eng.state == EngineState.STOPPED and not eng.completed
+    assert "4 consecutive blocks refused (max_refusals 4)" in eng.stop_reason
+    with JournalReader(path) as r:
+        decisions = r.decisions()
+        snap = r.snapshot()
+        indents = r.results()
+    assert not indents  # the refused block never ran
+    reasons = [d.needs_approval_reason for d in decisions]
+    assert len(decisions) == 4 and reasons[0].startswith("safety interlock")
+    assert all("a vetoed block proposed again" in why for why in reasons[1:])
+    assert [d.status for d in decisions] == ["vetoed"] * 3 + ["dropped"]
+    assert snap.state == EngineState.STOPPED and snap.pending is None
+
+
+def test_a_veto_never_brings_back_the_same_block_in_supervised_mode(tmp_path: Path) -> None:
+    camp = StubbornCampaign(n_blocks=2)
+    veto = cmd(CommandKind.VETO)
+    eng, path = run_engine(
+        tmp_path, camp, "supervised", [when(EngineState.AWAITING_APPROVAL, veto)], max_refusals=2
+    )
+    # vetoed block 0 comes back: the engine refuses it itself twice in a row and stops, nobody is asked again
+    assert not eng.completed and "max_refusals 2" in eng.stop_reason
+    with JournalReader(path) as r:
+        commands = r.commands()
+    assert [c["kind"] for c in commands] == ["veto"]
+
+
+class FakeWall:
+    """A wall clock the operator's sleep advances: timeouts without waiting."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def run_with_timeout(
+    tmp_path: Path, camp: FakeCampaign, on_timeout: str, supervision: str = "supervised", **kw: Any
+) -> tuple[Engine, Path]:
+    j = new_journal(tmp_path, "t.sqlite", supervision)
+    wall = FakeWall()
+
+    def sleep(s: float) -> None:
+        wall.t += 10.0  # nobody there: each poll is ten seconds of nobody answering
+        assert wall.t < 10_000, "the engine waited forever"
+
+    eng = Engine(
+        j,
+        camp,
+        make_driver(),
+        supervision,
+        poll_s=0.01,
+        sleep=sleep,
+        watch_s=None,
+        approval_timeout_s=60.0,
+        on_timeout=on_timeout,
+        wall_clock=wall,
+        **kw,
+    )
+    try:
+        eng.run()
+    finally:
+        j.close()
+    return eng, j.path
+
+
+def test_an_unanswered_approval_times_out_and_the_run_goes_on(tmp_path: Path) -> None:
+    eng, path = run_with_timeout(tmp_path, FakeCampaign(n_blocks=4), "approve")
+    assert eng.completed
+    with JournalReader(path) as r:
+        decisions = r.decisions()
+        log = [e.text for e in r.events()]
+    assert [d.status for d in decisions] == ["approved", "auto", "auto", "approved"]
+    timeouts = [t for t in log if "timed out after 60 s: approve" in t]
+    assert len(timeouts) == 2
+
+
+def test_a_collapse_alarm_never_auto_approves_on_timeout(tmp_path: Path) -> None:
+    eng, path = run_with_timeout(tmp_path, FakeCampaign(n_blocks=4, collapse_at=2), "approve", max_refusals=3)
+    with JournalReader(path) as r:
+        decisions = r.decisions()
+        log = [e.text for e in r.events()]
+    collapse = [d for d in decisions if d.needs_approval_reason.startswith("length-scale collapse")]
+    # nobody acknowledges the alarm: every block after it waits, times out and is vetoed, never approved,
+    # and max_refusals (3) unanswered timeouts in a row end the run cleanly
+    assert [d.status for d in collapse] == ["vetoed", "vetoed", "dropped"]
+    assert sum("length-scale collapse" in t and "timed out after 60 s: veto" in t for t in log) == 3
+    assert not eng.completed and "max_refusals 3" in eng.stop_reason
+    assert eng.state == EngineState.STOPPED
+
+
+@pytest.mark.parametrize("on_timeout", ["stop", "veto"])
+def test_approval_timeout_stop_and_veto(tmp_path: Path, on_timeout: str) -> None:
+    eng, path = run_with_timeout(tmp_path, FakeCampaign(n_blocks=2), on_timeout, "step")
+    with JournalReader(path) as r:
+        decisions = r.decisions()
+    if on_timeout == "stop":
+        assert not eng.completed and "approval timed out after 60 s" in eng.stop_reason
+        assert [d.status for d in decisions] == ["dropped"]
+    else:  # step mode: every block waits, every wait is vetoed, until max_refusals unanswered in a row
+        assert not eng.completed and "max_refusals 5" in eng.stop_reason
+        assert [d.status for d in decisions] == ["vetoed"] * 4 + ["dropped"]
+
+
+def test_approval_timeout_pause_pauses_the_run(tmp_path: Path) -> None:
+    j = new_journal(tmp_path, "p.sqlite", "step")
+    wall = FakeWall()
+    states: list[EngineState] = []
+
+    def sleep(s: float) -> None:
+        wall.t += 10.0
+        states.append(eng.state)
+        if eng.state == EngineState.PAUSED:
+            send_command(j.path, cmd(CommandKind.ABORT))
+
+    eng = Engine(
+        j,
+        FakeCampaign(n_blocks=2),
+        make_driver(),
+        "step",
+        poll_s=0.01,
+        sleep=sleep,
+        watch_s=None,
+        approval_timeout_s=30.0,
+        on_timeout="pause",
+        wall_clock=wall,
+    )
+    try:
+        eng.run()
+    finally:
+        j.close()
+    assert EngineState.PAUSED in states and states[0] == EngineState.AWAITING_APPROVAL
+    assert eng.state == EngineState.STOPPED and eng.stop_reason == "aborted by tester"
+
+
+def test_a_headless_record_counts_refusals_and_the_runs_ledger() -> None:
+    from core.run.headless import MemoryRecord
+
+    record = MemoryRecord()
+    driver = make_driver()
+    eng = Engine(
+        record,
+        FakeCampaign(n_blocks=3),
+        driver,
+        "auto",
+        watch_s=None,
+        map_display_n=None,
+        interlock=RefusingInterlock([CENTRES[1]]),  # type: ignore[arg-type]
+        evaluator=FakeEvaluator(),  # type: ignore[arg-type]
+    )
+    assert eng.run() == EngineState.STOPPED and eng.completed
+    assert (record.refusals, record.approvals, record.blocks, record.indents) == (1, 0, 3, 12)
+    assert [(d.block.center_x_um, d.block.center_y_um) for d in record.decisions] == [
+        CENTRES[0],
+        CENTRES[2],
+        CENTRES[3],
+    ]
+    # every step the driver took is in the ledger: it adds up to the instrument clock
+    assert record.ledger.total_s == pytest.approx(driver.clock_s(), rel=1e-12)
+    assert record.trajectory and all(
+        m == pytest.approx(10.0 / (1 + i + 2)) for i, (_, m) in enumerate(record.trajectory)
+    )

@@ -12,11 +12,11 @@ from test_engine import FakeCampaign, make_driver, new_journal
 
 from core.campaign import Campaign
 from core.driver import Driver, DriverEvent, PhysicsClock, Recoverable, Restorable
-from core.engine import Engine
 from core.errors import InputError
 from core.journal import DriverState, Journal, JournalReader
 from core.plan import Block, IndentResult, IndentSpec, IndentStatus, StepRecord
 from core.profile import InstrumentProfile
+from core.run.engine import Engine
 from core.runconfig import make_campaign_config
 from drivers.replay import ReplayDriver
 from drivers.sim.driver import SimulatedDriver

@@ -20,13 +20,13 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from core.engine import Engine
 from core.errors import InputError
 from core.geometry import Calibration, Corner
 from core.interlock import MIN_OWN_PITCH_UM, SAFETY_HOP_UM, Interlock
 from core.journal import Journal, JournalReader, send_command
 from core.plan import Block, Decision, IndentResult, IndentSpec, PlannerSettings, local_grid
 from core.profile import InstrumentProfile, load_profile
+from core.run.engine import Engine
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.sample import CircleExclusion, PolygonExclusion, Sample
 
@@ -373,9 +373,11 @@ class RecordingDriver:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_engine_holds_refused_blocks_for_the_operator_and_never_crashes(
-    tmp_path: Path, seed: int
+@pytest.mark.parametrize("supervision", ["supervised", "auto"])
+def test_refused_blocks_never_reach_the_driver_and_never_stall_the_run(
+    tmp_path: Path, seed: int, supervision: str
 ) -> None:
+    """Supervised: the operator vetoes what the interlock holds back. Auto: the engine vetoes it itself."""
     from drivers.sim.scenarios import make_scenario
 
     sample = real_looking_sample()
@@ -386,26 +388,35 @@ def test_the_engine_holds_refused_blocks_for_the_operator_and_never_crashes(
     refusals: list[str] = []
 
     def operator(_s: float) -> None:
-        # the operator vetoes whatever the interlock holds back
+        # the operator vetoes whatever the interlock holds back, approves the rest
         if eng.state == EngineState.AWAITING_APPROVAL and eng._pending is not None:
-            refusals.append(eng._pending[2])
-            send_command(path, Command(CommandKind.VETO, author="op"))
+            why = eng._pending[2]
+            if why.startswith("safety interlock"):
+                refusals.append(why)
+            kind = CommandKind.VETO if why.startswith("safety interlock") else CommandKind.APPROVE
+            send_command(path, Command(kind, author="op"))
 
     eng = Engine(
         journal,
         campaign,
         driver,
-        "auto",
+        supervision,
         poll_s=0.01,
         sleep=operator,
         watch_s=None,
         interlock=Interlock(sample, PROFILE),
+        max_refusals=1000,  # the adversary proposes at random: many refusals in a row are expected
     )
     try:
         assert eng.run() == EngineState.STOPPED
     finally:
         journal.close()
+    with JournalReader(path) as r:
+        refused = [d for d in r.decisions() if d.needs_approval_reason.startswith("safety interlock")]
+    if supervision == "auto":
+        refusals = [d.needs_approval_reason for d in refused]
     assert refusals and all(r.startswith("safety interlock refused block") for r in refusals)
+    assert all(d.status == "vetoed" for d in refused)  # none ran, none waits
     earlier = sample.earlier_xy_um
     centre = None
     for block, pos, _open in driver.received:

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from core.campaign import Campaign, CampaignConfig, run_headless
+from core.campaign import Campaign, CampaignConfig
 from core.cost import block_costs_for, block_steps
 from core.errors import InputError
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
@@ -19,6 +19,7 @@ from core.policies.parts import PolicyParts
 from core.policies.planner import BayesPlanner
 from core.policies.registry import POLICY_DESCRIPTIONS, RECOMMENDED, make_policy, policy_names, policy_parts
 from core.profile import load_profile
+from core.run.headless import run_auto
 from drivers.sim.scenarios import make_scenario
 
 # the adaptive hold's two choices come from the instrument profile (5 s and 80 s on the iMicro)
@@ -515,7 +516,7 @@ def test_aeni_treats_indents_on_pores_as_outliers() -> None:
         CampaignConfig(policy="aeni", seed=2, lattice_n=30, settings=PlannerSettings(budget_s=20_000.0)),
         scen.sample,
     )
-    run_headless(c, scen.make_driver(c.profile))
+    run_auto(c, scen.make_driver(c.profile))
     truth = scen.truth.hardness_gpa(
         np.array([r.x_um for r in c.centres]), np.array([r.y_um for r in c.centres])
     )
@@ -525,7 +526,7 @@ def test_aeni_treats_indents_on_pores_as_outliers() -> None:
     assert np.all(inflation[on_pore] > 4.0)  # at least a doubled sd, most far more
     assert np.mean(inflation[~on_pore] == 1.0) > 0.95
     gaussian = Campaign(replace(c.config, policy="aeni+gaussian"), scen.sample)
-    run_headless(gaussian, scen.make_driver(gaussian.profile))
+    run_auto(gaussian, scen.make_driver(gaussian.profile))
     assert all(v == 1.0 for v in gaussian.noise_inflation)
     evaluator = scen.evaluator()
     mine, theirs = evaluator.score(c).mape_pct, evaluator.score(gaussian).mape_pct

@@ -187,3 +187,17 @@ def test_the_sample_file_is_relative_to_the_run_file(tmp_path: Path) -> None:
     assert rc.campaign.sample is not None and rc.campaign.sample.name == "NiTiCu-library-07"
     with pytest.raises(InputError, match="no such sample file"):
         load_run_config(write(tmp_path, '[sample]\nfile = "nope.toml"'))
+
+
+def test_run_section_holds_the_engines_no_wait_rules() -> None:
+    o = parse_run_config({}).options
+    assert (o.max_refusals, o.approval_timeout_s, o.on_timeout) == (5, None, "approve")
+    o = parse_run_config({"run": {"max_refusals": 2, "approval_timeout_s": 60, "on_timeout": "veto"}}).options
+    assert (o.max_refusals, o.approval_timeout_s, o.on_timeout) == (2, 60.0, "veto")
+    for bad, field in (
+        ({"max_refusals": 0}, "run.max_refusals"),
+        ({"approval_timeout_s": -1}, "run.approval_timeout_s"),
+        ({"on_timeout": "shrug"}, "run.on_timeout"),
+    ):
+        with pytest.raises(InputError, match=field.replace(".", r"\.")):
+            parse_run_config({"run": bad})

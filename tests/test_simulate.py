@@ -27,6 +27,7 @@ JSON_KEYS = {
     "true_max_gpa",
     "grid_baseline_s",
     "stop_reason",
+    "interlock_refusals",
     "wall_s",
     "trajectory",
 }

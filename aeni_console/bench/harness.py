@@ -261,6 +261,8 @@ class RunRecord:
     local_blocks: int = 0
     peak_mape_after_hit_pct: float | None = None
     maps: dict[str, Any] | None = None  # seed-0 final maps for the report (not stored in results.json)
+    interlock_refusals: int = 0  # blocks the interlock refused (the engine vetoed them and asked again)
+    approvals: int = 0  # blocks that waited for an approval (none in the bench's auto supervision)
 
 
 # -- one run -------------------------------------------------------------------------------------------
@@ -311,11 +313,13 @@ def flat_mape_pct(sc: BenchScenario) -> float | None:
 
 
 def run_one(spec: RunSpec) -> RunRecord:
-    """One campaign under the bench protocol, through the same loop as ``aeni simulate`` (``run_headless``)."""
+    """One campaign under the bench protocol, through the engine an operator runs (``run_auto``, as
+    ``aeni simulate``): every block passes the interlock; refusals and approvals are counted."""
     _set_threads()
-    from core.campaign import Campaign, HeadlessResult, run_headless
-    from core.model import FitReport
-    from core.plan import Decision, IndentResult
+    from core.campaign import Campaign
+    from core.plan import Block, IndentResult
+    from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent
+    from core.run.headless import RunTally, run_auto
     from core.runconfig import make_campaign_config
 
     start = time.monotonic()
@@ -333,10 +337,11 @@ def run_one(spec: RunSpec) -> RunRecord:
     )
     sim = _scenario(spec, cfg.driver_options)
     campaign = Campaign(cfg, sim.sample)
+    is_grid = spec.policy == "grid"
+    campaign.refit_every = GRID_REFIT_EVERY if is_grid else 1
     budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
     driver = sim.make_driver(campaign.profile)
     evaluator = sim.evaluator()
-    is_grid = spec.policy == "grid"
     max_found: list[tuple[float, float]] = []
     hit: list[float] = []  # the first time MAPE reached the target
     peak_after: list[float] = []
@@ -345,29 +350,47 @@ def run_one(spec: RunSpec) -> RunRecord:
     fast = local = 0
     top: float | None = None
 
-    def on_block(
-        decision: Decision, results: Sequence[IndentResult], report: FitReport | None, res: HeadlessResult
-    ) -> None:
-        nonlocal alarms, fast, local, top
-        b = decision.block
-        sizes[b.grid_g] = sizes.get(b.grid_g, 0) + 1
-        fast += int(b.hold_s < campaign.profile.default_hold_s)
-        local += int(b.kind == "local")
-        alarms += int(report is not None and report.collapse)
-        if results:
-            h_true = sim.truth.hardness_gpa(
-                np.array([r.actual_x_um for r in results]), np.array([r.actual_y_um for r in results])
-            )
-            top = float(np.max(h_true)) if top is None else max(top, float(np.max(h_true)))
-            max_found.append((res.instrument_s, top))
-        if spec.target_mape_pct is not None and res.trajectory and res.trajectory[-1][0] == res.instrument_s:
-            mape = res.trajectory[-1][1]
-            if not hit and mape <= spec.target_mape_pct:
-                hit.append(res.instrument_s)
-            elif hit:
-                peak_after.append(mape)
+    class BlockWatch(RunTally):
+        """The bench's per-block figures, folded from the run's events (a tally of its own)."""
 
-    def stop_when(res: HeadlessResult) -> str | None:
+        def __init__(self) -> None:
+            super().__init__()
+            self.block: dict[int, Block] = {}
+            self.results: list[IndentResult] = []
+
+        def emit(self, event: RunEvent) -> None:
+            super().emit(event)
+            if isinstance(event, Decided) and event.plan is not None:
+                self.block[event.decision.block.block_id] = event.decision.block
+            elif isinstance(event, BlockStarted):
+                self.block[event.block.block_id] = event.block
+            elif isinstance(event, Indent):
+                self.results.append(event.result)
+            elif isinstance(event, Observed):
+                self.observed(self.block[event.block_id], event.fit.collapse_alarm, event.t_s)
+                self.results = []
+
+        def observed(self, b: Block, collapse: bool, t_s: float) -> None:
+            nonlocal alarms, fast, local, top
+            sizes[b.grid_g] = sizes.get(b.grid_g, 0) + 1
+            fast += int(b.hold_s < campaign.profile.default_hold_s)
+            local += int(b.kind == "local")
+            alarms += int(collapse)
+            results = self.results
+            if results:
+                h_true = sim.truth.hardness_gpa(
+                    np.array([r.actual_x_um for r in results]), np.array([r.actual_y_um for r in results])
+                )
+                top = float(np.max(h_true)) if top is None else max(top, float(np.max(h_true)))
+                max_found.append((t_s, top))
+            if spec.target_mape_pct is not None and self.trajectory and self.trajectory[-1][0] == t_s:
+                mape = self.trajectory[-1][1]
+                if not hit and mape <= spec.target_mape_pct:
+                    hit.append(t_s)
+                elif hit:
+                    peak_after.append(mape)
+
+    def stop_when(res: RunTally) -> str | None:
         if hit and res.instrument_s >= hit[0] * (1.0 + spec.margin):
             return f"reached the target MAPE at {hit[0]:,.0f} s and ran on {100 * spec.margin:.0f} %"
         if res.blocks >= spec.max_blocks:
@@ -376,14 +399,7 @@ def run_one(spec: RunSpec) -> RunRecord:
             return f"centre cap ({spec.max_centres} tested centres)"
         return None
 
-    result = run_headless(
-        campaign,
-        driver,
-        evaluator=evaluator,
-        on_block=on_block,
-        stop_when=stop_when,
-        refit_every=GRID_REFIT_EVERY if is_grid else 1,
-    )
+    result = run_auto(campaign, driver, evaluator, sinks=[BlockWatch()], stop_when=stop_when)
     trajectory = list(result.trajectory)
     if (
         is_grid
@@ -416,6 +432,8 @@ def run_one(spec: RunSpec) -> RunRecord:
         reconfigurations=result.ledger.reconfigurations,
         ledger=result.ledger.as_dict(),
         stop_reason=result.stop_reason,
+        interlock_refusals=result.refusals,
+        approvals=result.approvals,
         wall_s=time.monotonic() - start,
         trajectory=trajectory,
         max_found=max_found,
@@ -642,6 +660,9 @@ class PolicySummary:
     wall_s: float  # total over seeds
     # against the grid at 1×, 1.5× and 2× its final MAPE: (median, worst seed) of the paired speed-ups
     suite_vs_grid: dict[str, tuple[float, float] | None] = field(default_factory=dict)
+    # totals over the seeds: blocks the interlock refused, blocks that waited for an approval
+    interlock_refusals: int = 0
+    approvals: int = 0
 
 
 # the reference each idea is measured against (SPEC §7; the issue's targets)
@@ -804,7 +825,7 @@ def merge_results(
         raise InputError("--render-from", "no results to merge")
     first = parts[0][1]
     keep = ("quick", "lattice_n", "margin")
-    caps = {
+    caps: dict[str, Any] = {
         "max_blocks": max(c.max_blocks for _, c, _ in parts),
         "max_centres": max(c.max_centres for _, c, _ in parts),
     }
@@ -921,6 +942,8 @@ def summarise(records: Sequence[RunRecord]) -> list[PolicySummary]:
                     else None
                     for f in SUITE_FACTORS
                 },
+                interlock_refusals=sum(r.interlock_refusals for r in vals),
+                approvals=sum(r.approvals for r in vals),
             )
         )
     return out

@@ -104,9 +104,10 @@ def _med(q: tuple[float, float, float] | None) -> float | None:
 def scenario_table(rows: Sequence[PolicySummary]) -> str:
     head = (
         "| policy | reached | time to grid's final MAPE | speed-up vs grid | vs uncertainty | vs its reference "
-        f"| speed-up at {LOOSE_FACTOR:g}× that MAPE | final MAPE | max found (true) | reconfig. | indents |"
+        f"| speed-up at {LOOSE_FACTOR:g}× that MAPE | final MAPE | max found (true) | reconfig. | indents "
+        "| interlock refusals | approvals |"
     )
-    lines = [head, "|" + "---|" * 11]
+    lines = [head, "|" + "---|" * 13]
     for r in rows:
         ref = ""
         for name, q in r.speedup_ref.items():
@@ -116,7 +117,8 @@ def scenario_table(rows: Sequence[PolicySummary]) -> str:
             f"| `{r.policy}` | {_seeds(r)} | {_fmt_time(r.t_hit_s)} "
             f"| {_fmt_ratio(r.speedup_grid)} | {_fmt_ratio(r.speedup_uncertainty)} | {ref or '—'} "
             f"| {_fmt_ratio(r.speedup_grid_loose)} | {_fmt_num(r.final_mape_pct, 3, ' %')} | {mx} "
-            f"| {_fmt_num(r.reconfigurations, 0)} | {_fmt_num(r.indents, 0)} |"
+            f"| {_fmt_num(r.reconfigurations, 0)} | {_fmt_num(r.indents, 0)} "
+            f"| {r.interlock_refusals} | {r.approvals} |"
         )
     return "\n".join(lines)
 

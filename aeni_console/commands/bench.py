@@ -95,7 +95,7 @@ def _render(sources: list[Path], out: Path) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     from aeni_console.commands.common import whole_number
 
     p = sub.add_parser(

@@ -108,7 +108,7 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("cost", help="price a grid, an indent path, or fit a stage's move-time model")
     csub = p.add_subparsers(dest="cost_command", metavar="WHAT", parser_class=type(p))
     csub.required = True

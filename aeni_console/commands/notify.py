@@ -32,7 +32,7 @@ def _cmd_test(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("notify", help="alerts: send a test message")
     sub = p.add_subparsers(dest="notify_command", metavar="ACTION")
     sub.required = True

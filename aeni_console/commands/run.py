@@ -54,6 +54,7 @@ def engine_argv(
     driver: str = "sim",
     exchange: str | None = None,
     group: str | None = None,
+    rules: dict[str, Any] | None = None,
 ) -> list[str]:
     """The command line of an engine process; its config goes to its stdin (``engine_stdin``), never here:
     a command line is what ``ps`` shows every user."""
@@ -70,6 +71,9 @@ def engine_argv(
         argv += ["--exchange", str(exchange)]
     if group is not None:
         argv += ["--group", group]
+    for flag, value in (rules or {}).items():
+        if value is not None:
+            argv += [f"--{flag.replace('_', '-')}", str(value)]
     return argv
 
 
@@ -97,6 +101,7 @@ def start_engine_process(
     exchange: str | None = None,
     group: str | None = None,
     notify: Any = None,
+    rules: dict[str, Any] | None = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
@@ -109,7 +114,7 @@ def start_engine_process(
     with open(log, "ab") as fh:
         protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
-            engine_argv(config, journal, supervision, speed, driver, exchange, group=group),
+            engine_argv(config, journal, supervision, speed, driver, exchange, group=group, rules=rules),
             stdin=subprocess.PIPE,
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -151,26 +156,6 @@ def _prepare_process() -> None:
         pass
 
 
-def _make_driver(kind: str, campaign: Any, speed: float | None, journal: Path) -> Any:
-    from drivers.registry import make_driver
-
-    c = campaign.config
-    return make_driver(
-        kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed, journal=journal
-    )
-
-
-def with_sample(config: Any, driver: str) -> Any:
-    """The config with its sample resolved (the driver's built-in one when none was given)."""
-    import dataclasses
-
-    from drivers.registry import default_sample
-
-    if config.sample is not None:
-        return config
-    return dataclasses.replace(config, sample=default_sample(driver, config.driver_options, config.seed))
-
-
 def _print(line: str) -> None:
     print(line, flush=True)
 
@@ -183,8 +168,12 @@ def create_run_journal(
     driver: str = "sim",
     speed: float | None = None,
     group: str | None = None,
+    rules: dict[str, Any] | None = None,
 ) -> Any:
-    """A new journal for ``campaign``'s run (the engine process, and the console tests' engine)."""
+    """A new journal for ``campaign``'s run (the engine process, and the console tests' engine).
+
+    ``rules`` (max_refusals, approval_timeout_s, on_timeout) are kept in the journal so a resume keeps them.
+    """
     from core.campaign import campaign_config_to_dict
     from core.journal import Journal
 
@@ -200,7 +189,17 @@ def create_run_journal(
         stage_bounds_um=campaign.stage_bounds_um,
         name=config.name,
         group_gid=journal_gid(group),
+        extra={"engine_rules": dict(rules or {})},
     )
+
+
+def engine_rules(options: Any) -> dict[str, Any]:
+    """The engine's no-wait-without-an-answer rules of a run's options (core.runconfig.RunOptions)."""
+    return {
+        "max_refusals": options.max_refusals,
+        "approval_timeout_s": options.approval_timeout_s,
+        "on_timeout": options.on_timeout,
+    }
 
 
 def run_engine(
@@ -217,12 +216,10 @@ def run_engine(
     ``notify`` (core.notifyconfig.NotifyConfig) sends alerts from a thread beside the engine; a new run keeps
     it beside its journal, owner-only, for ``aeni resume``."""
     from core.campaign import Campaign, campaign_config_from_dict
-    from core.engine import Engine
-    from core.interlock import Interlock
     from core.journal import Journal, JournalReader
     from core.notifyconfig import load_run_notify, notify_path_for, write_private
     from core.runview import EngineState
-    from drivers.registry import make_evaluator
+    from drivers.registry import campaign_for, compose_engine
 
     _prepare_process()
     path = Path(journal_path)
@@ -235,9 +232,17 @@ def run_engine(
                 )  # before any journal
             opts = {**config.driver_options, "exchange": str(Path(options.exchange).resolve())}
             config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
-        campaign = Campaign(with_sample(config, options.driver))
+        campaign = campaign_for(options.driver, config)
+        rules = engine_rules(options)
         journal = create_run_journal(
-            path, config, campaign, options.supervision, options.driver, options.speed, group=options.group
+            path,
+            config,
+            campaign,
+            options.supervision,
+            options.driver,
+            options.speed,
+            group=options.group,
+            rules=rules,
         )
         driver_kind, sup, spd = options.driver, options.supervision, options.speed
         if notify is not None and notify.enabled:
@@ -259,6 +264,7 @@ def run_engine(
             notify = load_run_notify(path)
         journal = Journal.open_writer(path)
         driver_kind = str(meta.get("driver", "sim"))
+        rules = dict(meta.get("engine_rules") or {})  # a journal from before the rules: the defaults
         sup = supervision or str(row.get("supervision") or "auto")
         spd = speed if speed is not None else meta.get("speed")
     if create is not None and speed is not None:
@@ -266,23 +272,22 @@ def run_engine(
     # stop_at reads the wall clock: an instrument second takes 1/speed s of it (none as fast as possible)
     campaign.wall_s_per_instrument_s = 1.0 / spd if spd else (0.0 if driver_kind == "sim" else 1.0)
     try:
-        driver = _make_driver(driver_kind, campaign, spd, path)
-        c = campaign.config
-        engine = Engine(
-            journal,
+        engine = compose_engine(
+            driver_kind,
             campaign,
-            driver,
-            supervision or sup,
+            journal,
+            supervision=supervision or sup,
+            speed=spd,
+            journal=path,
             progress=None if quiet else _print,
-            interlock=Interlock(campaign.sample, campaign.profile),
-            evaluator=make_evaluator(driver_kind, campaign.sample, c.driver_options, seed=c.seed),
+            **rules,
         )
     except BaseException:
         journal.close(compact=False)
         raise
     if not quiet:
         _print(f"journal {path} (engine PID {os.getpid()}, supervision {engine.supervision})")
-    asked = []
+    asked: list[int] = []
 
     def on_signal(signum: int, _frame: Any) -> None:
         if asked:  # a second Ctrl-C: stop now (the journal stays resumable)
@@ -350,6 +355,9 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "run.journal": args.journal,
         "run.speed": args.speed,
         "run.group": args.group,
+        "run.max_refusals": args.max_refusals,
+        "run.approval_timeout_s": args.approval_timeout_s,
+        "run.on_timeout": args.on_timeout,
     }
 
 
@@ -391,6 +399,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             exchange=options.exchange,
             group=options.group,
             notify=notify,
+            rules=engine_rules(options),
         )
         print(f"journal {journal}")
         print(f"engine PID {pid} (detached; log {journal.name}.log)")
@@ -466,8 +475,18 @@ def preflight_resume(path: Path, speed: float | None) -> bool:
         campaign = Campaign(campaign_config_from_dict(meta["config"]))
     except InputError as exc:
         raise InputError(str(path), exc.problem) from None
-    driver_kind = str(meta.get("driver", "sim"))
-    _make_driver(driver_kind, campaign, speed if speed is not None else meta.get("speed"), path)
+    from drivers.registry import make_driver
+
+    c = campaign.config
+    make_driver(
+        str(meta.get("driver", "sim")),
+        campaign.sample,
+        campaign.profile,
+        c.driver_options,
+        seed=c.seed,
+        speed=speed if speed is not None else meta.get("speed"),
+        journal=path,
+    )
     return True
 
 
@@ -819,6 +838,15 @@ def register(subparsers: Any) -> None:
     run.add_argument("--speed", help="simulated instrument speed-up (default: as fast as possible)")
     run.add_argument("--group", help="OS group that may watch the run (journal 0640); see docs/security.md")
     run.add_argument("--name", help="run name")
+    run.add_argument(
+        "--max-refusals", dest="max_refusals", help="refused blocks in a row that stop the run (default 5)"
+    )
+    run.add_argument(
+        "--approval-timeout-s", dest="approval_timeout_s", help="an unanswered approval times out (seconds)"
+    )
+    run.add_argument(
+        "--on-timeout", dest="on_timeout", help="approve | veto | pause | stop (default approve)"
+    )
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
     run.add_argument("--config-stdin", dest="config_stdin", action="store_true", help=argparse.SUPPRESS)

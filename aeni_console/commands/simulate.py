@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 from aeni_console.commands.common import dumps, ledger_table, positive_float, seed_arg
+
+if TYPE_CHECKING:
+    from core.run.events import Sink
 
 NOISE_CHOICES = ("hetero", "homo", "10pct")
 
@@ -36,13 +40,16 @@ def run_simulation(
     progress: bool = False,
     sample_file: str | None = None,
     failure_rate: float | None = None,
+    sinks: Sequence[Sink] = (),
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract).
 
     The simulated instrument lays the scenario's truth onto the sample (its built-in one by default) and
-    its evaluator scores the map; the campaign sees only the sample.
+    its evaluator scores the map; the campaign sees only the sample. ``sinks`` see the run's events.
     """
-    from core.campaign import Campaign, run_headless
+    from core.campaign import Campaign
+    from core.run.events import Observed, RunEvent
+    from core.run.headless import RunTally, run_auto
     from core.runconfig import make_campaign_config
     from core.sample import load_sample
     from drivers.registry import sim_scenario
@@ -68,12 +75,16 @@ def run_simulation(
     start = time.monotonic()
     budget = campaign.settings.budget_s or campaign.grid_baseline_s
 
-    def on_block(decision: Any, results: Any, report: Any, res: Any) -> None:
-        if progress:
-            mape = res.trajectory[-1][1] if res.trajectory else None
-            _progress(res.instrument_s, budget, res.blocks, mape, start)
+    class Progress(RunTally):
+        """A second tally of the same events, printing a progress line after every block."""
 
-    result = run_headless(campaign, driver, evaluator, on_block=on_block)
+        def emit(self, event: RunEvent) -> None:
+            super().emit(event)
+            if isinstance(event, Observed):
+                mape = self.trajectory[-1][1] if self.trajectory else None
+                _progress(event.t_s, budget, self.blocks, mape, start)
+
+    result = run_auto(campaign, driver, evaluator, sinks=[*sinks, *([Progress()] if progress else [])])
     if progress:
         sys.stderr.write("\n")
     score = evaluator.score(campaign)
@@ -94,6 +105,7 @@ def run_simulation(
         "true_max_gpa": max(float(evaluator.truth_gpa.max()), field_extrema(evaluator.truth)[1]),
         "grid_baseline_s": campaign.grid_baseline_s,
         "stop_reason": result.stop_reason,
+        "interlock_refusals": result.refusals,
         "wall_s": time.monotonic() - start,
         "trajectory": [{"t_s": t, "mape_pct": m} for t, m in result.trajectory],
         "_ledger_obj": result.ledger,
@@ -133,7 +145,7 @@ def _handler(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     from core.policies.registry import RECOMMENDED, policy_names
 
     p = sub.add_parser("simulate", help="run one headless emulator campaign")

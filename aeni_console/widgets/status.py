@@ -13,7 +13,6 @@ from core.runview import EngineState, RunSnapshot
 STATE_STYLES: dict[EngineState, str] = {
     EngineState.IDLE: "bold reverse",
     EngineState.RUNNING: "bold black on green",
-    EngineState.PAUSING: "bold black on yellow",
     EngineState.PAUSED: "bold black on yellow",
     EngineState.AWAITING_APPROVAL: "bold white on magenta",
     EngineState.WAITING_FOR_INSTRUMENT: "bold black on cyan",

@@ -246,7 +246,8 @@ class JournalReader:
         return self._effective_state(row)
 
     def _effective_state(self, row: dict[str, Any]) -> tuple[EngineState, bool]:
-        state = EngineState(row["state"])
+        # 'pausing': what an engine watcher of before the state machine wrote while a pause was queued
+        state = EngineState("paused" if row["state"] == "pausing" else row["state"])
         running = engine_running(self.path)
         if running:
             return state, False

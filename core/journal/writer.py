@@ -10,11 +10,19 @@ import sqlite3
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from core.access import JOURNAL_MODE, protect, protect_side_files
+from core.access import JOURNAL_MODE, command_channel_problem, protect, protect_side_files
 from core.errors import InputError
-from core.journal.codec import INDENT_COLS, DriverState, map_fields_to_bytes, result_to_row, to_json, utc_now
+from core.journal.codec import (
+    INDENT_COLS,
+    DriverState,
+    StoredCommand,
+    map_fields_to_bytes,
+    result_to_row,
+    to_json,
+    utc_now,
+)
 from core.journal.reader import Queries
 from core.journal.schema import (
     BUSY_TIMEOUT_MS,
@@ -31,14 +39,18 @@ from core.profile import InstrumentProfile, profile_to_dict
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import settings_to_dict
 
+if TYPE_CHECKING:
+    from core.run.events import RunEvent, RunHistory
+
 
 class JournalLockedError(InputError):
     """Another engine holds this journal."""
 
 
 class CommandWatch:
-    """Sees the owner's pause and abort while a slow driver step runs (the engine only reads commands
-    between indents): it marks the state ``pausing`` or ``stopping`` at once, so a console shows it."""
+    """Sees the owner's abort while a slow driver step runs (the engine only reads commands between
+    indents): it marks the state ``stopping`` at once, so a console shows it. A pause waits for the
+    checkpoint (the console shows it queued)."""
 
     def __init__(self, path: Path, owner_uid: int) -> None:
         self.conn = sqlite3.connect(str(path), isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
@@ -49,11 +61,6 @@ class CommandWatch:
     def poll(self) -> bool:
         """True once, the first time an abort from the owner is waiting (the caller aborts the driver)."""
         try:
-            self.conn.execute(
-                "UPDATE engine_state SET state = 'pausing' WHERE state = 'running' AND EXISTS "
-                "(SELECT 1 FROM commands WHERE processed = 0 AND kind = 'pause' AND uid = ?)",
-                (self.owner_uid,),
-            )
             if self._aborted:
                 return False
             row = self.conn.execute(
@@ -62,9 +69,7 @@ class CommandWatch:
             ).fetchone()
             if row is None:
                 return False
-            self.conn.execute(
-                "UPDATE engine_state SET state = 'stopping' WHERE state IN ('running', 'pausing')"
-            )
+            self.conn.execute("UPDATE engine_state SET state = 'stopping' WHERE state = 'running'")
         except sqlite3.Error:
             return False  # busy or gone: the next poll tries again
         self._aborted = True
@@ -251,6 +256,31 @@ class Journal:
     def note_clock(self, t_s: float) -> None:
         self._t_s = t_s
 
+    # -- the engine's record (core.run.events.RunRecord): a sink, a command source, a history ----------
+    @property
+    def name(self) -> str:
+        return str(self.path)
+
+    def emit(self, event: RunEvent) -> None:
+        """Write one engine event in one transaction (core.journal.sink says which rows each becomes)."""
+        from core.journal.sink import write_event
+
+        write_event(self, event)
+
+    def history(self) -> RunHistory | None:
+        from core.journal.sink import fold_history
+
+        return fold_history(self)
+
+    def owner_uid(self) -> int:
+        return os.stat(self.path).st_uid
+
+    def pending_commands(self) -> list[StoredCommand]:
+        return self.q.unprocessed_commands()
+
+    def command_channel_problem(self, owner_uid: int) -> str:
+        return command_channel_problem(self.path, owner_uid)
+
     def begin_session(self, kind: str) -> int:
         now = time.time()
         with self._tx() as c:
@@ -377,16 +407,19 @@ class Journal:
         needs_approval_reason: str = "",
         text: str = "",
         plan: tuple[dict[str, Any], PlannerSettings] | None = None,
+        decision_id: int | None = None,
     ) -> int:
         """A planner proposal with its scores and alternatives; with ``plan`` (an auto decision) also the
-        block plan and the planner state, in the same transaction."""
+        block plan and the planner state, in the same transaction. ``decision_id``: the engine's number
+        for it (None: the next free one)."""
         b = decision.block
         with self._tx() as c:
             cur = c.execute(
-                "INSERT INTO decisions (block_id, wall_utc, t_s, policy, phase, kind, center_x_um, center_y_um, "
+                "INSERT INTO decisions (decision_id, block_id, wall_utc, t_s, policy, phase, kind, center_x_um, center_y_um, "
                 "score, acquisition, predicted_cost_s, decision_json, status, needs_approval_reason) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
+                    decision_id,
                     b.block_id,
                     utc_now(),
                     t_s,

@@ -1,9 +1,15 @@
-"""The run engine: an explicit state machine that drives a campaign through a driver, block by block.
+"""The run engine: drives a campaign through a driver, block by block, along the state machine.
 
-Between any two indents and between blocks the engine reaches a checkpoint: it reads the operator
-commands queued in the journal, applies them (pause, approve, veto, adjust, stop, abort) and records
-the outcome. Everything it learns is journaled first, so a process killed at any point can be resumed
-from the journal (:meth:`Engine.run` on a reopened journal continues where the last one ended).
+The engine's state lives in :class:`core.run.machine.Machine` and changes only along its transition
+table. Between any two indents and between blocks the engine reaches a checkpoint: it reads the
+operator commands queued in the journal, applies those the state allows (one handler per command
+kind) and records the outcome. Everything it learns is journaled first, so a process killed at any
+point can be resumed from the journal (:meth:`Engine.run` on a reopened journal continues where the
+last one ended).
+
+No wait goes unanswered: in ``auto`` supervision a block the interlock refuses is vetoed by the engine
+and the planner asked again (``max_refusals`` consecutive refusals stop the run), and an approval
+can time out (``approval_timeout_s``, ``on_timeout``).
 """
 
 from __future__ import annotations
@@ -17,9 +23,8 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
-from core.access import command_channel_problem
 from core.driver import (
     Driver,
     DriverAborted,
@@ -31,11 +36,35 @@ from core.driver import (
 )
 from core.errors import InputError
 from core.interlock import Interlock
-from core.journal import DriverState, Journal, user_name
+from core.journal.codec import DriverState
+from core.journal.schema import user_name
 from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
+from core.run.events import (
+    BlockEnded,
+    BlockStarted,
+    CommandDone,
+    Decided,
+    FitSummary,
+    Indent,
+    Logged,
+    Observed,
+    PlanChanged,
+    PlanState,
+    Resolved,
+    RunEvent,
+    RunHistory,
+    RunRecord,
+    SessionBegan,
+    SessionEnded,
+    Sink,
+    StateChanged,
+    Steps,
+    Waiting,
+)
+from core.run.machine import Machine, Trigger, allowed, refusal
 from core.runview import CommandKind, EngineState, MapFields
-from core.settings import check_veto, coerce_supervision
+from core.settings import ON_TIMEOUT, check_veto, coerce_supervision
 
 if TYPE_CHECKING:
     from core.model import FitReport  # the refit's report (torch stays out of the engine's import)
@@ -51,7 +80,10 @@ class CampaignLike(Protocol):
     """What the engine needs from core.campaign.Campaign (a fake in tests)."""
 
     settings: PlannerSettings
-    calibration: StageFrame
+
+    @property
+    def calibration(self) -> StageFrame: ...
+
     # why the last propose() returned None (budget, target, the policy has nothing left)
     last_stop_reason: str | None
 
@@ -83,16 +115,26 @@ class CampaignLike(Protocol):
     ) -> None: ...
 
 
-class _Stop(Exception):
-    """Internal: leave the main loop."""
+def _same_block(a: Block, b: Block) -> bool:
+    """The same block whatever its id: a re-proposal of a vetoed block counts as another refusal."""
+    return dataclasses.replace(a, block_id=0) == dataclasses.replace(b, block_id=0)
+
+
+_Handler = Callable[["Engine", str, dict[str, Any], int], tuple[str, str]]
 
 
 class Engine:
-    """Executes a campaign through a driver, journaling every step; one engine per journal."""
+    """Executes a campaign through a driver, emitting every step as an event; one engine per record.
+
+    ``record`` is where the run goes and where its commands come from (the journal, or an in-memory
+    record for a headless run); ``sinks`` receive every event too (a progress view, a test).
+    """
+
+    _handlers: ClassVar[dict[CommandKind, _Handler]]  # one handler per command kind (below the class)
 
     def __init__(
         self,
-        journal: Journal,
+        record: RunRecord,
         campaign: CampaignLike,
         driver: Driver,
         supervision: str = "auto",
@@ -103,14 +145,29 @@ class Engine:
         track_metrics: bool = True,
         owner_uid: int | None = None,
         watch_s: float | None = 0.2,
-        map_display_n: int = 50,
+        map_display_n: int | None = 50,  # None: no map fields for a console (a headless run)
         interlock: Interlock | None = None,
         evaluator: MapEvaluator | None = None,
+        max_refusals: int = 5,
+        approval_timeout_s: float | None = None,
+        on_timeout: str = "approve",
+        wall_clock: Callable[[], float] = time.monotonic,
+        sinks: Sequence[Sink] = (),
     ) -> None:
         coerce_supervision(supervision)
         if not 0 < poll_s <= 5:
             raise InputError("poll_s", f"{poll_s!r} is not allowed: expected 0 < poll_s ≤ 5 s")
-        self.journal = journal
+        if max_refusals < 1:
+            raise InputError("max_refusals", f"{max_refusals!r} is not allowed: expected a whole number ≥ 1")
+        if approval_timeout_s is not None and not approval_timeout_s > 0:
+            raise InputError(
+                "approval_timeout_s",
+                f"{approval_timeout_s!r} is not allowed: expected a number of seconds > 0",
+            )
+        if on_timeout not in ON_TIMEOUT:
+            raise InputError("on_timeout", f"{on_timeout!r} is not allowed: expected {', '.join(ON_TIMEOUT)}")
+        self.record = record
+        self.sinks: tuple[Sink, ...] = (record, *sinks)
         self.campaign = campaign
         self.driver = driver
         # the driver's optional capabilities, asked once
@@ -125,19 +182,25 @@ class Engine:
         self.sleep = sleep
         self.progress = progress
         self.track_metrics = track_metrics
-        self.owner_uid = os.stat(journal.path).st_uid if owner_uid is None else owner_uid
+        self.owner_uid = record.owner_uid() if owner_uid is None else owner_uid
         self.watch_s = watch_s
         self.map_display_n = map_display_n
         # every block passes the interlock before the driver sees it; a simulated run's evaluator scores the map
         self.interlock = interlock
         self.evaluator = evaluator
-        self.state = EngineState.IDLE
+        self.machine = Machine()
         self.stop_reason = ""
         self.completed = False
-        # what the checkpoint flags
-        self._paused = False
-        self._abort = False
-        self._stop_after_block = False
+        # no wait without an answer: refusals in auto supervision, unanswered approvals
+        self.max_refusals = max_refusals
+        self.approval_timeout_s = approval_timeout_s
+        self.on_timeout = on_timeout
+        self.wall_clock = wall_clock
+        self._refusals = 0  # consecutive refusals since the last block started
+        # blocks vetoed since the last block started (a re-proposal is refused)
+        self._vetoed: list[Block] = []
+        self._approval_deadline: float | None = None  # wall clock
+        self._stop_requested = ""  # why the run stops once no block is open (stop-after-block, request_stop)
         self._pending: tuple[int, Decision, str] | None = None  # decision id, decision, why it waits
         self._current: tuple[Block, int] | None = None  # block, first unfinished indent
         self._next_block_id = 0
@@ -145,6 +208,9 @@ class Engine:
         self._needs_recovery = False
         self._collapse_ack_snapshot: int | None = None
         self._last_snapshot: int | None = None
+        self._decision_id = 0  # the last decision's number (the engine numbers them)
+        self._snapshot_id = 0  # the last model snapshot's number
+        self._results: list[IndentResult] = []  # the open block's indents so far
         self._last_collapse: tuple[int, str] | None = None  # snapshot id, reason of an unacknowledged alarm
         self._external_abort = threading.Event()
         self._watcher: threading.Thread | None = None
@@ -168,29 +234,53 @@ class Engine:
             reason=reason,
         )
 
+    def _emit(self, event: RunEvent) -> None:
+        for sink in self.sinks:
+            sink.emit(event)
+
+    def _log(
+        self,
+        level: str,
+        text: str,
+        *,
+        category: str = "engine",
+        block_id: int | None = None,
+        detail: str | None = None,
+    ) -> None:
+        self._emit(Logged(self._clock(), level, text, category, block_id, detail))
+
+    def _plan_state(self, block_id: int, point: str) -> PlanState:
+        return PlanState(block_id, point, self.campaign.export_state(), self.campaign.settings)
+
     def _say(self, line: str) -> None:
         if self.progress is not None:
             self.progress(line)
 
-    def _set_state(self, state: EngineState, **kw: Any) -> None:
-        self.state = state
-        self.journal.note_clock(self._clock())
-        self.journal.set_state(state, **kw)
+    @property
+    def state(self) -> EngineState:
+        return self.machine.state
 
-    def _settle_state(self) -> None:
-        """The state the flags imply at a checkpoint."""
-        if self._abort or (self._stop_after_block and self._current is None):
-            want = EngineState.STOPPING
-        elif self._paused:
-            want = EngineState.PAUSED
-        elif self._waiting is not None:
-            want = EngineState.WAITING_FOR_INSTRUMENT
-        elif self._pending is not None:
-            want = EngineState.AWAITING_APPROVAL
-        else:
-            want = EngineState.RUNNING
-        if want != self.state:
-            self._set_state(want)
+    def _fire(self, trigger: Trigger, **kw: Any) -> None:
+        """Move the machine; a change of state (or of what the engine row holds) is journaled."""
+        before = self.machine.state
+        after = self.machine.fire(trigger)
+        if after is EngineState.AWAITING_APPROVAL and (
+            before is not EngineState.AWAITING_APPROVAL or trigger is Trigger.ASK
+        ):
+            self._approval_deadline = (
+                None if self.approval_timeout_s is None else self.wall_clock() + self.approval_timeout_s
+            )
+        if after != before or kw:
+            self._emit(StateChanged(self._clock(), after, **kw))
+
+    @property
+    def _stopping(self) -> bool:
+        return self.machine.state is EngineState.STOPPING
+
+    def request_stop(self, reason: str) -> None:
+        """Stop once the current block is done (before the next is planned), with ``reason``."""
+        if not self._stop_requested:
+            self._stop_requested = reason
 
     def request_abort(self) -> None:
         """Thread- and signal-safe: stop at the next checkpoint (finish the indent, lift, stop)."""
@@ -199,24 +289,27 @@ class Engine:
     # -- the run -----------------------------------------------------------------------------------
     def run(self) -> EngineState:
         """Run (or resume) until the planner is done, the operator stops it, or it fails."""
-        resumed = self.journal.has_history()
-        row = self.journal.q.engine_row()
-        if resumed and row.get("completed"):
+        history = self.record.history()
+        if history is not None and history.completed:
             self.completed = True
-            self.stop_reason = str(row.get("stop_reason") or "finished")
-            self.state = EngineState.STOPPED
+            self.stop_reason = history.stop_reason or "finished"
+            self.machine = Machine(EngineState.STOPPED)
             return self.state
-        self.journal.begin_session("resume" if resumed else "start")
+        self._emit(
+            SessionBegan(0.0 if history is not None else self._clock(), "resume" if history else "start")
+        )
         self._start_watcher()
         try:
-            if resumed:
-                self._recover()
+            if history is not None:
+                self._recover(history)
             else:
-                self.journal.log(
+                self._log(
                     "info",
                     f"run started by {user_name(os.getuid())}: supervision {self.supervision}, PID {os.getpid()}",
                 )
-            self._set_state(EngineState.RUNNING, supervision=self.supervision)
+            self._fire(Trigger.START, supervision=self.supervision)
+            if self._pending is not None:
+                self._fire(Trigger.ASK)
             self._loop()
             self._finish()
         except BaseException as exc:
@@ -229,45 +322,44 @@ class Engine:
     def _fail(self, exc: BaseException) -> None:
         with contextlib.suppress(Exception):
             what = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-            self.journal.note_clock(self._clock())
-            self.journal.log(
-                "error", f"engine failed: {what}", category="error", detail=traceback.format_exc()
-            )
-            self.state = EngineState.FAILED
-            self.journal.set_state(EngineState.FAILED, stop_reason=what)
-            self.journal.end_session(EngineState.FAILED)
+            self._log("error", f"engine failed: {what}", category="error", detail=traceback.format_exc())
+            self.machine.fire(Trigger.FAIL)
+            self._emit(StateChanged(self._clock(), EngineState.FAILED, stop_reason=what))
+            self._emit(SessionEnded(self._clock(), EngineState.FAILED))
 
     def _loop(self) -> None:
         while True:
             self._checkpoint()
-            if self._abort:
+            state = self.machine.state
+            if state is EngineState.STOPPING:
                 self.stop_reason = self.stop_reason or "aborted by the operator"
                 return
-            if self._stop_after_block and self._current is None:
-                self.stop_reason = "stopped after the block by the operator"
-                return
-            if self._paused:
+            if state is EngineState.PAUSED:
                 self.sleep(self.poll_s)
                 continue
+            if state is EngineState.AWAITING_APPROVAL:
+                if not self._approval_timed_out():
+                    self.sleep(self.poll_s)
+                continue
             if self._current is None:
-                if self._pending is not None:
-                    self.sleep(self.poll_s)  # awaiting approval
-                    continue
                 if not self._decide():
+                    self._fire(Trigger.STOP)
                     return
                 continue
             block, start = self._current
             if not self._execute(block, start):
                 return
-            self._observe(block)
+            self._observe(block, self._results)
+            self._results = []
             self._current = None
             self._next_block_id = block.block_id + 1
 
     def _finish(self) -> None:
-        self._set_state(EngineState.STOPPING)
+        if not self._stopping:
+            self._fire(Trigger.STOP)
         if self._pending is not None:
             did, _, _ = self._pending
-            self.journal.resolve_decision(did, "dropped", "engine")
+            self._emit(Resolved(self._clock(), did, "dropped", "engine"))
             self._pending = None
         if self._needs_recovery and self._restorable is not None:
             # the tip was engaged when the last engine died: make sure the comeback lifts it
@@ -279,10 +371,9 @@ class Engine:
             text = f"run finished: {self.stop_reason}"
         else:
             text = f"run stopped: {self.stop_reason or 'stopped'}"
-        self.journal.note_clock(self._clock())
-        self.journal.log("info", text)
-        self._set_state(EngineState.STOPPED, completed=self.completed, stop_reason=self.stop_reason)
-        self.journal.end_session(EngineState.STOPPED)
+        self._log("info", text)
+        self._fire(Trigger.STOPPED, completed=self.completed, stop_reason=self.stop_reason)
+        self._emit(SessionEnded(self._clock(), EngineState.STOPPED))
         self._say(text)
 
     # -- deciding ----------------------------------------------------------------------------------
@@ -325,59 +416,161 @@ class Engine:
         )
 
     def _offer(self, decision: Decision | None) -> bool:
-        """Journal a fresh decision; run it, or hold it for the operator. False: nothing left to do."""
-        if decision is None:
-            self.completed = True
-            self.stop_reason = self.campaign.last_stop_reason or "the planner has nothing more to propose"
-            return False
-        why = self._approval_reason(decision)
-        self.journal.note_clock(self._clock())
-        did = self.journal.record_decision(
-            decision,
-            self._clock(),
-            "pending" if why else "auto",
-            why,
-            text=("awaiting approval (" + why + "): " if why else "decided ") + self._describe(decision),
-            plan=None if why else (self.campaign.export_state(), self.campaign.settings),
-        )
-        if why.startswith("safety interlock"):
-            self.journal.log("warn", why, block_id=decision.block.block_id)
-        if why:
+        """Journal a fresh decision; run it, hold it for the operator, or (refused, in auto) veto it and ask
+        again. False: nothing left to do (the stop reason says why)."""
+        while True:
+            if decision is None:
+                self.completed = True
+                self.stop_reason = self.campaign.last_stop_reason or "the planner has nothing more to propose"
+                return False
+            why = self._approval_reason(decision)
+            repeated = any(_same_block(decision.block, v) for v in self._vetoed)
+            if repeated:
+                why = f"block {decision.block.block_id} is a vetoed block proposed again"
+            auto_veto = repeated or (self.supervision == "auto" and why.startswith("safety interlock"))
+            self._decision_id += 1
+            did = self._decision_id
+            self._emit(
+                Decided(
+                    self._clock(),
+                    did,
+                    decision,
+                    "pending" if why else "auto",
+                    why,
+                    ("awaiting approval (" + why + "): " if why else "decided ") + self._describe(decision),
+                    None if why else self._plan_state(decision.block.block_id, "planned"),
+                )
+            )
+            if why.startswith("safety interlock") or repeated:
+                self._log("warn", why, block_id=decision.block.block_id)
+            if not why:
+                self._current = (decision.block, 0)
+                self._results = []
+                self._refusals = 0
+                self._vetoed.clear()
+                return True
             self._pending = (did, decision, why)
-            self._settle_state()
-            self._say(f"awaiting approval ({why}): {self._describe(decision)}")
-        else:
-            self._current = (decision.block, 0)
+            if not auto_veto:
+                self._fire(Trigger.ASK)
+                self._say(f"awaiting approval ({why}): {self._describe(decision)}")
+                return True
+            # nobody to ask (auto supervision), or the planner came back with a vetoed block
+            self._say(f"refused ({why}): {self._describe(decision)}")
+            if self._too_many_refusals(why):
+                return False
+            decision = self._veto_pending("engine", None, None, f"vetoed by the engine: {why}")
+
+    def _too_many_refusals(self, why: str) -> bool:
+        """Count one more refusal in a row; at ``max_refusals`` the pending decision is dropped and the run stops."""
+        self._refusals += 1
+        if self._refusals < self.max_refusals:
+            return False
+        assert self._pending is not None
+        block_id = self._pending[1].block.block_id
+        self._drop_pending(f"refused {self._refusals} times in a row: {why}")
+        self.stop_reason = (
+            f"{self._refusals} consecutive blocks refused (max_refusals {self.max_refusals}); the last: {why}"
+        )
+        self._log("warn", f"stopping: {self.stop_reason}", block_id=block_id)
         return True
+
+    def _veto_pending(
+        self, author: str, cid: int | None, hold: int | None, note: str = ""
+    ) -> Decision | None:
+        """Veto the pending decision (journaled with its reason) and ask the planner for the next block."""
+        assert self._pending is not None
+        did, decision, _ = self._pending
+        if hold is None:
+            self.campaign.veto(decision)
+        else:
+            self.campaign.veto(decision, hold_blocks=hold)
+        self._vetoed.append(decision.block)
+        plan = self._plan_state(decision.block.block_id, "veto")
+        self._emit(Resolved(self._clock(), did, "vetoed", author, cid, plan))
+        if note:
+            self._log("info", note, block_id=decision.block.block_id)
+        self._pending = None
+        return self._propose(decision.block.block_id)
+
+    def _drop_pending(self, note: str) -> None:
+        if self._pending is None:
+            return
+        did, decision, _ = self._pending
+        self._emit(Resolved(self._clock(), did, "dropped", "engine"))
+        self._log("info", f"decision {did} dropped: {note}", block_id=decision.block.block_id)
+        self._pending = None
 
     def _decide(self) -> bool:
         return self._offer(self._propose(self._next_block_id))
 
-    def _start_block(
-        self, decision_id: int, decision: Decision, resolution: tuple[str, str, int | None] | None
-    ) -> None:
-        self.journal.record_block_planned(
-            decision.block,
-            decision_id,
-            self._clock(),
-            self.campaign.export_state(),
-            self.campaign.settings,
-            resolve=resolution,
+    def _timeout_action(self) -> str:
+        """What an unanswered approval does when it times out: never approves a refused block or a collapse alarm."""
+        assert self._pending is not None
+        why = self._pending[2]
+        if self.on_timeout == "approve" and (
+            why.startswith("safety interlock") or why.startswith("length-scale collapse")
+        ):
+            return "veto"
+        return self.on_timeout
+
+    def _approval_timed_out(self) -> bool:
+        """An approval nobody answered in time: do what ``on_timeout`` says (journaled). True when acted."""
+        if self._approval_deadline is None or self._pending is None:
+            return False
+        if self.wall_clock() < self._approval_deadline:
+            return False
+        self._approval_deadline = None
+        action = self._timeout_action()
+        did, decision, why = self._pending
+        note = (
+            f"approval of decision {did} (block {decision.block.block_id}, {why}) timed out after "
+            f"{self.approval_timeout_s:g} s: {action}"
         )
+        self._log("warn", note, category="timeout", block_id=decision.block.block_id)
+        self._say(note)
+        if action == "approve":
+            self._release(did, decision, ("approved", "timeout", None))
+        elif action == "veto":
+            # nobody answers: each vetoed timeout counts as a refusal, so an empty room ends the run cleanly
+            if self._too_many_refusals(f"approval timed out ({why})") or not self._offer(
+                self._veto_pending("timeout", None, None)
+            ):
+                self._fire(Trigger.STOP)
+            elif self._pending is None:
+                self._fire(Trigger.GO)
+        elif action == "pause":
+            self._fire(Trigger.PAUSE)
+        else:  # stop
+            self._stop_requested = "approval timed out"
+            self.stop_reason = f"approval timed out after {self.approval_timeout_s:g} s (on_timeout stop)"
+            self._fire(Trigger.STOP)
+        return True
+
+    def _release(self, decision_id: int, decision: Decision, resolution: tuple[str, str, int | None]) -> None:
+        """A waiting decision goes ahead: its block starts."""
+        self._start_block(decision_id, decision, resolution)
+        self._fire(Trigger.GO)
+
+    def _start_block(
+        self, decision_id: int, decision: Decision, resolution: tuple[str, str, int | None]
+    ) -> None:
+        plan = self._plan_state(decision.block.block_id, "planned")
+        self._emit(BlockStarted(self._clock(), decision.block, decision_id, plan, resolution))
         self._current = (decision.block, 0)
+        self._results = []
         self._pending = None
+        self._refusals = 0
+        self._vetoed.clear()
 
     # -- commands ----------------------------------------------------------------------------------
     def _checkpoint(self) -> None:
-        if self._external_abort.is_set() and not self._abort:
-            self._abort = True
+        if self._external_abort.is_set() and self.machine.can(Trigger.STOP) and not self._stopping:
             self.stop_reason = "aborted (signal)"
-            self.journal.log(
-                "command", "abort requested by a signal: finishing the indent, lifting, stopping"
-            )
-        commands = self.journal.q.unprocessed_commands()
+            self._log("command", "abort requested by a signal: finishing the indent, lifting, stopping")
+            self._fire(Trigger.STOP)
+        commands = self.record.pending_commands()
         # trust rests on who the OS lets write the journal, not on the uid a row claims (core.access)
-        untrusted = command_channel_problem(self.journal.path, self.owner_uid) if commands else ""
+        untrusted = self.record.command_channel_problem(self.owner_uid) if commands else ""
         for sc in commands:
             before = self.state
             try:
@@ -387,10 +580,16 @@ class Engine:
                     outcome, reason = self._apply(sc.kind, sc.author, sc.uid, sc.payload, sc.command_id)
             except InputError as exc:
                 outcome, reason = "rejected", str(exc)
-            self.journal.note_clock(self._clock())
             text = f"{sc.author}: {sc.kind} {outcome}" + (f" ({reason})" if reason else "")
-            self.journal.mark_command(sc.command_id, outcome, reason, self._clock(), before, text)
-        self._settle_state()
+            self._emit(CommandDone(self._clock(), sc.command_id, outcome, reason, before, text))
+        if (
+            self._stop_requested
+            and self._current is None
+            and self.machine.can(Trigger.STOP)
+            and not self._stopping
+        ):
+            self.stop_reason = self.stop_reason or self._stop_requested
+            self._fire(Trigger.STOP)
 
     def _apply(
         self, kind_s: str, author: str, uid: int, payload: dict[str, Any], cid: int
@@ -401,49 +600,46 @@ class Engine:
             kind = CommandKind(kind_s)
         except ValueError:
             return "rejected", f"unknown command {kind_s!r}"
-        if kind is CommandKind.PAUSE:
-            if self._paused:
-                return "rejected", "already paused"
-            self._paused = True
-            return "accepted", "pausing after the current indent" if self._current else ""
-        if kind is CommandKind.RESUME:
-            if not self._paused:
-                return "rejected", "not paused"
-            self._paused = False
-            return "accepted", ""
-        if kind in (CommandKind.APPROVE, CommandKind.STEP):
-            return self._approve(author, payload, cid)
-        if kind is CommandKind.VETO:
-            return self._veto(author, payload, cid)
-        if kind is CommandKind.ADJUST:
-            return self._adjust(payload)
-        if kind is CommandKind.STOP_AFTER_BLOCK:
-            if self._stop_after_block:
-                return "rejected", "already stopping after this block"
-            self._stop_after_block = True
-            return (
-                "accepted",
-                "stopping after the current block" if self._current else "stopping now (between blocks)",
-            )
-        if kind is CommandKind.ABORT:
-            self._abort = True
-            self.stop_reason = f"aborted by {author}"
-            return "accepted", "finishing the current indent, lifting, stopping"
-        if kind in (CommandKind.CONFIRM, CommandKind.REPORT, CommandKind.SKIP):
-            return self._instrument_report(kind, author, payload)
-        return "rejected", f"unhandled command {kind_s!r}"  # pragma: no cover
+        if not allowed(self.state, kind):
+            return "rejected", refusal(self.state, kind)
+        return self._handlers[kind](self, author, payload, cid)
 
-    def _instrument_report(self, kind: CommandKind, author: str, payload: dict[str, Any]) -> tuple[str, str]:
+    def _pause(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        self._fire(Trigger.PAUSE)
+        return "accepted", "pausing after the current indent" if self._current else ""
+
+    def _resume(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        self._fire(Trigger.RESUME)
+        return "accepted", ""
+
+    def _stop_after_block(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        if self._stop_requested:
+            return "rejected", "already stopping after this block"
+        self._stop_requested = "stopped after the block by the operator"
+        return (
+            "accepted",
+            "stopping after the current block" if self._current else "stopping now (between blocks)",
+        )
+
+    def _abort(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        self.stop_reason = f"aborted by {author}"
+        self._fire(Trigger.STOP)
+        return "accepted", "finishing the current indent, lifting, stopping"
+
+    def _confirm(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        return self._instrument_report("started", str(payload.get("token", "")), author)
+
+    def _report(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        return self._instrument_report(str(payload.get("kind", "")), str(payload.get("token", "")), author)
+
+    def _skip(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        return self._instrument_report("skip", str(payload.get("site", "")), author)
+
+    def _instrument_report(self, what: str, value: str, author: str) -> tuple[str, str]:
         """The operator's word on the instrument (started with the token, aborted, surface, skip a site)."""
         if self._operator is None:
             return "rejected", "this run's driver takes no instrument reports"
-        if kind is CommandKind.CONFIRM:
-            what, value = "started", payload.get("token", "")
-        elif kind is CommandKind.REPORT:
-            what, value = str(payload.get("kind", "")), payload.get("token", "")
-        else:
-            what, value = "skip", payload.get("site", "")
-        ok, why = self._operator.operator_report(what, str(value), author)
+        ok, why = self._operator.operator_report(what, value, author)
         return ("accepted" if ok else "rejected"), why
 
     def _check_stale(self, payload: dict[str, Any]) -> str:
@@ -454,8 +650,7 @@ class Engine:
         return ""
 
     def _approve(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        if self._pending is None:
-            return "rejected", "nothing is waiting for approval"
+        assert self._pending is not None  # the machine takes approve only while a decision waits
         stale = self._check_stale(payload)
         if stale:
             return "rejected", stale
@@ -465,32 +660,27 @@ class Engine:
             return "rejected", f"{refusal}; veto it to let the planner offer another block"
         if why.startswith("length-scale collapse") and self._last_collapse is not None:
             self._collapse_ack_snapshot = self._last_collapse[0]
-        self._start_block(did, decision, ("approved", author, cid))
+        self._release(did, decision, ("approved", author, cid))
         return "accepted", f"block {decision.block.block_id} approved"
 
     def _veto(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        if self._pending is None:
-            return "rejected", "nothing is waiting for approval"
+        assert self._pending is not None  # the machine takes veto only while a decision waits
         stale = self._check_stale(payload)
         if stale:
             return "rejected", stale
-        did, decision, _ = self._pending
         try:
             hold = check_veto(payload)
         except InputError as exc:
             return "rejected", str(exc)
-        if hold is None:
-            self.campaign.veto(decision)
-        else:
-            self.campaign.veto(decision, hold_blocks=hold)
-        state = (decision.block.block_id, "veto", self.campaign.export_state(), self.campaign.settings)
-        self.journal.resolve_decision(did, "vetoed", author, cid, campaign_state=state)
-        self._pending = None
-        if not self._offer(self._propose(decision.block.block_id)):
-            return "accepted", "vetoed; the planner has nothing else to offer, stopping"
-        return "accepted", f"vetoed block {decision.block.block_id}; the next best is offered"
+        block_id = self._pending[1].block.block_id
+        if not self._offer(self._veto_pending(author, cid, hold)):
+            self._fire(Trigger.STOP)
+            return "accepted", f"vetoed; stopping: {self.stop_reason}"
+        if self._pending is None:
+            self._fire(Trigger.GO)
+        return "accepted", f"vetoed block {block_id}; the next best is offered"
 
-    def _adjust(self, payload: dict[str, Any]) -> tuple[str, str]:
+    def _adjust(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
         changes = dict(payload)
         if not changes:
             return "rejected", "nothing to adjust"
@@ -502,18 +692,18 @@ class Engine:
                 self.campaign.adjust(**changes)
             except (InputError, TypeError) as exc:
                 return "rejected", str(exc)
-            self.journal.record_campaign_state(
-                self._next_block_id if self._current is None else self._current[0].block_id,
-                "adjust",
-                self.campaign.export_state(),
-                self.campaign.settings,
-            )
+            block_id = self._next_block_id if self._current is None else self._current[0].block_id
+            self._emit(PlanChanged(self._clock(), self._plan_state(block_id, "adjust")))
         if supervision is not None and supervision != self.supervision:
             self.supervision = supervision
-            self.journal.set_state(self.state, supervision=supervision)
-            if self._pending is not None and not self._approval_reason(self._pending[1]):
+            self._emit(StateChanged(self._clock(), self.state, supervision=supervision))
+            if (
+                self._pending is not None
+                and self.state is EngineState.AWAITING_APPROVAL
+                and not self._approval_reason(self._pending[1])
+            ):
                 did, decision, _ = self._pending
-                self._start_block(did, decision, ("auto", "engine", None))
+                self._release(did, decision, ("auto", "engine", None))
         shown = ", ".join(f"{k}={v!r}" for k, v in payload.items())
         return "accepted", shown
 
@@ -526,10 +716,7 @@ class Engine:
             buf.append((s, self._clock()))
             if s.category == "recovery":
                 self._recovery_s += s.seconds
-        self.journal.note_clock(self._clock())
-        self.journal.record_steps(
-            buf, self._driver_state(category), text=text, category=category, block_id=block_id
-        )
+        self._emit(Steps(self._clock(), tuple(buf), self._driver_state(category), text, category, block_id))
 
     def _end_program(self, text: str) -> None:
         self._journal_steps(self.driver.end_program(), text, "engine", None)
@@ -539,7 +726,7 @@ class Engine:
     ) -> None:
         if self._restorable is None:
             raise InputError(
-                str(self.journal.path),
+                self.record.name,
                 f"the {type(self.driver).__name__} cannot be put back where the journal left the instrument, "
                 "so this run cannot be resumed with it",
             )
@@ -564,41 +751,40 @@ class Engine:
             for ev in gen:
                 if isinstance(ev, InstrumentWait):
                     self._wait_for_instrument(ev)
-                    if self._abort:
+                    if self._stopping:
                         gen.close()
                         self._stop_mid_block(block, buf)
                         return False
                     continue
                 if self._waiting is not None:  # the array ended: its results follow
                     self._waiting = None
-                    self._settle_state()
+                    self._fire(Trigger.GO)
                 if not isinstance(ev, IndentResult):
                     buf.append((ev, self._clock()))
                     if ev.category == "recovery":
                         self._recovery_s += ev.seconds
                     continue
-                self.journal.record_indent(ev, buf, self._driver_state("indent"))
+                self._emit(Indent(self._clock(), ev, tuple(buf), self._driver_state("indent")))
+                self._results.append(ev)
                 buf = []
                 self._current = (block, ev.indent_index + 1)
                 if ev.indent_index >= block.n_indents - 1:
                     continue  # the block-level checkpoint follows
-                self._checkpoint()
-                while self._paused and not self._abort:
-                    self.sleep(self.poll_s)
-                    self._checkpoint()
-                if self._abort:
+                self._checkpoint_while_paused()
+                if self._stopping:
                     gen.close()
                     self._stop_mid_block(block, buf)
                     return False
         except DriverAborted:
             self._stop_mid_block(block, buf)
             self._checkpoint()  # consume the abort command that triggered it
-            self._abort = True
             self.stop_reason = self.stop_reason or "aborted"
+            if not self._stopping:
+                self._fire(Trigger.STOP)
             return False
         if buf:
             self._journal_steps((s for s, _ in buf), "", "engine", block.block_id)
-        self.journal.set_block_status(block.block_id, "executed", self._clock())
+        self._emit(BlockEnded(self._clock(), block.block_id, "executed", finished=True))
         return True
 
     def _wait_for_instrument(self, wait: InstrumentWait) -> None:
@@ -606,12 +792,14 @@ class Engine:
         before = self._waiting
         self._waiting = wait
         changed = before is None or (before.waiting, before.started) != (wait.waiting, wait.started)
-        self.journal.note_clock(self._clock())
+        if self.state is EngineState.RUNNING:
+            self._fire(Trigger.WAIT_INSTRUMENT)
+        self._emit(Waiting(self._clock(), wait))
         for note in wait.notes:
-            self.journal.log("info", note, category="instrument", block_id=wait.block_id)
+            self._log("info", note, category="instrument", block_id=wait.block_id)
         if changed:
             what = "waiting for the instrument" if before is None else "instrument"
-            self.journal.log(
+            self._log(
                 "info",
                 f"block {wait.block_id}: {what}: {wait.waiting}"
                 + ("" if wait.started else " (start not confirmed)"),
@@ -619,36 +807,44 @@ class Engine:
                 block_id=wait.block_id,
                 detail=json.dumps(dataclasses.asdict(wait)),
             )
+        self._checkpoint_while_paused()
+
+    def _checkpoint_while_paused(self) -> None:
+        """A checkpoint inside a block: a pause holds the block here until resumed (or stopped)."""
         self._checkpoint()
-        while self._paused and not self._abort:
+        while self.state is EngineState.PAUSED:
             self.sleep(self.poll_s)
             self._checkpoint()
 
     def _stop_mid_block(self, block: Block, buf: list[tuple[StepRecord, float]]) -> None:
         self._waiting = None
         if buf:
-            self.journal.record_steps(buf, self._driver_state("abort"))
+            self._emit(Steps(self._clock(), tuple(buf), self._driver_state("abort")))
         done = self._current[1] if self._current else 0
-        self.journal.set_block_status(block.block_id, "aborted")
-        self.journal.note_clock(self._clock())
-        self.journal.log(
+        self._emit(BlockEnded(self._clock(), block.block_id, "aborted", finished=False))
+        self._log(
             "warn",
             f"block {block.block_id} stopped after {done} of {block.n_indents} indents",
             block_id=block.block_id,
         )
 
-    def _observe(self, block: Block) -> None:
-        results = self.journal.q.results(block.block_id)
+    def _observe(self, block: Block, indents: Sequence[IndentResult]) -> None:
+        results = sorted(indents, key=lambda r: r.indent_index)
         if self.interlock is not None:
             self.interlock.passed(block, results)
         report = self.campaign.observe_block(block, results)
-        sid = self.journal.next_snapshot_id()
+        self._snapshot_id += 1
+        sid = self._snapshot_id
         mape, max_found = None, None
         if self.track_metrics and self.evaluator is not None:
             score = self.evaluator.score(self.campaign)
             self.campaign.note_score(score)
             mape, max_found = score.mape_pct, score.max_found_gpa
-        fields = self.campaign.map_fields(sid, self.map_display_n) if report is not None else None
+        fields = (
+            self.campaign.map_fields(sid, self.map_display_n)
+            if report is not None and self.map_display_n is not None
+            else None
+        )
         summary = self._fit_summary(report, mape, max_found)
         if report is not None and report.collapse:
             self._last_collapse = (sid, report.collapse_reason)
@@ -660,35 +856,27 @@ class Engine:
             f"t={t:>10,.0f} s  indents {len(results)}"
             + (f" ({unmeasured} not measured)" if unmeasured else "")
             + (f"  MAPE {mape:.2f} %" if mape is not None else "")
-            + ("  COLLAPSE ALARM" if summary.get("collapse_alarm") else "")
+            + ("  COLLAPSE ALARM" if summary.collapse_alarm else "")
         )
-        self.journal.note_clock(t)
-        self.journal.record_observation(
-            block.block_id,
-            t,
-            sid,
-            hyper or {},
-            summary,
-            fields,
-            self.campaign.export_state(),
-            self.campaign.settings,
-            text=line,
-        )
+        plan = self._plan_state(block.block_id, "observed")
+        self._emit(Observed(t, block.block_id, sid, hyper or {}, summary, fields, plan, line))
         self._last_snapshot = sid
         self._say(line)
 
     def _fit_summary(
         self, report: FitReport | None, mape: float | None, max_found: float | None
-    ) -> dict[str, Any]:
-        out: dict[str, Any] = {"mape_pct": mape, "max_found_gpa": max_found}
+    ) -> FitSummary:
         if report is None:
-            return out
+            return FitSummary(mape, max_found)
         ls_uv = report.lengthscales_uv
         nls_uv = report.noise_lengthscales_uv
-        out.update(
-            lengthscales_um=list(self._uv_to_um(ls_uv)),
-            noise_lengthscales_um=list(self._uv_to_um(nls_uv)) if nls_uv is not None else [],
-            lengthscales_uv=list(ls_uv),
+        return FitSummary(
+            mape,
+            max_found,
+            fitted=True,
+            lengthscales_um=self._uv_to_um(ls_uv),
+            noise_lengthscales_um=self._uv_to_um(nls_uv) if nls_uv is not None else (),
+            lengthscales_uv=tuple(float(v) for v in ls_uv),
             collapse_alarm=bool(report.collapse),
             collapse_reason=str(report.collapse_reason),
             used_last_good=bool(report.used_last_good),
@@ -698,7 +886,6 @@ class Engine:
             outputscale=report.outputscale,
             mean_const=report.mean_const,
         )
-        return out
 
     def _uv_to_um(self, ls: Sequence[float]) -> tuple[float, ...]:
         to_stage = self.campaign.calibration.to_stage
@@ -710,55 +897,52 @@ class Engine:
         return tuple(float(v) * s for v, s in zip(ls, (su, sv), strict=False))
 
     # -- resume ------------------------------------------------------------------------------------
-    def _recover(self) -> None:
-        q = self.journal.q
-        self.journal.note_clock(0.0)
-        cs = q.latest_campaign_state()
-        observed = q.observed_blocks()
+    def _recover(self, history: RunHistory) -> None:
+        """Pick the run up where its record says the last engine left it."""
+        observed = history.observed
         if self.interlock is not None:
             self.interlock.restore(observed)
-        if cs is not None:
-            self.campaign.restore(cs[0], observed)
+        if history.plan is not None:
+            self.campaign.restore(history.plan[0], observed)
         elif observed:
-            raise InputError(str(self.journal.path), "journal has observed blocks but no planner state")
-        ds = q.latest_driver_state()
-        self._recovery_s = q.recovery_seconds()
+            raise InputError(self.record.name, "journal has observed blocks but no planner state")
+        ds = history.driver
+        self._recovery_s = history.recovery_s
+        self._decision_id = history.last_decision_id
+        self._snapshot_id = history.last_snapshot_id
         if ds is not None:
             # the tip state after a crash is unknown: the driver re-engages before it indents again
             self._set_driver(ds.clock_s, ds.position_um, False, ds.physics_clock_s)
             self._needs_recovery = ds.program_open
-        open_blk = q.open_block()
-        pending = q.pending_decision()
-        last_state = str(q.engine_row().get("state", "idle"))
-        parts = [f"the last engine stopped while {last_state}", f"{len(observed)} blocks observed"]
-        if open_blk is not None:
-            block, _status, done = open_blk
+        pending = history.pending
+        parts = [f"the last engine stopped while {history.last_state}", f"{len(observed)} blocks observed"]
+        if history.open_block is not None:
+            block, done_results = history.open_block
+            done = len(done_results)
             self._current = (block, done)
+            self._results = list(done_results)
             self._next_block_id = block.block_id
             if done >= block.n_indents:
                 parts.append(f"block {block.block_id} was finished but not yet folded into the model")
             else:
                 parts.append(f"block {block.block_id} continues at indent {done} of {block.n_indents}")
             if pending is not None:
-                self.journal.resolve_decision(pending.decision_id, "dropped", "engine")
+                self._emit(Resolved(0.0, pending[0], "dropped", "engine"))
         else:
             self._next_block_id = max((b.block_id for b, _ in observed), default=-1) + 1
             if pending is not None:
-                why = pending.needs_approval_reason or "awaiting approval"
-                self._pending = (pending.decision_id, pending.decision, why)
-                self._next_block_id = pending.decision.block.block_id
+                self._pending = pending
+                self._next_block_id = pending[1].block.block_id
                 parts.append(
-                    f"decision {pending.decision_id} for block {pending.decision.block.block_id} still awaits approval"
+                    f"decision {pending[0]} for block {pending[1].block.block_id} still awaits approval"
                 )
-        n_cmd = len(q.unprocessed_commands())
-        if n_cmd:
-            parts.append(f"{n_cmd} commands sent before the stop are processed now")
+        if history.queued_commands:
+            parts.append(f"{history.queued_commands} commands sent before the stop are processed now")
         if ds is not None:
             parts.append(
                 f"instrument restored to t={ds.clock_s:,.0f} s at ({ds.position_um[0]:.0f}, {ds.position_um[1]:.0f}) µm"
             )
-        self.journal.note_clock(self._clock())
-        self.journal.log("warn", "resumed: " + "; ".join(parts), category="recovery")
+        self._log("warn", "resumed: " + "; ".join(parts), category="recovery")
         self._say("resumed: " + "; ".join(parts))
 
     # -- the abort / pause watcher -------------------------------------------------------------------
@@ -778,14 +962,29 @@ class Engine:
 
     def _watch(self) -> None:
         assert self.watch_s is not None
-        watch = self.journal.command_watch(self.owner_uid)
+        watch = self.record.command_watch(self.owner_uid)
         if watch is None:
             return
         try:
             while not self._watch_stop.wait(self.watch_s):
-                if command_channel_problem(self.journal.path, self.owner_uid):
+                if self.record.command_channel_problem(self.owner_uid):
                     continue  # the checkpoint rejects them, with the reason
                 if watch.poll():
                     self.driver.abort()
         finally:
             watch.close()
+
+
+Engine._handlers = {
+    CommandKind.PAUSE: Engine._pause,
+    CommandKind.RESUME: Engine._resume,
+    CommandKind.APPROVE: Engine._approve,
+    CommandKind.STEP: Engine._approve,
+    CommandKind.VETO: Engine._veto,
+    CommandKind.ADJUST: Engine._adjust,
+    CommandKind.STOP_AFTER_BLOCK: Engine._stop_after_block,
+    CommandKind.ABORT: Engine._abort,
+    CommandKind.CONFIRM: Engine._confirm,
+    CommandKind.REPORT: Engine._report,
+    CommandKind.SKIP: Engine._skip,
+}

@@ -1,0 +1,1 @@
+"""A run: the engine, its state machine, and (later) the events it emits."""

@@ -1,0 +1,155 @@
+"""A run with nobody at the console: the same Engine in auto supervision, its events kept in memory.
+
+``aeni simulate``, the bench, the benchmarks and the tests run campaigns through :func:`run_auto`, so
+they measure the loop an operator runs: every block passes the interlock (a refused block is vetoed by
+the engine and the planner asked again), and the tally counts refusals and approvals.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from core.cost import CostLedger
+from core.interlock import Interlock
+from core.journal.codec import StoredCommand
+from core.metrics import MapEvaluator
+from core.plan import Decision
+from core.run.events import (
+    BlockStarted,
+    CommandWatcher,
+    Decided,
+    Indent,
+    Observed,
+    RunEvent,
+    RunHistory,
+    Sink,
+    Steps,
+)
+
+if TYPE_CHECKING:
+    from core.campaign import Campaign
+    from core.driver import Driver
+
+
+@dataclass
+class RunTally:
+    """What a headless run reports, folded from its events as they come."""
+
+    ledger: CostLedger = field(default_factory=CostLedger)
+    trajectory: list[tuple[float, float]] = field(default_factory=list)  # (t_s, MAPE %) after every refit
+    instrument_s: float = 0.0
+    indents: int = 0
+    blocks: int = 0
+    decisions: list[Decision] = field(default_factory=list)  # the decisions whose blocks ran
+    refusals: int = 0  # blocks the interlock refused (or a vetoed block proposed again)
+    approvals: int = 0  # blocks that waited and were approved (by an operator, or a timeout)
+    stop_reason: str = ""
+    _waiting: dict[int, Decision] = field(default_factory=dict)
+
+    def emit(self, event: RunEvent) -> None:
+        self.instrument_s = max(self.instrument_s, event.t_s)
+        if isinstance(event, Indent):
+            self.ledger.extend(s for s, _ in event.steps)
+            self.indents += 1
+        elif isinstance(event, Steps):
+            self.ledger.extend(s for s, _ in event.steps)
+        elif isinstance(event, Decided):
+            if event.plan is not None:
+                self.decisions.append(event.decision)
+            else:
+                self._waiting[event.decision_id] = event.decision
+                if event.why.startswith("safety interlock") or "proposed again" in event.why:
+                    self.refusals += 1
+        elif isinstance(event, BlockStarted):
+            self.decisions.append(self._waiting.pop(event.decision_id))
+            self.approvals += int(event.resolution[0] == "approved")
+        elif isinstance(event, Observed):
+            self.blocks += 1
+            if event.fit.fitted and event.fit.mape_pct is not None:
+                self.trajectory.append((event.t_s, event.fit.mape_pct))
+
+
+class MemoryRecord(RunTally):
+    """A run record in memory: no history, no commands (nobody can send one), the tally of its events."""
+
+    name = "headless run"
+
+    def owner_uid(self) -> int:
+        return os.getuid()
+
+    def history(self) -> RunHistory | None:
+        return None
+
+    def pending_commands(self) -> list[StoredCommand]:
+        return []
+
+    def command_channel_problem(self, owner_uid: int) -> str:
+        return ""
+
+    def command_watch(self, owner_uid: int) -> CommandWatcher | None:
+        return None
+
+
+class _StopWhen:
+    """Asks ``stop_when`` after every block; a reason stops the engine before it plans the next one."""
+
+    def __init__(self, tally: RunTally, stop_when: Callable[[RunTally], str | None]) -> None:
+        self.tally = tally
+        self.stop_when = stop_when
+        self.stop: Callable[[str], None] = lambda reason: None
+
+    def emit(self, event: RunEvent) -> None:
+        if isinstance(event, Observed):
+            reason = self.stop_when(self.tally)
+            if reason is not None:
+                self.stop(reason)
+
+
+def run_auto(
+    campaign: Campaign,
+    driver: Driver,
+    evaluator: MapEvaluator | None = None,
+    *,
+    sinks: Sequence[Sink] = (),
+    stop_when: Callable[[RunTally], str | None] | None = None,
+    max_refusals: int = 5,
+) -> RunTally:
+    """Run a campaign to its end through the Engine in auto supervision, with the interlock, in memory.
+
+    ``evaluator`` (a simulated instrument's) scores the map after each block; ``sinks`` see every event
+    after the tally; ``stop_when`` may end the run after any block with a reason (the bench stops a run
+    once its question is answered).
+    """
+    from core.run.engine import Engine
+
+    record = MemoryRecord()
+    extra: list[Sink] = list(sinks)
+    stopper = _StopWhen(record, stop_when) if stop_when is not None else None
+    if stopper is not None:
+        extra.append(stopper)
+    engine = Engine(
+        record,
+        campaign,
+        driver,
+        "auto",
+        watch_s=None,
+        map_display_n=None,
+        interlock=Interlock(campaign.sample, campaign.profile),
+        evaluator=evaluator,
+        max_refusals=max_refusals,
+        sinks=extra,
+    )
+    if stopper is not None:
+        stopper.stop = engine.request_stop
+    engine.run()
+    record.instrument_s = float(driver.clock_s())
+    if engine.completed:  # the planner's own reason, as the budget stands at the end
+        record.stop_reason = (
+            campaign.stop_reason(driver.clock_s()) or campaign.last_stop_reason or engine.stop_reason
+        )
+    else:  # stopped early (stop_when), or by max_refusals
+        record.stop_reason = engine.stop_reason
+    return record

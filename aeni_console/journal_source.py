@@ -11,7 +11,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
-from core.journal import JournalReader, ReplayView, send_command
+from core.journal import JournalReader, ReplayView, engine_running, send_command
 from core.runview import Command, MapFields, RunSnapshot
 
 
@@ -23,6 +23,19 @@ class JournalSource:
         self.reader_user = reader_user
         self._lock = threading.Lock()
         self._reader = JournalReader(self.path)
+        self._seen: tuple[int, bool] | None = None
+
+    def changed(self) -> bool:
+        """Whether the journal may read differently since the last call: another connection committed
+        (SQLite's ``data_version``) or the engine process started or ended. Costs one pragma and one lock
+        probe, so the feed can ask often and read a whole snapshot only when something happened."""
+        with self._lock:
+            version = int(self._reader.conn.execute("PRAGMA data_version").fetchone()[0])
+        now = (version, engine_running(self.path))
+        if now == self._seen:
+            return False
+        self._seen = now
+        return True
 
     def snapshot(self) -> RunSnapshot:
         with self._lock:

@@ -137,6 +137,9 @@ class RunSnapshot:
     allowed_holds_s: tuple[float, ...] = ()  # the instrument profile's holds (the adjust form checks them)
     # WAITING FOR INSTRUMENT: the ticket out and what the driver sees (the KLA driver), else None
     instrument_wait: InstrumentWait | None = None
+    # the profile's safety rule and where the tip is: what says whether a block stays or reconfigures
+    reconfig_threshold_um: float | None = None
+    position_um: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -330,10 +330,12 @@ class LiveRun:
         return JournalReplay(self.path)
 
     def snapshot(self) -> RunSnapshot:
-        from core.journal import JournalReader
-
-        with JournalReader(self.path) as reader:
-            return reader.snapshot()
+        """The run as the console reads it (with the sample and every indent)."""
+        source = JournalSource(self.path)
+        try:
+            return source.snapshot()
+        finally:
+            source.close()
 
     def commands(self) -> list[dict[str, Any]]:
         """Every command in the journal, as the engine recorded it (kind, author, payload_json, outcome ...)."""

@@ -403,6 +403,22 @@ def _scale_lines(vmin: float, vmax: float, rows: int, cmap: str, no_color: bool)
     return lines
 
 
+def _x_ticks(x_min: float, x_max: float, cols: int, reverse_x: bool) -> tuple[list[float], list[float]]:
+    """Round x ticks whose labels never touch: plotext drops one of two overlapping labels, and which one
+    depends on the process (string hashing), so a crowded axis would not draw the same twice."""
+    for max_ticks in range(max(2, min(6, cols // 9 + 1)), 1, -1):
+        ticks = nice_ticks(x_min, x_max, max_ticks=max_ticks)
+        pos = []
+        for tick in ticks:
+            frac = (tick - x_min) / (x_max - x_min) if x_max > x_min else 0.5
+            pos.append((1.0 - frac if reverse_x else frac) * cols - 0.5)
+        width = max((len(tick_label(t)) for t in ticks), default=1) + 2
+        gaps = np.diff(sorted(pos))
+        if len(ticks) < 2 or gaps.min() >= width:
+            return ticks, pos
+    return ticks, pos
+
+
 def render_heatmap(
     fields: MapFields | None,
     field_key: str,
@@ -517,13 +533,7 @@ def render_heatmap(
             if style:
                 kw["style"] = style
             plt.scatter([c[0] for c in group], [rows - 1 - c[1] for c in group], **kw)
-    x_ticks = nice_ticks(x_min, x_max, max_ticks=max(2, min(6, cols // 9 + 1)))
-    x_pos = []
-    for tick in x_ticks:
-        frac = (tick - x_min) / (x_max - x_min) if x_max > x_min else 0.5
-        if reverse_x:
-            frac = 1.0 - frac
-        x_pos.append(frac * cols - 0.5)
+    x_ticks, x_pos = _x_ticks(x_min, x_max, cols, reverse_x)
     y_pos = [((t - y_min) / (y_max - y_min) if y_max > y_min else 0.5) * rows - 0.5 for t in y_ticks]
     plt.xlim(-0.5, cols - 0.5)
     plt.ylim(-0.5, rows - 0.5)

@@ -49,6 +49,7 @@ from core.policies.variance import PosteriorCov
 MAX_CANDIDATES = 2500  # candidates scored per decision (a large lattice is thinned evenly)
 REFERENCE_N = 24  # reference points per side on which the relative map error is integrated
 FULL_WEIGHT_REL_SLOPE = 2.0  # a relative slope (per side of the area) that gets the full structure weight
+PRICED_ALTERNATIVES = 3  # alternatives listed (the decision panel shows three; a veto takes the first)
 BOX_FRACTION = 0.45  # a block's indents lie within ± this × the reconfiguration threshold of its anchor
 
 
@@ -198,6 +199,7 @@ class ScatteredPlanner:
         cost[cand] = block_costs_s(ctx, ctx.lattice.xy_um[cand], 1, hold_s, "global")
         order = np.argsort(-score, kind="stable")[: len(cand)]
         spread = alternatives(ctx, order, score, score, cost, np.full(n, "global"), skip=1)
+        spread = spread[:PRICED_ALTERNATIVES]  # each priced costs as much as the proposal's own program
         xy = ctx.lattice.xy_um[cand]
         priced = []
         for a in spread:

@@ -323,8 +323,9 @@ def ticket_text(ticket: Ticket) -> str:
             f"   X {xmm:.4f} mm, Y {ymm:.4f} mm   ({t.origin_x_um:.1f}, {t.origin_y_um:.1f} µm)."
         )
     methods = "\n".join(f'   hold {m.hold_s:g} s: "{m.method}" ({_ranges(m)})' for m in t.methods)
+    grid = f" ({t.grid_g}×{t.grid_g} at {t.pitch_um:g} µm)" if t.grid_g > 1 else ""
     words = sites_words(t.kind, t.sites_um, t.grid_g, t.pitch_um, None)
-    grid = f" ({words.layout} {words.extent})".replace(" )", ")")
+    array_words = f"{words.program}: {words.layout} {words.extent}".rstrip()
     return (
         f"AE-NI ticket  run {t.run}  block {t.block_id}{resumed}\n"
         f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
@@ -333,6 +334,7 @@ def ticket_text(ticket: Ticket) -> str:
         f"{move}\n"
         f"3. Array dialog: import outbox/{t.sites_file}\n"
         f"   {t.n_sites} sites{grid}, µm offsets from the crosshair, {sign}.\n"
+        f"   ({array_words})\n"
         f"4. Test method:\n{methods}\n"
         f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline}.\n"
         f"6. Export (Sample File → Export, CSV or Excel) as inbox/{t.export_stem}.xlsx (or .csv).\n"

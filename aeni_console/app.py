@@ -163,6 +163,7 @@ class ConsoleApp(App[None]):
         # a demo's console owns its engine: leaving stops it, and help and palette must say so
         self.leaving_stops_engine = leaving_stops_engine
         self.snapshot: RunSnapshot | None = None
+        self.snapshot_at = 0.0  # self.clock() when the shown snapshot arrived (the wall time runs on from it)
         self.feed: Feed | None = None
         self.replay_index = -1
         self.replay_loaded = -2  # the replay index whose snapshot and fields have been posted
@@ -247,6 +248,7 @@ class ConsoleApp(App[None]):
             return  # leaving: the panels are gone
         old = self.snapshot
         self.snapshot = snap
+        self.snapshot_at = self.clock()
         self.note = ""
         self.inflight = None
         if (
@@ -308,7 +310,13 @@ class ConsoleApp(App[None]):
         if not self.status_bar.is_mounted:
             return
         replay = (self.replay_index, self.replay_count) if self.replay_mode and self.replay_count else None
-        self.status_bar.show(self.snapshot, self.clock(), replay, self.note)
+        now = self.clock()
+        snap = self.snapshot
+        wall_s = None
+        if snap is not None and not snap.finished and not self.replay_mode:
+            # a snapshot is read only when the journal changes: the session's wall time runs on meanwhile
+            wall_s = snap.wall_s + max(now - self.snapshot_at, 0.0)
+        self.status_bar.show(snap, now, replay, self.note, wall_s)
         if self.ticket_panel.display:
             self.ticket_panel.tick(self.clock())
 

@@ -1,9 +1,11 @@
 """Where the console's data comes from, and the thread that brings it without blocking the UI.
 
 The console only knows the small ``RunSource`` protocol: a live journal, a finished journal (replay)
-and a canned snapshot (rendering tests) all look the same. A ``Feed`` thread polls the source, loads the
-map fields when the GP refits, and posts *replaceable* messages at a capped rate (the memray/Toolong
-pattern): if the UI is busy, a newer snapshot replaces the queued one instead of piling up.
+and a canned snapshot (rendering tests) all look the same. A ``Feed`` thread asks the source whether
+anything changed (a source that can tell, like a journal's ``changed()``, answers for the price of one
+pragma), reads a snapshot only then, loads the map fields when the GP refits, and posts *replaceable*
+messages at a capped rate (the memray/Toolong pattern): if the UI is busy, a newer snapshot replaces the
+queued one instead of piling up. A console at rest (no new journal rows) therefore does no work.
 """
 
 from __future__ import annotations
@@ -29,6 +31,13 @@ class RunSource(Protocol):
     def send(self, command: Command) -> None:
         """Record an operator command (raises for a reader that does not own the run)."""
         ...
+
+
+@runtime_checkable
+class ChangeAwareSource(RunSource, Protocol):
+    """A source that can say cheaply whether a new snapshot could differ from the last one."""
+
+    def changed(self) -> bool: ...
 
 
 @runtime_checkable
@@ -101,6 +110,8 @@ class Feed(threading.Thread):
         self._last_post = 0.0
         self.posted = 0  # snapshots posted (for tests and the benchmark)
         self.polls = 0
+        self.reads = 0  # snapshots read (a poll with nothing changed reads none)
+        self._retry = False  # the last read failed: read again even if the source saw no change
 
     def poke(self) -> None:
         self._wake.set()
@@ -122,8 +133,18 @@ class Feed(threading.Thread):
         """One poll: read, compare, post. Public so a test can drive the feed without the thread."""
         self.polls += 1
         try:
+            if (
+                self._last is not None
+                and not self._retry
+                and isinstance(self.source, ChangeAwareSource)
+                and not self.source.changed()
+            ):
+                return
+            self.reads += 1
+            self._retry = False
             snap = self.source.snapshot()
         except Exception as exc:  # a feed must survive a bad read; the console shows why
+            self._retry = True
             self._post(FeedProblem(f"cannot read the run: {exc}"))
             return
         if snap != self._last:
@@ -135,6 +156,7 @@ class Feed(threading.Thread):
             try:
                 fields = self.source.map_fields(sid)
             except Exception as exc:
+                self._retry = True
                 self._post(FeedProblem(f"cannot read the map fields: {exc}"))
                 return
             self._last_map_id = sid  # a fit without stored fields (too few points) is not asked for again

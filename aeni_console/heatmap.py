@@ -17,7 +17,8 @@ import numpy as np
 from rich.style import Style
 from rich.text import Text
 
-from core.runview import MapFields, TestedCenter
+from core.runview import IndentMark, MapFields, RunSnapshot
+from core.sample.model import Exclusion, PolygonExclusion
 
 # The four GP fields of the paper's Figure 8, in the order `m` cycles through them.
 FIELD_KEYS: tuple[str, ...] = ("mean", "epistemic", "noise", "total")
@@ -66,12 +67,129 @@ HALF_BLOCK = "▀"
 # Shading characters for NO_COLOR terminals, lowest to highest.
 SHADES = "·░▒▓█"
 
-# Overlay markers: (colour marker, no-colour marker).
-MARK_NEWEST = ("◉", "@")
-MARK_RECENT = ("●", "O")
-MARK_OLDER = ("•", "o")
-MARK_NEXT = ("+", "+")
-RECENT_N = 5
+# Overlay markers, each (colour character, no-colour character, colour); every meaning has its own
+# character in both, and none is one of the no-colour SHADES, so a map reads the same without colour.
+MARK_OUTLINE = ("#", "#", (205, 205, 205))
+MARK_EXCLUDED = ("/", "/", (170, 170, 170))
+MARK_EARLIER = ("·", ":", (200, 200, 200))
+MARK_MEASURED = ("•", "o", (240, 240, 240))
+MARK_NOT_RUN = ("○", "-", (140, 170, 255))
+MARK_UNVERIFIED = ("?", "?", (255, 205, 0))
+MARK_FAILED = ("✗", "x", (255, 80, 80))
+MARK_NEWEST = ("◉", "@", (255, 255, 255))
+MARK_PLANNED = ("+", "+", (255, 64, 160))
+STATUS_MARKS: dict[str, tuple[str, str, tuple[int, int, int]]] = {
+    "measured": MARK_MEASURED,
+    "failed": MARK_FAILED,
+    "not_run": MARK_NOT_RUN,
+    "unverified": MARK_UNVERIFIED,
+}
+# (marker, legend word) in the order they are drawn: a later one wins a shared character cell
+LEGEND: tuple[tuple[tuple[str, str, tuple[int, int, int]], str], ...] = (
+    (MARK_OUTLINE, "edge"),
+    (MARK_EXCLUDED, "excl."),
+    (MARK_EARLIER, "earlier"),
+    (MARK_MEASURED, "measured"),
+    (MARK_NOT_RUN, "not run"),
+    (MARK_UNVERIFIED, "unverified"),
+    (MARK_FAILED, "failed"),
+    (MARK_NEWEST, "newest"),
+    (MARK_PLANNED, "planned"),
+)
+
+
+@dataclass(frozen=True)
+class MapMarks:
+    """What the map draws over the field: the sample as it is and the run's indents, in stage µm.
+
+    ``planned_um`` holds one group of sites per array still to run (the pending block, the rest of the
+    running one; a stretch of several arrays is several groups), each drawn the same way.
+    """
+
+    outline_um: tuple[tuple[float, float], ...] = ()
+    exclusions: tuple[Exclusion, ...] = ()
+    earlier_um: tuple[tuple[float, float], ...] = ()
+    indents: tuple[IndentMark, ...] = ()
+    planned_um: tuple[tuple[tuple[float, float], ...], ...] = ()
+    newest_block_id: int | None = None
+
+
+def marks_for(snap: RunSnapshot) -> MapMarks:
+    """The map's marks for a snapshot: the journal's sample, every indent, the sites still to run."""
+    sample = snap.sample
+    outline: tuple[tuple[float, float], ...] = ()
+    if sample is not None:
+        c = sample.calibration
+        outline = tuple((k.x_um, k.y_um) for k in (c.tl, c.tr, c.br, c.bl))
+    planned: list[tuple[tuple[float, float], ...]] = []
+    cur = snap.current_block
+    if cur is not None:  # the running block's sites still to run (the queue lists them)
+        rest = [q.indent_index for q in snap.queue if q.block_id == cur.block_id]
+        if rest:
+            planned.append(tuple((cur.indents[i].x_um, cur.indents[i].y_um) for i in rest))
+    if snap.pending is not None:
+        planned.append(tuple((s.x_um, s.y_um) for s in snap.pending.block.indents))
+    return MapMarks(
+        outline_um=outline,
+        exclusions=tuple(sample.exclusions) if sample is not None else (),
+        earlier_um=tuple(sample.earlier_indents_um) if sample is not None else (),
+        indents=snap.indents,
+        planned_um=tuple(planned),
+        newest_block_id=max((m.block_id for m in snap.indents), default=None),
+    )
+
+
+def _cells_of_points(
+    pts: Sequence[tuple[float, float]],
+    cols: int,
+    rows: int,
+    bounds_um: tuple[float, float, float, float],
+    reverse_x: bool,
+) -> list[tuple[int, int]]:
+    out = []
+    for x, y in pts:
+        cell = cell_of(x, y, cols, rows, bounds_um, reverse_x)
+        if cell is not None:
+            out.append(cell)
+    return out
+
+
+def _cell_centres(
+    cols: int, rows: int, bounds_um: tuple[float, float, float, float], reverse_x: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stage (x, y) of every character cell's centre, shaped (rows, cols)."""
+    x_min, x_max, y_min, y_max = bounds_um
+    xs = x_min + (np.arange(cols) + 0.5) * (x_max - x_min) / cols
+    if reverse_x:
+        xs = xs[::-1]
+    ys = y_max - (np.arange(rows) + 0.5) * (y_max - y_min) / rows
+    return np.meshgrid(xs, ys)
+
+
+def outline_cells(
+    outline_um: Sequence[tuple[float, float]],
+    cols: int,
+    rows: int,
+    bounds_um: tuple[float, float, float, float],
+    reverse_x: bool,
+) -> list[tuple[int, int]]:
+    """Character cells the sample's edge passes through (each edge walked in steps under half a cell)."""
+    if len(outline_um) < 2:
+        return []
+    x_min, x_max, y_min, y_max = bounds_um
+    cell_um = min((x_max - x_min) / max(cols, 1), (y_max - y_min) / max(rows, 1)) or 1.0
+    cells: set[tuple[int, int]] = set()
+    pts = list(outline_um)
+    for (x0, y0), (x1, y1) in zip(pts, pts[1:] + pts[:1], strict=True):
+        n = max(int(math.hypot(x1 - x0, y1 - y0) / (cell_um / 2)) + 1, 2)
+        for t in np.linspace(0.0, 1.0, n):
+            # a hair inside the bounds, so an edge on the bounding box still lands in a cell
+            x = min(max(x0 + t * (x1 - x0), x_min), x_max)
+            y = min(max(y0 + t * (y1 - y0), y_min), y_max)
+            cell = cell_of(x, y, cols, rows, bounds_um, reverse_x)
+            if cell is not None:
+                cells.add(cell)
+    return sorted(cells)
 
 
 def colour_map_for(field_key: str) -> str:
@@ -285,14 +403,29 @@ def _scale_lines(vmin: float, vmax: float, rows: int, cmap: str, no_color: bool)
     return lines
 
 
+def _x_ticks(x_min: float, x_max: float, cols: int, reverse_x: bool) -> tuple[list[float], list[float]]:
+    """Round x ticks whose labels never touch: plotext drops one of two overlapping labels, and which one
+    depends on the process (string hashing), so a crowded axis would not draw the same twice."""
+    for max_ticks in range(max(2, min(6, cols // 9 + 1)), 1, -1):
+        ticks = nice_ticks(x_min, x_max, max_ticks=max_ticks)
+        pos = []
+        for tick in ticks:
+            frac = (tick - x_min) / (x_max - x_min) if x_max > x_min else 0.5
+            pos.append((1.0 - frac if reverse_x else frac) * cols - 0.5)
+        width = max((len(tick_label(t)) for t in ticks), default=1) + 2
+        gaps = np.diff(sorted(pos))
+        if len(ticks) < 2 or gaps.min() >= width:
+            return ticks, pos
+    return ticks, pos
+
+
 def render_heatmap(
     fields: MapFields | None,
     field_key: str,
     width: int,
     height: int,
     bounds_um: tuple[float, float, float, float],
-    tested: Sequence[TestedCenter] = (),
-    next_candidate_um: tuple[float, float] | None = None,
+    marks: MapMarks | None = None,
     reverse_x: bool = False,
     no_color: bool = False,
     keep_aspect: bool = True,
@@ -300,7 +433,9 @@ def render_heatmap(
     max_stretch: float = 1.6,
     scale: bool = True,
 ) -> HeatmapImage:
-    """Draw one GP field with plotext: RGB cells, µm ticks, tested centres by recency, the next candidate."""
+    """Draw one GP field with plotext: RGB cells, µm ticks, and the marks (the sample's edge, exclusions,
+    earlier indents, every indent of the run by its status, the newest block, the sites still to run).
+    Cells outside the sample's outline show no field (grey, or blank without colour)."""
     from textual_plotext.plot import Plot  # plotext is heavy to import; only the worker thread needs it
 
     width, height = max(int(width), 12), max(int(height), 6)
@@ -326,6 +461,12 @@ def render_heatmap(
     else:
         vmin, vmax = 0.0, 1.0
         pixels = np.full((rows * sub_rows, cols), np.nan)
+    marks = marks if marks is not None else MapMarks()
+    if len(marks.outline_um) >= 3:
+        # the field is only the sample's: outside its outline a cell shows nothing
+        px, py = _cell_centres(cols, rows * sub_rows, bounds_um, reverse_x)
+        outside = PolygonExclusion(marks.outline_um).clearance_um(px, py) > 0
+        pixels = np.where(outside, np.nan, pixels)
     levels = pixels[0::sub_rows]  # the top pixel of each character row
 
     plt: Any = Plot()  # plotext's own type hints are narrower than what it accepts (RGB, marker lists)
@@ -347,38 +488,52 @@ def render_heatmap(
         matrix = [[tuple(int(c) for c in rgb[r, k]) for k in range(cols)] for r in range(rows)]
         plt.matrix_plot(matrix, marker=HALF_BLOCK)
 
-    # overlay: tested centres (oldest first so the newest wins a shared cell), then the next candidate;
-    # each marker later gets its cell's heat colour as background, so it does not punch a black hole
-    marked: list[tuple[int, int]] = []
-    ordered = sorted(tested, key=lambda t: t.block_id)
-    n = len(ordered)
-    for i, t in enumerate(ordered):
-        cell = cell_of(t.x_um, t.y_um, cols, rows, bounds_um, reverse_x)
-        if cell is None:
-            continue
-        age = n - 1 - i
-        mark, colour = (
-            (MARK_NEWEST, (255, 255, 255))
-            if age == 0
-            else (MARK_RECENT, (235, 235, 235))
-            if age < RECENT_N
-            else (MARK_OLDER, (170, 170, 170))
-        )
-        plt.scatter([cell[0]], [rows - 1 - cell[1]], marker=mark[1] if no_color else mark[0], color=colour)
-        marked.append(cell)
-    if next_candidate_um is not None:
-        cell = cell_of(next_candidate_um[0], next_candidate_um[1], cols, rows, bounds_um, reverse_x)
+    # overlay, least important first so the more important mark wins a shared cell; each marker later
+    # gets its cell's heat colour as background, so it does not punch a black hole
+    layers: dict[tuple[str, str, tuple[int, int, int]], list[tuple[int, int]]] = {m: [] for m, _ in LEGEND}
+    layers[MARK_OUTLINE] = outline_cells(marks.outline_um, cols, rows, bounds_um, reverse_x)
+    if marks.exclusions:
+        cx, cy = _cell_centres(cols, rows, bounds_um, reverse_x)
+        inside = np.zeros(cx.shape, dtype=bool)
+        for ex in marks.exclusions:
+            inside |= ex.clearance_um(cx, cy) <= 0
+        layers[MARK_EXCLUDED] = [(int(c), int(r)) for r, c in zip(*np.nonzero(inside), strict=True)]
+    layers[MARK_EARLIER] = _cells_of_points(marks.earlier_um, cols, rows, bounds_um, reverse_x)
+    for m in marks.indents:
+        kind = MARK_NEWEST if m.block_id == marks.newest_block_id and m.status == "measured" else None
+        kind = kind or STATUS_MARKS.get(m.status, MARK_UNVERIFIED)
+        cell = cell_of(m.x_um, m.y_um, cols, rows, bounds_um, reverse_x)
         if cell is not None:
-            plt.scatter([cell[0]], [rows - 1 - cell[1]], marker=MARK_NEXT[1], color=(255, 64, 160))
-            marked.append(cell)
-
-    x_ticks = nice_ticks(x_min, x_max, max_ticks=max(2, min(6, cols // 9 + 1)))
-    x_pos = []
-    for tick in x_ticks:
-        frac = (tick - x_min) / (x_max - x_min) if x_max > x_min else 0.5
-        if reverse_x:
-            frac = 1.0 - frac
-        x_pos.append(frac * cols - 0.5)
+            layers[kind].append(cell)
+    layers[MARK_PLANNED] = _cells_of_points(
+        [p for group in marks.planned_um for p in group], cols, rows, bounds_um, reverse_x
+    )
+    owner: dict[tuple[int, int], tuple[str, str, tuple[int, int, int]]] = {}
+    for mark, _ in LEGEND:
+        for cell in layers[mark]:
+            owner[cell] = mark
+    by_mark: dict[tuple[str, str, tuple[int, int, int]], list[tuple[int, int]]] = {}
+    for cell, mark in owner.items():
+        by_mark.setdefault(mark, []).append(cell)
+    newest_cells = {c for c, mk in owner.items() if mk != MARK_PLANNED} & {
+        c
+        for m in marks.indents
+        if m.block_id == marks.newest_block_id
+        for c in [cell_of(m.x_um, m.y_um, cols, rows, bounds_um, reverse_x)]
+        if c is not None
+    }
+    for mark, _ in LEGEND:
+        cells = by_mark.get(mark, [])
+        plain = [c for c in cells if c not in newest_cells or mark == MARK_NEWEST]
+        bold = [c for c in cells if c in newest_cells and mark != MARK_NEWEST]
+        for group, style in ((plain, None), (bold, "bold")):
+            if not group:
+                continue
+            kw: dict[str, Any] = {"marker": mark[1] if no_color else mark[0], "color": mark[2]}
+            if style:
+                kw["style"] = style
+            plt.scatter([c[0] for c in group], [rows - 1 - c[1] for c in group], **kw)
+    x_ticks, x_pos = _x_ticks(x_min, x_max, cols, reverse_x)
     y_pos = [((t - y_min) / (y_max - y_min) if y_max > y_min else 0.5) * rows - 0.5 for t in y_ticks]
     plt.xlim(-0.5, cols - 0.5)
     plt.ylim(-0.5, rows - 0.5)

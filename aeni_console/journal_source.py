@@ -8,11 +8,26 @@ operator can walk a run block by block and see the map, the ledger and the decis
 
 from __future__ import annotations
 
+import math
 import threading
+from dataclasses import replace
 from pathlib import Path
 
-from core.journal import JournalReader, ReplayView, send_command
-from core.runview import Command, MapFields, RunSnapshot
+from core.errors import InputError
+from core.journal import JournalReader, ReplayView, engine_running, send_command
+from core.runview import Command, IndentMark, MapFields, RunSnapshot
+from core.sample.model import Sample, sample_from_dict
+
+
+def journal_sample(reader: JournalReader) -> Sample | None:
+    """The sample the run was planned on (the journal holds it in its campaign config), None if it has none."""
+    data = (reader.meta.get("config") or {}).get("sample")
+    if not data:
+        return None
+    try:
+        return sample_from_dict(data, f"{reader.path} sample")
+    except InputError:
+        return None  # the map draws no outline rather than refuse to show the run
 
 
 class JournalSource:
@@ -23,10 +38,41 @@ class JournalSource:
         self.reader_user = reader_user
         self._lock = threading.Lock()
         self._reader = JournalReader(self.path)
+        self._seen: tuple[int, bool] | None = None
+        self._sample = journal_sample(self._reader)
+        self._indents: list[IndentMark] = []
+        self._indent_rowid = 0
+
+    def changed(self) -> bool:
+        """Whether the journal may read differently since the last call: another connection committed
+        (SQLite's ``data_version``) or the engine process started or ended. Costs one pragma and one lock
+        probe, so the feed can ask often and read a whole snapshot only when something happened."""
+        with self._lock:
+            version = int(self._reader.conn.execute("PRAGMA data_version").fetchone()[0])
+        now = (version, engine_running(self.path))
+        if now == self._seen:
+            return False
+        self._seen = now
+        return True
+
+    def _new_indents(self) -> tuple[IndentMark, ...]:
+        """Every indent so far, read incrementally (an indent row is written once and never changes)."""
+        rows = self._reader.conn.execute(
+            "SELECT rowid, block_id, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, status "
+            "FROM indents WHERE rowid > ? ORDER BY rowid",
+            (self._indent_rowid,),
+        ).fetchall()
+        for rowid, bid, cx, cy, ax, ay, status in rows:
+            self._indent_rowid = rowid
+            seen = ax is not None and ay is not None and math.isfinite(ax) and math.isfinite(ay)
+            x, y = (ax, ay) if seen else (cx, cy)  # where the tip went, else where it was sent
+            self._indents.append(IndentMark(float(x), float(y), int(bid), str(status)))
+        return tuple(self._indents)
 
     def snapshot(self) -> RunSnapshot:
         with self._lock:
-            return self._reader.snapshot(self.reader_user)
+            snap = self._reader.snapshot(self.reader_user)
+            return replace(snap, sample=self._sample, indents=self._new_indents())
 
     def map_fields(self, snapshot_id: int) -> MapFields | None:
         with self._lock:
@@ -63,4 +109,10 @@ class JournalReplay(JournalSource):
 
     def snapshot_at(self, block_index: int) -> RunSnapshot:
         view = self._view if self._view is not None else self._load()
-        return view.snapshot_at(block_index)
+        snap = view.snapshot_at(block_index)
+        upto = view.observed[block_index].block.block_id
+        with self._lock:
+            indents = tuple(m for m in self._new_indents() if m.block_id <= upto)
+        # the tip was at that block's last indent (the final snapshot's position is the run's end)
+        at = (indents[-1].x_um, indents[-1].y_um) if indents else None
+        return replace(snap, sample=self._sample, indents=indents, position_um=at)

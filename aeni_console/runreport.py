@@ -8,6 +8,7 @@ rebuilt from the run's own configuration; a real run has no truth, so no error i
 
 from __future__ import annotations
 
+import json
 import math
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -26,6 +27,11 @@ DECISION_STYLE = {  # status: (marker, colour, label)
     "pending": ("s", "tab:orange", "waiting for the operator"),
     "auto": (".", "0.55", "automatic"),
     "dropped": ("x", "0.3", "dropped (superseded)"),
+}
+UNMEASURED_STYLE = {  # status: (marker, colour, label): what the instrument did instead of measuring
+    "failed": ("x", "tab:red", "failed (indented, no value)"),
+    "unverified": ("D", "tab:orange", "unverified (export refused)"),
+    "not_run": ("o", "tab:blue", "never indented (not run)"),
 }
 
 
@@ -55,6 +61,9 @@ class RunData:
     snapshots: list[tuple[int, float]]  # (snapshot_id, t_s) with stored map fields
     final_map: Any | None  # MapFields of the last snapshot
     uncertainty: list[tuple[float, float, float]] = field(default_factory=list)  # (t_s, mean epi sd, total)
+    # per stored map, in the same order: (block_id, length-scales µm, collapse alarm) of that fit
+    fits: list[tuple[int, tuple[float, ...], bool]] = field(default_factory=list)
+    warnings: list[tuple[float, str]] = field(default_factory=list)  # (t_s, text) of the run's warn events
     commands: list[dict[str, Any]] = field(default_factory=list)
     stop_reason: str = ""
     recorded_mape_pct: float | None = None
@@ -77,21 +86,27 @@ def read_run(path: str | Path) -> RunData:
             cols.index("summary_json"),
         )
         with_maps = [(int(x[i_sid]), float(x[i_t])) for x in rows if x[i_blob] is not None]
+        i_bid = cols.index("block_id")
+        fit_of = {int(x[i_sid]): (int(x[i_bid]), json.loads(x[i_sum])) for x in rows if x[i_blob] is not None}
         recorded = None
-        import json
 
         for x in rows:
             m = json.loads(x[i_sum]).get("mape_pct")
             if m is not None:
                 recorded = float(m)
         uncertainty = []
+        fits = []
         final_map = None
         for sid, t_s in with_maps:
             mf = r.map_fields(sid)
             epi, tot = mf.epistemic_sd_gpa, mf.total_sd_gpa
             if np.isfinite(epi).any():
                 uncertainty.append((t_s, float(np.nanmean(epi)), float(np.nanmean(tot))))
+                bid, summ = fit_of[sid]
+                scales = tuple(float(v) for v in summ.get("lengthscales_um") or ())
+                fits.append((bid, scales, bool(summ.get("collapse_alarm", False))))
             final_map = mf
+        warnings = [(e.t_s, e.text) for e in r.events() if e.level in ("warn", "error")]
         cal = meta.get("calibration") or {}
         corners: list[Any] = [cal.get(k) for k in ("tl", "tr", "br", "bl")]
         if all(isinstance(c, dict) for c in corners):
@@ -123,6 +138,8 @@ def read_run(path: str | Path) -> RunData:
             snapshots=with_maps,
             final_map=final_map,
             uncertainty=uncertainty,
+            fits=fits,
+            warnings=warnings,
             commands=r.commands(),
             stop_reason=str(row.get("stop_reason") or ""),
             recorded_mape_pct=recorded,
@@ -183,32 +200,52 @@ def _pyplot() -> Any:
 
 
 def _stage_axes(ax: Any, data: RunData) -> None:
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
+
     ax.set_xlabel("stage x (µm)")
     ax.set_ylabel("stage y (µm)")
     ax.set_aspect("equal", adjustable="box")
+    for axis in (ax.xaxis, ax.yaxis):
+        # a few round ticks in plain µm: stage values are five digits wide and must not run together
+        axis.set_major_locator(MaxNLocator(nbins=4, steps=[1, 2, 2.5, 5, 10]))
+        plain = ScalarFormatter(useOffset=False)
+        plain.set_scientific(False)
+        axis.set_major_formatter(plain)
     if data.reverse_x and not ax.xaxis_inverted():
         ax.invert_xaxis()  # as the sample is seen: +x moves the sample right, indents walk left
 
 
-def _overlay(ax: Any, data: RunData, indents: bool = True) -> None:
+def _overlay(ax: Any, data: RunData, indents: bool = True, vetoes: bool = True) -> None:
     from matplotlib.patches import Circle, Polygon
 
     closed = np.vstack([data.outline_xy_um, data.outline_xy_um[:1]])
     ax.plot(closed[:, 0], closed[:, 1], color="black", lw=1.2, label="sample outline")
     measured = [r for r in data.indents if r.measured]
-    missing = [r for r in data.indents if not r.measured]
     if indents and measured:
         xs = [r.actual_x_um for r in measured]
         ys = [r.actual_y_um for r in measured]
         ax.scatter(xs, ys, s=4, c="white", edgecolors="black", linewidths=0.3, label="indents", zorder=3)
-    if indents and missing:  # where they were commanded: the instrument reported no value there
+    for status, style in UNMEASURED_STYLE.items():
+        rs = [r for r in data.indents if r.status == status]
+        if not indents or not rs:
+            continue
+        # where the tip went when the instrument said so, else where it was sent
+        xy = [
+            (r.actual_x_um, r.actual_y_um)
+            if math.isfinite(r.actual_x_um) and math.isfinite(r.actual_y_um)
+            else (r.commanded_x_um, r.commanded_y_um)
+            for r in rs
+        ]
+        marker, colour, label = style
         ax.scatter(
-            [r.commanded_x_um for r in missing],
-            [r.commanded_y_um for r in missing],
-            s=14,
-            marker="x",
-            c="tab:orange",
-            label="failed or not run",
+            [p[0] for p in xy],
+            [p[1] for p in xy],
+            s=18,
+            marker=marker,
+            c=colour if marker in ("x", "+") else "none",
+            edgecolors=None if marker in ("x", "+") else colour,
+            linewidths=1.0,
+            label=f"{label} ({len(rs)})",
             zorder=4,
         )
     for i, region in enumerate(data.exclusions):
@@ -225,18 +262,33 @@ def _overlay(ax: Any, data: RunData, indents: bool = True) -> None:
     if data.avoid_centers_um:
         ax_x, ax_y = zip(*data.avoid_centers_um, strict=True)
         ax.scatter(ax_x, ax_y, s=60, marker="x", c="tab:red", label="excluded centres", zorder=4)
-    vetoed = [d for d in data.decisions if d.status == "vetoed"]
-    if vetoed:
-        ax.scatter(
-            [d.decision.block.center_x_um for d in vetoed],
-            [d.decision.block.center_y_um for d in vetoed],
-            s=70,
-            marker="X",
-            facecolors="none",
-            edgecolors="tab:red",
-            label="vetoed centres",
-            zorder=4,
-        )
+    if vetoes:
+        _vetoes(ax, data, DECISION_STYLE["vetoed"][2])
+
+
+def _vetoes(ax: Any, data: RunData, label: str) -> int:
+    """Vetoed proposals where they were proposed; several at one centre are one marker with their count."""
+    at: dict[tuple[float, float], int] = defaultdict(int)
+    for d in data.decisions:
+        if d.status == "vetoed":
+            at[(round(d.decision.block.center_x_um, 1), round(d.decision.block.center_y_um, 1))] += 1
+    if not at:
+        return 0
+    total = sum(at.values())
+    marker, colour, _ = DECISION_STYLE["vetoed"]
+    ax.scatter(
+        [p[0] for p in at],
+        [p[1] for p in at],
+        s=[60 + 15 * min(n - 1, 8) for n in at.values()],
+        marker=marker,
+        c=colour,
+        label=f"{label} ({total})",
+        zorder=5,
+    )
+    for (x, y), n in at.items():
+        if n > 1:
+            ax.annotate(f"×{n}", (x, y), xytext=(4, 4), textcoords="offset points", fontsize=7, color=colour)
+    return total
 
 
 def _map_figure(plt: Any, data: RunData, out: Path) -> Path:
@@ -279,12 +331,54 @@ def _time_figure(plt: Any, data: RunData, out: Path) -> Path:
     return _save(fig, plt, out / "time.png")
 
 
+JUMP_FACTOR = 1.3  # a total sd this many times the previous fit's is a jump the figure explains
+
+
+def uncertainty_jumps(data: RunData) -> list[tuple[int, str]]:
+    """Where the mean total sd rises by JUMP_FACTOR or more from one fit to the next, and why: a guard
+    event or warning logged in between, a new program (a global block), or a refit that moved the
+    length-scales; "no logged cause" where none of these happened."""
+    programs = {d.decision.block.block_id for d in data.decisions if d.decision.block.kind == "global"}
+    out: list[tuple[int, str]] = []
+    for i in range(1, min(len(data.uncertainty), len(data.fits))):
+        (t0, _, tot0), (t1, _, tot1) = data.uncertainty[i - 1], data.uncertainty[i]
+        if not tot0 > 0 or tot1 < JUMP_FACTOR * tot0:
+            continue
+        bid, scales, alarm = data.fits[i]
+        old_scales = data.fits[i - 1][1]
+        why: list[str] = []
+        if alarm:
+            why.append("guard: length-scale collapse")
+        why += [f"warning: {text[:48]}" for t, text in data.warnings if t0 < t <= t1][:1]
+        if bid in programs:
+            why.append(f"new program (block {bid})")
+        if scales and old_scales and len(scales) == len(old_scales):
+            moved = max(abs(a / b - 1) for a, b in zip(scales, old_scales, strict=True) if b > 0)
+            if moved > 0.2:
+                before = "×".join(f"{v:.0f}" for v in old_scales)
+                after = "×".join(f"{v:.0f}" for v in scales)
+                why.append(f"refit: ℓ {before} → {after} µm")
+        out.append((i, f"sd ×{tot1 / tot0:.1f}: " + ("; ".join(why) or "no logged cause")))
+    return out
+
+
 def _uncertainty_figure(plt: Any, data: RunData, out: Path) -> Path:
     fig, ax = plt.subplots(figsize=(8, 4.2), constrained_layout=True)
     if data.uncertainty:
         t = [u[0] / 3600 for u in data.uncertainty]
         ax.plot(t, [u[1] for u in data.uncertainty], "o-", ms=3, label="epistemic sd (the model's own)")
         ax.plot(t, [u[2] for u in data.uncertainty], "s--", ms=3, label="total sd (with the noise)")
+        for i, why in uncertainty_jumps(data):
+            ax.axvline(t[i], color="0.6", lw=0.8, ls=":")
+            ax.annotate(
+                why,
+                (t[i], data.uncertainty[i][2]),
+                xytext=(6, 6),
+                textcoords="offset points",
+                fontsize=7,
+                color="0.25",
+                arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.6},
+            )
         ax.legend()
     else:
         ax.text(0.5, 0.5, "no model fitted yet", transform=ax.transAxes, ha="center")
@@ -328,16 +422,27 @@ def _decision_figure(plt: Any, data: RunData, out: Path) -> Path:
     for s in rows:
         marker, colour, label = DECISION_STYLE[s]
         ds = by_status[s]
-        ax_map.scatter(
-            [d.decision.block.center_x_um for d in ds],
-            [d.decision.block.center_y_um for d in ds],
-            marker=marker,
-            c=colour,
-            s=50 if s != "auto" else 25,
-            label=f"{label} ({len(ds)})",
-        )
+        if s == "vetoed":
+            _vetoes(ax_map, data, label)
+        else:
+            ax_map.scatter(
+                [d.decision.block.center_x_um for d in ds],
+                [d.decision.block.center_y_um for d in ds],
+                marker=marker,
+                c=colour,
+                s=50 if s != "auto" else 25,
+                label=f"{label} ({len(ds)})",
+            )
         ax_t.scatter([d.t_s / 3600 for d in ds], [rows.index(s)] * len(ds), marker=marker, c=colour, s=40)
-    _overlay(ax_map, data, indents=False)
+        at_once: dict[float, int] = defaultdict(int)  # decisions made at one instrument time share a marker
+        for d in ds:
+            at_once[round(d.t_s / 3600, 2)] += 1
+        for t_h, n in at_once.items():
+            if n > 1:
+                ax_t.annotate(
+                    f"×{n}", (t_h, rows.index(s)), xytext=(5, 5), textcoords="offset points", fontsize=8
+                )
+    _overlay(ax_map, data, indents=False, vetoes=False)
     _stage_axes(ax_map, data)
     ax_map.set_title("decisions on the sample")
     if rows:

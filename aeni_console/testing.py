@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Callable, Generator, Iterator, Mapping
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -21,11 +21,13 @@ from typing import Any
 
 from textual.pilot import Pilot
 
+from aeni_console.heatmap import marks_for
 from aeni_console.journal_source import JournalReplay, JournalSource
 from aeni_console.widgets.mapview import MapPanel
 from core.driver import DriverEvent
-from core.plan import Block, IndentResult
+from core.plan import Block, IndentResult, IndentStatus
 from core.runview import Command, EngineState, MapFields, RunSnapshot
+from core.sample.model import Sample
 from drivers.sim.driver import SimulatedDriver
 
 FIXED_WALL_UNIX = 1_735_725_600.0  # 2025-01-01 10:00 UTC: where every test run's wall clock starts
@@ -107,14 +109,28 @@ class _Gate:
 class SteppedDriver(SimulatedDriver):
     """The simulated instrument, one indent per permit: the test's hand is its clock (no wall-clock sleeps)."""
 
-    def __init__(self, *args: Any, gate: _Gate, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        *args: Any,
+        gate: _Gate,
+        unmeasured: Mapping[tuple[int, int], IndentStatus] | None = None,
+        **kwargs: Any,
+    ) -> None:
         super().__init__(*args, **kwargs)
         self._gate = gate
+        self._unmeasured = dict(unmeasured or {})
 
     def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         inner = super().execute_block(block, start_index)
         self._gate.take()
         for event in inner:
+            if isinstance(event, IndentResult):
+                status = self._unmeasured.get((event.block_id, event.indent_index))
+                if status is not None:  # the instrument reported no value for this indent
+                    spec = block.indents[event.indent_index]
+                    event = IndentResult.unmeasured(
+                        event.block_id, event.indent_index, spec, event.t_s, status, f"test: {status}"
+                    )
             yield event
             if isinstance(event, IndentResult) and event.indent_index < block.n_indents - 1:
                 self._gate.take()
@@ -137,11 +153,14 @@ class LiveRun:
         lattice_n: int | None = 15,
         name: str = "console-test",
         display_n: int = 40,
+        sample: Sample | None = None,
+        unmeasured: Mapping[tuple[int, int], IndentStatus] | None = None,
     ) -> None:
         from core.campaign import CampaignConfig
 
         self.path = Path(directory) / f"{name}.sqlite"
-        self.config = CampaignConfig(name=name, policy=policy, seed=seed, lattice_n=lattice_n)
+        self.config = CampaignConfig(name=name, policy=policy, seed=seed, lattice_n=lattice_n, sample=sample)
+        self.unmeasured = unmeasured  # (block, indent) -> failed | not_run: what the instrument reports
         self.supervision = supervision
         self.display_n = display_n
         self.clock = ManualWallClock()
@@ -180,12 +199,16 @@ class LiveRun:
             from drivers.registry import sim_scenario
 
             torch.set_num_threads(1)  # as in the engine process: the same fits on every machine
-            scenario = sim_scenario(self.config.driver_options, self.config.seed)
+            scenario = sim_scenario(self.config.driver_options, self.config.seed, self.config.sample)
             campaign = Campaign(self.config, scenario.sample)
             journal = create_run_journal(self.path, self.config, campaign, self.supervision)
             sim = scenario.make_driver(campaign.profile)
             self.driver = SteppedDriver(
-                sim.emulator, sim.profile, start_um=sim.position_um(), gate=self._gate
+                sim.emulator,
+                sim.profile,
+                start_um=sim.position_um(),
+                gate=self._gate,
+                unmeasured=self.unmeasured,
             )
             driver = self.driver
             self.clock.instrument_s = driver.clock_s
@@ -307,10 +330,12 @@ class LiveRun:
         return JournalReplay(self.path)
 
     def snapshot(self) -> RunSnapshot:
-        from core.journal import JournalReader
-
-        with JournalReader(self.path) as reader:
-            return reader.snapshot()
+        """The run as the console reads it (with the sample and every indent)."""
+        source = JournalSource(self.path)
+        try:
+            return source.snapshot()
+        finally:
+            source.close()
 
     def commands(self) -> list[dict[str, Any]]:
         """Every command in the journal, as the engine recorded it (kind, author, payload_json, outcome ...)."""
@@ -376,7 +401,12 @@ def map_settled(app: object) -> bool:
             return False
     if panel.builds == 0 or panel.applied_generation != panel.generation:
         return False
-    return panel._want is not None and panel._want[5] == snap.tested
+    view = panel.query_one("#heatmap")
+    return (
+        panel._want is not None
+        and panel._want[5] == marks_for(snap)
+        and panel._want[1:3] == (view.size.width, view.size.height)
+    )
 
 
 def in_sync(app: object) -> bool:

@@ -27,11 +27,11 @@ import numpy as np  # noqa: E402
 from textual import events  # noqa: E402
 
 from aeni_console.app import ConsoleApp  # noqa: E402
-from aeni_console.heatmap import FIELD_KEYS, render_heatmap  # noqa: E402
+from aeni_console.heatmap import FIELD_KEYS, MapMarks, render_heatmap  # noqa: E402
 from aeni_console.testing import settle, wait_until  # noqa: E402
 from aeni_console.widgets.help import HelpScreen  # noqa: E402
 from aeni_console.widgets.mapview import HeatmapView, MapPanel  # noqa: E402
-from core.runview import MapFields, TestedCenter  # noqa: E402
+from core.runview import IndentMark, MapFields  # noqa: E402
 
 
 def pct(values: list[float], q: float) -> float:
@@ -50,9 +50,16 @@ def heatmap_cost(n: int = 50, repeats: int = 40) -> dict[str, list[float]]:
     mean = 3 + 4 * np.exp(-((xx - 200) ** 2 + (yy - 300) ** 2) / 1e5)
     fields = MapFields(1, xs, xs.copy(), mean, mean * 0.05, mean * 0.02, mean * 0.06, (500.0, 500.0))
     rng = np.random.default_rng(0)
-    tested = [
-        TestedCenter(float(x), float(y), i, 5.0) for i, (x, y) in enumerate(rng.uniform(0, 1000, (40, 2)))
-    ]
+    indents = tuple(
+        IndentMark(float(x), float(y), i // 16, ("measured", "failed", "not_run")[i % 3])
+        for i, (x, y) in enumerate(rng.uniform(0, 1000, (272, 2)))
+    )
+    marks = MapMarks(
+        outline_um=((0.0, 1000.0), (1000.0, 1000.0), (1000.0, 0.0), (0.0, 0.0)),
+        indents=indents,
+        planned_um=(tuple((float(x), float(y)) for x, y in rng.uniform(0, 1000, (16, 2))),),
+        newest_block_id=16,
+    )
     out: dict[str, list[float]] = {}
     render_heatmap(fields, "mean", 48, 18, (0, 1000, 0, 1000))  # import plotext once, outside the timing
     base = Style(bgcolor="rgb(30,30,30)")
@@ -60,9 +67,7 @@ def heatmap_cost(n: int = 50, repeats: int = 40) -> dict[str, list[float]]:
         build, ui = [], []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            img = render_heatmap(
-                fields, "mean", w, h, (0, 1000, 0, 1000), tested, (500.0, 500.0), reverse_x=True
-            )
+            img = render_heatmap(fields, "mean", w, h, (0, 1000, 0, 1000), marks, reverse_x=True)
             strips = to_strips(img.text)
             build.append(time.perf_counter() - t0)
             t0 = time.perf_counter()

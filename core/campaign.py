@@ -159,6 +159,7 @@ class Campaign:
         # measured depths at maximum load, one per learned indent (NaN where the instrument reported none)
         self.depths_nm: list[float] = []
         self.vetoes: list[_Veto] = []
+        self._prefer: tuple[float, float] | None = None  # after a veto: where the next proposal goes
         self.prediction: Prediction | None = None
         self._last_fit: FitReport | None = None
         self.last_score: MapScore | None = None
@@ -321,6 +322,9 @@ class Campaign:
         if self.last_stop_reason is not None:
             return None
         ctx = self.context(clock_s, position_um, program_open, block_id)
+        if self._prefer is not None:  # one proposal after a veto: the alternative listed first
+            ctx = dataclasses.replace(ctx, prefer_xy_um=self._prefer)
+            self._prefer = None
         decision = self.policy.propose(ctx)
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
@@ -399,8 +403,22 @@ class Campaign:
         )
 
     def veto(self, decision: Decision, hold_blocks: int = VETO_HOLD_BLOCKS) -> None:
+        """Avoid the vetoed centre for a while, and make the next proposal the best alternative the vetoed
+        one listed (the panel's "next best") that no veto now avoids."""
         b = decision.block
         self.vetoes.append(_Veto(b.center_x_um, b.center_y_um, len(self.blocks) + hold_blocks))
+        avoided = [(v.x_um, v.y_um) for v in self.vetoes if v.until_blocks_done > len(self.blocks)]
+        avoided += list(self.settings.avoid_centers_um)
+        xy = self.lattice.xy_um
+        near = 2.0 * float(np.hypot(xy[1, 0] - xy[0, 0], xy[1, 1] - xy[0, 1]))  # as base_mask avoids
+        self._prefer = next(
+            (
+                (a.center_x_um, a.center_y_um)
+                for a in decision.alternatives
+                if all(math.hypot(a.center_x_um - x, a.center_y_um - y) > near for x, y in avoided)
+            ),
+            None,
+        )
 
     def adjust(self, **changes: Any) -> PlannerSettings:
         check_hold_in_force(self.policy.name, changes, "adjust")

@@ -13,6 +13,7 @@ import numpy as np
 
 from core.driver import InstrumentWait
 from core.plan import Block, Decision, IndentSpec, PlannerSettings
+from core.sample.model import Sample
 
 # the state machine's names, re-exported for the read side
 from core.run.machine import CommandKind as CommandKind
@@ -74,6 +75,17 @@ class TestedCenter:
 
 
 @dataclass(frozen=True)
+class IndentMark:
+    """One indent of the run where the map draws it: where the tip went (else where it was sent), and what
+    became of it (``measured``, ``failed``, ``not_run``, or any later status, drawn as it is named)."""
+
+    x_um: float
+    y_um: float
+    block_id: int
+    status: str
+
+
+@dataclass(frozen=True)
 class RunSnapshot:
     """Everything the console shows, read at one moment."""
 
@@ -109,6 +121,12 @@ class RunSnapshot:
     allowed_holds_s: tuple[float, ...] = ()  # the instrument profile's holds (the adjust form checks them)
     # WAITING FOR INSTRUMENT: the ticket out and what the driver sees (the KLA driver), else None
     instrument_wait: InstrumentWait | None = None
+    # the profile's safety rule and where the tip is: what says whether a block stays or reconfigures
+    reconfig_threshold_um: float | None = None
+    position_um: tuple[float, float] | None = None
+    # the sample as the run has it (outline, exclusions, earlier indents) and every indent of the run so far
+    sample: Sample | None = None
+    indents: tuple[IndentMark, ...] = ()
 
 
 @dataclass(frozen=True)

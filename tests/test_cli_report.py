@@ -154,3 +154,56 @@ def test_report_draws_the_samples_exclusions_and_earlier_indents(tmp_path: Path)
     a, b = _image(with_them[0]), _image(without[0])
     assert a.shape == b.shape
     assert (np.abs(a - b).sum(axis=-1) > 0.1).sum() > 500  # the regions and the earlier indents are drawn
+
+
+def _legend_labels(fig) -> list[str]:  # type: ignore[no-untyped-def]
+    return [t for ax in fig.axes for t in ax.get_legend_handles_labels()[1]]
+
+
+def test_report_figures_read_without_help(demo_run: Path) -> None:
+    """Plain stage-µm ticks; failed, unverified and never-indented sites apart; every veto counted where it
+    happened; one legend entry per meaning; the cause named where the total sd jumps."""
+    import dataclasses
+
+    import matplotlib.pyplot as plt
+
+    from aeni_console.runreport import _overlay, _stage_axes, _vetoes, read_run, uncertainty_jumps
+    from core.plan import IndentResult, IndentSpec
+
+    data = read_run(demo_run)
+    # the instrument's other outcomes, at sites of the run (as an export reports them)
+    spec = IndentSpec(data.indents[0].commanded_x_um, data.indents[0].commanded_y_um, 5.0)
+    extra = [
+        IndentResult.unmeasured(99, i, spec, 1.0, s, "test") for i, s in enumerate(("failed", "not_run"))
+    ]
+    data = dataclasses.replace(data, indents=[*data.indents, *extra])
+    fig, ax = plt.subplots()
+    _overlay(ax, data)
+    _stage_axes(ax, data)
+    fig.canvas.draw()
+    labels = _legend_labels(fig)
+    assert len(labels) == len(set(labels)), labels
+    assert any(lb.startswith("failed") for lb in labels) and any(
+        lb.startswith("never indented") for lb in labels
+    )
+    ticks = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+    assert 2 <= len(ticks) <= 6 and all(t.lstrip("−-").isdigit() for t in ticks), ticks
+    # vetoes: one marker per place, counted; the legend says how many in all
+    n_vetoed = sum(1 for d in data.decisions if d.status == "vetoed")
+    assert n_vetoed >= 1
+    fig2, ax2 = plt.subplots()
+    assert _vetoes(ax2, data, "vetoed") == n_vetoed
+    assert _legend_labels(fig2) == [f"vetoed ({n_vetoed})"]
+    plt.close("all")
+    # a jump of the total sd is explained: here a refit that moved the length-scales
+    assert len(data.uncertainty) >= 2 and len(data.fits) == len(data.uncertainty)
+    (t0, e0, s0), (t1, e1, _) = data.uncertainty[:2]
+    bid, scales, _ = data.fits[1]
+    jumped = dataclasses.replace(
+        data,
+        uncertainty=[(t0, e0, s0), (t1, e1, 3 * s0), *data.uncertainty[2:]],
+        fits=[data.fits[0], (bid, tuple(3 * v for v in scales), False), *data.fits[2:]],
+        warnings=[],
+    )
+    notes = dict(uncertainty_jumps(jumped))
+    assert 1 in notes and "sd ×3.0" in notes[1] and "refit: ℓ" in notes[1]

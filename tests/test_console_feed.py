@@ -211,3 +211,43 @@ def test_replay_of_the_last_block_shows_what_the_live_console_showed(live_run: L
     with pytest.raises(IndexError):
         replay.snapshot_at(3)
     replay.close()
+
+
+def test_a_feed_at_rest_reads_nothing_until_the_journal_changes(live_run: LiveRunFactory) -> None:
+    """An idle console (no new journal rows) reads no snapshot: a poll costs one pragma and a lock probe."""
+    run = live_run(supervision="auto")
+    got = Collector()
+    feed = Feed(run.source(), got)
+    for _ in range(20):
+        feed.poll_once()
+    assert feed.polls == 20 and feed.reads == 2  # the first read, and one to learn the journal's version
+    assert len(got.of(SnapshotArrived)) == 1
+    run.advance(1)  # the engine commits an indent: the next poll reads it
+    feed.poll_once()
+    assert feed.reads == 3 and len(got.of(SnapshotArrived)) == 2
+    feed.poll_once()
+    assert feed.reads == 3
+
+
+def test_a_failed_read_is_tried_again_although_nothing_changed(live_run: LiveRunFactory) -> None:
+    class FlakyLater(JournalSource):
+        fail = False
+
+        def snapshot(self) -> RunSnapshot:
+            if self.fail:
+                raise OSError("database is locked")
+            return super().snapshot()
+
+    run = live_run(supervision="auto")
+    source = FlakyLater(run.path)
+    got = Collector()
+    feed = Feed(source, got)
+    feed.poll_once()
+    run.advance(1)
+    source.fail = True
+    feed.poll_once()
+    assert got.of(FeedProblem)
+    source.fail = False
+    feed.poll_once()  # the journal has not changed since the failed read; the feed reads again anyway
+    assert len(got.of(SnapshotArrived)) == 2
+    source.close()

@@ -177,7 +177,7 @@ async def test_adjust_validates_like_the_engine_and_changes_later_blocks(live_ru
         later = snap.pending if snap.pending is not None else snap.last_decision
         assert later is not None and later.block.block_id == waiting.block.block_id + 1
         assert later.block.hold_s == 5.0
-        assert " 5 s hold" in widget_text(app.query_one("#decision"))
+        assert "hold 5 s " in widget_text(app.query_one("#decision"))
 
 
 async def test_pause_and_resume(live_run: LiveRunFactory) -> None:

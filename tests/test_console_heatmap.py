@@ -3,13 +3,24 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import core.runview as rv
 from aeni_console.heatmap import (
+    LEGEND,
+    MARK_EARLIER,
+    MARK_EXCLUDED,
+    MARK_FAILED,
+    MARK_NEWEST,
+    MARK_NOT_RUN,
+    MARK_OUTLINE,
+    MARK_PLANNED,
+    MARK_UNVERIFIED,
     SHADES,
+    MapMarks,
     cell_of,
     field_array,
     nice_ticks,
@@ -23,6 +34,9 @@ from aeni_console.heatmap import (
     value_range,
 )
 from core.runview import MapFields
+from core.sample.load import load_sample
+
+ROOT = Path(__file__).resolve().parents[1]
 
 ANSI = re.compile(r"\x1b\[[0-9;]*m")
 BOUNDS = (0.0, 1000.0, 0.0, 1000.0)
@@ -139,19 +153,21 @@ def test_render_heatmap_colours_every_cell_and_labels_um() -> None:
     assert first_row[0] == (68, 1, 84) or sum(first_row[0]) < sum(first_row[-1])  # low x is dark
 
 
-def test_render_heatmap_mirrors_and_marks_recency() -> None:
+def test_render_heatmap_mirrors_and_marks_the_newest_block_and_planned_sites() -> None:
     f = ramp_fields()
-    tested = [
-        rv.TestedCenter(100, 100, 0, 3.0),
-        rv.TestedCenter(500, 500, 1, 4.0),
-        rv.TestedCenter(900, 900, 2, 5.0),
-    ]
-    img = render_heatmap(
-        f, "mean", 60, 20, BOUNDS, tested=tested, next_candidate_um=(900, 100), reverse_x=True
+    marks = MapMarks(
+        indents=(
+            rv.IndentMark(100, 100, 0, "measured"),
+            rv.IndentMark(500, 500, 1, "measured"),
+            rv.IndentMark(900, 900, 2, "measured"),
+        ),
+        planned_um=(((900, 100),),),
+        newest_block_id=2,
     )
+    img = render_heatmap(f, "mean", 60, 20, BOUNDS, marks=marks, reverse_x=True)
     lines = ANSI.sub("", img.ansi).split("\n")
     newest = [(i, ln.index("◉")) for i, ln in enumerate(lines) if "◉" in ln]
-    older = [(i, ln.index("●")) for i, ln in enumerate(lines) if "●" in ln]
+    older = [(i, ln.index("•")) for i, ln in enumerate(lines) if "•" in ln]
     nxt = [(i, ln.index("+", 5)) for i, ln in enumerate(lines[1:-3], start=1) if "+" in ln[5:]]
     assert len(newest) == 1 and len(older) == 2
     # mirrored: x = 900 is drawn left of x = 100; y = 900 above y = 100
@@ -162,17 +178,53 @@ def test_render_heatmap_mirrors_and_marks_recency() -> None:
     assert "mirrored" in "\n".join(lines)
 
 
-def test_no_color_heatmap_uses_shades_and_letters() -> None:
-    f = ramp_fields()
-    tested = [rv.TestedCenter(100, 500, 0, 3.0), rv.TestedCenter(900, 500, 1, 5.0)]
-    img = render_heatmap(f, "mean", 60, 20, BOUNDS, tested=tested, reverse_x=False, no_color=True)
-    plain = ANSI.sub("", img.ansi)
-    row = next(ln for ln in plain.split("\n") if "@" in ln)
-    body = row[row.index("│") + 1 :] if "│" in row else row
-    # low hardness on the left is light shading, high on the right dense
-    assert body.lstrip(" ┤0123456789").startswith(SHADES[0]) and "█" in body
-    assert "O" in plain and "@" in plain
-    assert "░" in ANSI.sub("", img.ansi).split("\n")[1] + plain  # the scale is shaded too
+def niticu_marks() -> tuple[MapMarks, tuple[float, float, float, float]]:
+    """The worked example's sample (docs/examples): its outline, two exclusions and earlier indents."""
+    sample = load_sample(ROOT / "docs" / "examples" / "NiTiCu-library-07.toml")
+    c = sample.calibration
+    corners = [(k.x_um, k.y_um) for k in (c.tl, c.tr, c.br, c.bl)]
+    xs, ys = [p[0] for p in corners], [p[1] for p in corners]
+    marks = MapMarks(
+        outline_um=tuple(corners),
+        exclusions=sample.exclusions,
+        earlier_um=sample.earlier_indents_um,
+        indents=(
+            rv.IndentMark(12400.0, 8900.0, 0, "measured"),
+            rv.IndentMark(12900.0, 8300.0, 0, "failed"),
+            rv.IndentMark(13200.0, 8900.0, 0, "not_run"),
+            rv.IndentMark(12300.0, 8500.0, 0, "unverified"),
+        ),
+        planned_um=(((13000.0, 8600.0), (13100.0, 8600.0)),),
+        newest_block_id=0,
+    )
+    return marks, (min(xs), max(xs), min(ys), max(ys))
+
+
+def test_every_meaning_has_its_own_character_with_and_without_colour() -> None:
+    chars = {i: [m[i] for m, _ in LEGEND] for i in (0, 1)}
+    for shown in chars.values():
+        assert len(set(shown)) == len(shown), f"two meanings share a character: {shown}"
+    assert not set(chars[1]) & set(SHADES), "a no-colour marker looks like a shade of the field"
+
+
+@pytest.mark.parametrize("no_color", [False, True])
+def test_the_map_shows_the_sample_as_it_is(no_color: bool) -> None:
+    marks, bounds = niticu_marks()
+    xs = np.linspace(bounds[0], bounds[1], 30)
+    ys = np.linspace(bounds[2], bounds[3], 30)
+    z = np.full((30, 30), 5.0) + np.linspace(0, 1, 30)[None, :]
+    f = MapFields(1, xs, ys, z, z, z, z)
+    img = render_heatmap(f, "mean", 60, 22, bounds, marks=marks, reverse_x=True, no_color=no_color)
+    body = "\n".join(ln[5:] for ln in ANSI.sub("", img.ansi).split("\n")[1:-3])
+    i = 1 if no_color else 0
+    for mark in (MARK_OUTLINE, MARK_EXCLUDED, MARK_FAILED, MARK_NOT_RUN, MARK_UNVERIFIED, MARK_PLANNED):
+        assert mark[i] in body, f"{mark} not drawn"
+    assert MARK_NEWEST[i] in body  # the measured indent of the newest block
+    assert MARK_EARLIER[i] in body
+    # the polygon exclusion sits at the bottom-left corner (BL = 12000, 8000): mirrored, that is the right
+    rows = body.split("\n")
+    bottom = rows[-2]
+    assert bottom.rstrip().endswith(MARK_EXCLUDED[i]) or MARK_EXCLUDED[i] in bottom[len(bottom) // 2 :]
 
 
 def test_render_without_fields_draws_an_empty_frame() -> None:
@@ -182,7 +234,14 @@ def test_render_without_fields_draws_an_empty_frame() -> None:
 
 def test_large_panels_are_not_clipped_to_the_process_terminal() -> None:
     # plotext would clip to the size of the terminal the process runs in (a worker has none)
-    img = render_heatmap(ramp_fields(), "mean", 150, 60, BOUNDS, tested=[rv.TestedCenter(10, 10, 0, 1.0)])
+    img = render_heatmap(
+        ramp_fields(),
+        "mean",
+        150,
+        60,
+        BOUNDS,
+        marks=MapMarks(indents=(rv.IndentMark(10, 10, 0, "measured"),)),
+    )
     assert len(img.ansi.split("\n")) == 60 and len(img.text.split("\n")) == 60
 
 

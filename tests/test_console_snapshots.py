@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -124,3 +125,34 @@ def test_replay(snap_compare, live_run) -> None:  # type: ignore[no-untyped-def]
         await settle(pilot)
 
     assert snap_compare(console(run.replay(), replay=True), terminal_size=(100, 30), run_before=before)
+
+
+NITICU = Path(__file__).resolve().parents[1] / "docs" / "examples" / "NiTiCu-library-07.toml"
+
+
+@pytest.fixture(scope="module")
+def on_sample(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveRun]:
+    """The worked example's sample (outline, a round and a polygonal exclusion, earlier indents) under the
+    scattered-singles planner; the instrument reported a few indents failed or not run; a proposal waits."""
+    from core.sample.load import load_sample
+
+    failed = {(1, 2): "failed", (1, 5): "not_run", (2, 1): "failed", (2, 3): "not_run"}
+    with LiveRun(
+        tmp_path_factory.mktemp("sample"),
+        name="niticu",
+        policy="aeni",
+        sample=load_sample(NITICU),
+        unmeasured=failed,  # type: ignore[arg-type]
+    ) as run:
+        while run.until_awaiting().n_blocks < 3:
+            run.send(Command(CommandKind.APPROVE, "operator"))
+        yield run
+
+
+def test_map_with_a_sample_80x24(snap_compare, on_sample) -> None:  # type: ignore[no-untyped-def]
+    assert snap_compare(console(on_sample.source()), terminal_size=(80, 24), run_before=ready)
+
+
+def test_map_with_a_sample_no_color_100x30(snap_compare, on_sample, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setenv("NO_COLOR", "1")
+    assert snap_compare(console(on_sample.source()), terminal_size=(100, 30), run_before=ready)

@@ -8,6 +8,7 @@ from rich.text import Text
 
 from aeni_console.widgets.base import SnapshotPanel
 from aeni_console.widgets.fmt import bar, num, short_duration, xy
+from core.describe import block_words
 from core.plan import Decision
 from core.runview import EngineState, RunSnapshot
 
@@ -40,6 +41,9 @@ def decision_renderable(snap: RunSnapshot, width: int, replay: bool = False) -> 
         parts.append(Text("no decision yet: the planner is waiting for data", style="dim"))
         return Group(*parts)  # type: ignore[arg-type]
     b = d.block
+    # the pending block starts where the tip is now; a past one's start is not known here
+    start = snap.position_um if d is snap.pending else None
+    words = block_words(b, snap.reconfig_threshold_um, start)
     head = Text(no_wrap=True, overflow="ellipsis")
     if replay and snap.pending is not None:
         head.append(" NEXT ", style="bold black on cyan")
@@ -48,18 +52,23 @@ def decision_renderable(snap: RunSnapshot, width: int, replay: bool = False) -> 
     else:
         head.append(" pending " if snap.pending is not None else " last ", style="reverse")
     head.append(" ")
-    head.append(
-        "GLOBAL JUMP" if d.is_global_jump else "stay (local)",
-        style="bold yellow" if d.is_global_jump else "bold green",
+    program_style = (
+        "bold yellow"
+        if words.program == "new program"
+        else "bold green"
+        if words.program == "stay"
+        else "bold"
     )
-    head.append(f" {xy(b.center_x_um, b.center_y_um)} µm")
+    head.append(words.program.upper(), style=program_style)
+    head.append(f" {words.layout}")
     parts.append(head)
-    line = Text(no_wrap=True, overflow="ellipsis")
-    line.append(f"#{b.block_id} {b.grid_g}×{b.grid_g} @{b.pitch_um:g}µm · {b.hold_s:g} s hold · ")
-    line.append(f"≈{short_duration(d.predicted_cost_s)}", style="bold")
-    parts.append(line)
+    where = Text(no_wrap=True, overflow="ellipsis")
+    where.append(f"#{b.block_id} " + " ".join(p for p in (words.extent, words.where) if p))
+    parts.append(where)
     sc = Text(no_wrap=True, overflow="ellipsis")
-    sc.append(f"score {num(d.score)}", style="bold")
+    sc.append(f"{words.hold} · ")
+    sc.append(f"≈{short_duration(d.predicted_cost_s)}", style="bold")
+    sc.append(f" · score {num(d.score)}", style="bold")
     sc.append(f" · acq {num(d.acquisition)} · {d.policy}")
     if d.phase:
         sc.append(f" · {d.phase}", style="dim")

@@ -6,6 +6,8 @@ The UI thread never builds a picture: it asks a thread worker for one (after new
 
 from __future__ import annotations
 
+import threading
+
 from rich.console import Console
 from rich.segment import Segment
 from rich.style import Style
@@ -21,14 +23,23 @@ from textual.widgets import Static
 from aeni_console.heatmap import (
     FIELD_KEYS,
     FIELD_LABELS,
+    LEGEND,
+    MARK_EARLIER,
+    MARK_EXCLUDED,
     MARK_NEWEST,
-    MARK_NEXT,
-    MARK_OLDER,
-    MARK_RECENT,
+    MARK_OUTLINE,
+    MARK_PLANNED,
+    STATUS_MARKS,
     HeatmapImage,
+    MapMarks,
+    marks_for,
     render_heatmap,
 )
 from core.runview import MapFields, RunSnapshot
+
+# plotext keeps some drawing state at module level: two builds at once (a resize during a refit) could
+# mix their axes, so builds take turns
+_BUILD_LOCK = threading.Lock()
 
 _SEGMENT_CONSOLE = Console(color_system="truecolor", force_terminal=True, width=1000, legacy_windows=False)
 
@@ -54,6 +65,11 @@ class HeatmapView(Widget):
         self._strips: list[Strip] = []
         self._cache: dict[tuple[int, int], Strip] = {}
 
+    def on_resize(self) -> None:
+        """The legend above may take another line: the picture is drawn again for the new size."""
+        if isinstance(self.parent, MapPanel):
+            self.parent.request()
+
     def set_image(self, image: HeatmapImage, strips: list[Strip]) -> None:
         self.image = image
         self._text = image.text
@@ -78,7 +94,8 @@ class HeatmapView(Widget):
 
 
 class MapPanel(Vertical):
-    """Heatmaps of mean, epistemic sd, noise sd and total sd (``m`` cycles), with tested centres."""
+    """Heatmaps of mean, epistemic sd, noise sd and total sd (``m`` cycles), with the sample's edge and
+    exclusions, earlier indents, every indent of the run by status, and the sites still to run."""
 
     BORDER_TITLE = "Map"
 
@@ -95,6 +112,7 @@ class MapPanel(Vertical):
         self.field_index = 0
         self.fields: MapFields | None = None
         self.snap: RunSnapshot | None = None
+        self.marks = MapMarks()
         self.generation = 0
         self.builds = 0  # finished builds (tests and the benchmark read it)
         self.applied_generation = 0
@@ -109,14 +127,37 @@ class MapPanel(Vertical):
         return FIELD_KEYS[self.field_index]
 
     def _legend(self) -> Text:
+        """One entry per meaning drawn on this map (it wraps to a second line on a narrow panel)."""
         i = 1 if self.no_color else 0
+        marks = self.marks
+        present = {MARK_OUTLINE: bool(marks.outline_um), MARK_EXCLUDED: bool(marks.exclusions)}
+        present[MARK_EARLIER] = bool(marks.earlier_um)
+        statuses = {m.status for m in marks.indents}
+        for status, mark in STATUS_MARKS.items():
+            present[mark] = status in statuses
+        present[MARK_NEWEST] = marks.newest_block_id is not None
+        present[MARK_PLANNED] = bool(marks.planned_um)
+        width = max(self.size.width - 2, 20) if self.size.width else 1000
         t = Text(no_wrap=True, overflow="ellipsis")
-        t.append(f"{MARK_NEWEST[i]} newest ", style="bold")
-        t.append(f"{MARK_RECENT[i]} recent ")
-        t.append(f"{MARK_OLDER[i]} older ", style="dim")
-        t.append(f"{MARK_NEXT[i]} next", style="bold magenta")
-        t.append("   m: field", style="dim")
+        used = 0
+        for mark, word in LEGEND:
+            if not present.get(mark):
+                continue
+            entry = len(word) + 3
+            if used and used + entry > width:  # a mark and its word stay on one line
+                t.append("\n")
+                used = 0
+            t.append(mark[i], style="bold" if mark is MARK_NEWEST else "")
+            t.append(f" {word} ")
+            used += entry
+        if not t.plain:
+            t.append("no indents yet", style="dim")
         return t
+
+    def _show_legend(self) -> None:
+        legends = self.query("#map-legend")
+        if legends:
+            legends.first(Static).update(self._legend())
 
     def on_mount(self) -> None:
         self._titles()
@@ -142,22 +183,21 @@ class MapPanel(Vertical):
         self.snap = snap
         if (
             old is None
-            or old.tested != snap.tested
+            or old.indents != snap.indents
+            or old.sample != snap.sample
             or old.reverse_x != snap.reverse_x
-            or ((old.pending is None) != (snap.pending is None))
+            or old.pending != snap.pending
+            or old.queue != snap.queue
         ):
+            marks = marks_for(snap)
+            if marks != self.marks:
+                self.marks = marks
+                self._show_legend()
             self.request()
 
     def on_resize(self) -> None:
+        self._show_legend()
         self.request()
-
-    def _next_candidate(self) -> tuple[float, float] | None:
-        if self.snap is not None and self.snap.pending is not None:
-            b = self.snap.pending.block
-            return (b.center_x_um, b.center_y_um)
-        if self.fields is not None:
-            return self.fields.next_candidate_um
-        return None
 
     def request(self) -> None:
         """Ask for a new picture if anything it depends on changed."""
@@ -176,17 +216,14 @@ class MapPanel(Vertical):
             height,
             self.fields.snapshot_id if self.fields is not None else None,
             id(self.fields),
-            self.snap.tested,
+            self.marks,
             self.snap.reverse_x,
-            self._next_candidate(),
         )
         if key == self._want:
             return
         self._want = key
         self.generation += 1
-        self._build(
-            self.generation, width, height, self.snap, self.fields, self.field_key, self._next_candidate()
-        )
+        self._build(self.generation, width, height, self.snap, self.fields, self.field_key, self.marks)
 
     @work(thread=True, group="heatmap")
     def _build(
@@ -197,20 +234,31 @@ class MapPanel(Vertical):
         snap: RunSnapshot,
         fields: MapFields | None,
         field_key: str,
-        next_candidate: tuple[float, float] | None,
+        marks: MapMarks,
     ) -> None:
-        image = render_heatmap(
+        with _BUILD_LOCK:
+            image = self._draw(width, height, snap, fields, field_key, marks)
+        self.post_message(self.ImageReady(image, generation, to_strips(image.text)))
+
+    def _draw(
+        self,
+        width: int,
+        height: int,
+        snap: RunSnapshot,
+        fields: MapFields | None,
+        field_key: str,
+        marks: MapMarks,
+    ) -> HeatmapImage:
+        return render_heatmap(
             fields,
             field_key,
             width,
             height,
             snap.stage_bounds_um,
-            tested=snap.tested,
-            next_candidate_um=next_candidate,
+            marks=marks,
             reverse_x=snap.reverse_x,
             no_color=self.no_color,
         )
-        self.post_message(self.ImageReady(image, generation, to_strips(image.text)))
 
     def on_map_panel_image_ready(self, message: ImageReady) -> None:
         message.stop()

@@ -28,8 +28,10 @@ def status_text(
     width: int,
     replay: tuple[int, int] | None = None,
     note: str = "",
+    wall_s: float | None = None,
 ) -> Text:
-    """One line; the least important items go first when the terminal is narrow."""
+    """One line; the least important items go first when the terminal is narrow. ``wall_s`` is the
+    session's wall time now, when it has moved on since the snapshot was read."""
     text = Text(no_wrap=True, overflow="ellipsis")
     if snap is None:
         text.append(" CONNECTING ", style="bold reverse")
@@ -45,7 +47,7 @@ def status_text(
         text.append(" ⚠ COLLAPSE ", style="bold white on red")
     items: list[tuple[int, str]] = [  # (priority: lower survives longer, text)
         (0, f"instr {hms(snap.instrument_s)}"),
-        (2, f"wall {hms(snap.wall_s)}"),
+        (2, f"wall {hms(snap.wall_s if wall_s is None else wall_s)}"),
         (0, f"{snap.n_indents} ind"),
         (1, f"{snap.n_blocks} blk"),
     ]
@@ -77,15 +79,24 @@ class StatusBar(Static):
     StatusBar { height: 1; dock: top; background: $panel; }
     """
 
-    _shown: tuple[RunSnapshot | None, float, tuple[int, int] | None, str] | None = None
+    _shown: tuple[RunSnapshot | None, float, tuple[int, int] | None, str, float | None] | None = None
 
     def show(
-        self, snap: RunSnapshot | None, now_s: float, replay: tuple[int, int] | None = None, note: str = ""
+        self,
+        snap: RunSnapshot | None,
+        now_s: float,
+        replay: tuple[int, int] | None = None,
+        note: str = "",
+        wall_s: float | None = None,
     ) -> None:
-        self._shown = (snap, now_s, replay, note)
-        self.update(status_text(snap, now_s, self.size.width or 100, replay, note))
+        shown = (snap, now_s, replay, note, wall_s)
+        if shown == self._shown:
+            return
+        self._shown = shown
+        self.update(status_text(snap, now_s, self.size.width or 100, replay, note, wall_s))
 
     def on_resize(self) -> None:
         """The items that fit depend on the width: lay the line out again once it is known or changes."""
         if self._shown is not None:
-            self.show(*self._shown)
+            shown, self._shown = self._shown, None
+            self.show(*shown)

@@ -493,6 +493,8 @@ class JournalReader:
             finished=finished,
             allowed_holds_s=self.profile.allowed_holds_s,
             instrument_wait=instrument_wait_from_json(wait_row[0]) if waiting else None,
+            reconfig_threshold_um=self.profile.reconfig_threshold_um,
+            position_um=ds.position_um if ds else None,
         )
 
 

@@ -59,6 +59,8 @@ class PlanContext:
     best_observed_gpa: float | None
     last_drift_rate_nm_s: float | None
     avoid_xy_um: tuple[tuple[float, float], ...] = ()
+    # after a veto: the alternative the vetoed proposal listed first, which the next proposal must be
+    prefer_xy_um: tuple[float, float] | None = None
     pitch_um: float = DEFAULT_PITCH_UM
     dz_safe_um: float = 5.0
     r_excl_um: float = 20.0
@@ -175,6 +177,14 @@ def base_mask(ctx: PlanContext, g_max_halfwidth_um: float) -> np.ndarray:
         pitch = _lattice_pitch_um(ctx)
         mask &= np.hypot(xy[:, 0] - ax, xy[:, 1] - ay) > 2.0 * pitch
     return mask
+
+
+def preferred_index(ctx: PlanContext, xy_um: np.ndarray, ok: np.ndarray) -> int | None:
+    """After a veto: the candidate (among ``ok``) nearest the alternative the operator was offered next."""
+    if ctx.prefer_xy_um is None or not ok.any():
+        return None
+    d = np.hypot(xy_um[:, 0] - ctx.prefer_xy_um[0], xy_um[:, 1] - ctx.prefer_xy_um[1])
+    return int(np.argmin(np.where(ok, d, np.inf)))
 
 
 def _lattice_pitch_um(ctx: PlanContext) -> float:

@@ -24,6 +24,7 @@ from core.policies.base import (
     grid_size_for_noise,
     local_mask,
     make_block,
+    preferred_index,
     reachable_mask,
 )
 from core.policies.blocks import ReplicateGrid
@@ -340,13 +341,17 @@ class BayesPlanner:
         if not np.isfinite(jump_score) and stay_score is None:
             return None
         kind: BlockKind = "local" if stay_score is not None and stay_score >= jump_score else "global"
-        chosen = loc if kind == "local" else glob
         pick = best_l if kind == "local" else best_g
-        x, y = xy[pick]
-        block = make_block(ctx, x, y, int(chosen.g[pick]), chosen.hold_s, kind)
 
         score = np.maximum(jump_rates, loc.score)
         kinds = np.where(loc.score > jump_rates, "local", "global")
+        preferred = preferred_index(ctx, xy, np.isfinite(score))
+        if preferred is not None:  # a veto: the alternative listed first, as it was scored there
+            pick = preferred
+            kind = "local" if kinds[pick] == "local" else "global"
+        chosen = loc if kind == "local" else glob
+        x, y = xy[pick]
+        block = make_block(ctx, x, y, int(chosen.g[pick]), chosen.hold_s, kind)
         acq_any = np.where(loc.score > jump_rates, loc.acq, glob.acq)
         cost_any = np.where(loc.score > jump_rates, loc.cost, glob.cost)
         order = np.argsort(-score, kind="stable")
@@ -365,6 +370,8 @@ class BayesPlanner:
             reason = f"jump to the highest σ ({chosen.acq[pick]:.3g} GPa), cost ignored"
         if ivr is not None and f.joint_program and kind == "global":
             reason += " (jump priced with its planned sub-grids)"
+        if preferred is not None:
+            reason = f"after a veto, the next best listed: {kind} {what}/cost {score[pick]:.3g}"
         return Decision(
             block=block,
             policy=self.name,

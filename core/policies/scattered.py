@@ -27,12 +27,20 @@ from __future__ import annotations
 
 import copy
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from core.cost import block_costs_for
 from core.plan import Alternative, Block, BlockKind, Decision, IndentSpec
-from core.policies.base import PlanContext, alternatives, base_mask, block_costs_s, reachable_mask
+from core.policies.base import (
+    PlanContext,
+    alternatives,
+    base_mask,
+    block_costs_s,
+    preferred_index,
+    reachable_mask,
+)
 from core.policies.blocks import ScatteredSingles
 from core.policies.parts import PolicyParts
 from core.policies.planner import aim_rel_error
@@ -41,6 +49,7 @@ from core.policies.variance import PosteriorCov
 MAX_CANDIDATES = 2500  # candidates scored per decision (a large lattice is thinned evenly)
 REFERENCE_N = 24  # reference points per side on which the relative map error is integrated
 FULL_WEIGHT_REL_SLOPE = 2.0  # a relative slope (per side of the area) that gets the full structure weight
+PRICED_ALTERNATIVES = 3  # alternatives listed (the decision panel shows three; a veto takes the first)
 BOX_FRACTION = 0.45  # a block's indents lie within ± this × the reconfiguration threshold of its anchor
 
 
@@ -91,32 +100,35 @@ class ScatteredPlanner:
         # indents and the stay's picks), so the start spreads over programs; it is scored on the same design.
         # The alternatives (where a veto moves to) are ranked the same way, the anchor first
         placing = after_stay if exploring and after_stay is not None else value
-        alts = self._alternatives(ctx, cand, placing.gains(), hold)
-        first = placing.best(np.ones(len(cand), dtype=bool))
+        everywhere = np.ones(len(cand), dtype=bool)
+        preferred = preferred_index(ctx, xy, everywhere)
+        if preferred is not None:
+            options = []  # a veto: open the program at the alternative listed first, as it was priced
+        first = preferred if preferred is not None else placing.best(everywhere)
+        assert first is not None
         anchor = (float(xy[first, 0]), float(xy[first, 1]))
-        band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
-        band[first] = True
-        picks, gains = self._batch(copy.copy(value), xy, band, first, ctx)
+        picks, gains = self._program_at(ctx, value, xy, cand, first, box)
         options.append(("global", picks, hold, gains))
+        alts = self._alternatives(ctx, cand, placing.gains(), hold, value, box)
 
         # each option at every block size the design allows: the size with the best gain per second wins, so
         # a program that is dear to open (a lift, engage and drift settle, a reconfiguration) serves more
         # indents, and a cheap stay refits sooner
         best: tuple[float, Block, float, BlockKind, float] | None = None
         rates: dict[str, float] = {}
-        for kind, idx, h, gains in options:
-            for n in d.block_sizes(len(idx), len(ctx.indents_xy_um)):
-                block = self._block(ctx, kind, xy[idx[:n]], h, anchor if kind == "global" else None)
-                cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
-                gain = float(sum(gains[:n]))
-                rate = gain / cost if cost > 0 else 0.0
-                rates[kind] = max(rates.get(kind, -math.inf), rate)
-                if best is None or rate > best[0]:
-                    best = (rate, block, cost, kind, gain)
+        for kind, idx, h, option_gains in options:
+            rate, block, cost, gain = self._best_size(
+                ctx, kind, xy, idx, h, option_gains, anchor if kind == "global" else None
+            )
+            rates[kind] = max(rates.get(kind, -math.inf), rate)
+            if best is None or rate > best[0]:
+                best = (rate, block, cost, kind, gain)
         assert best is not None
         rate, block, cost, kind, gain = best
         what = "maximin spacing" if exploring else "IVR"
-        if kind == "local":
+        if preferred is not None:
+            reason = f"after a veto, the next best listed: {block.n_indents} singles, {what}/cost {rate:.3g}"
+        elif kind == "local":
             reason = f"stay: {block.n_indents} singles, {what}/cost {rate:.3g} ≥ jump {rates['global']:.3g}"
         elif "local" in rates:
             reason = f"jump: {block.n_indents} singles, {what}/cost {rate:.3g} > stay {rates['local']:.3g}"
@@ -137,18 +149,66 @@ class ScatteredPlanner:
             area_error_pct=err,
         )
 
+    def _program_at(
+        self, ctx: PlanContext, value: _Value, xy: np.ndarray, cand: np.ndarray, first: int, box: float
+    ) -> tuple[list[int], list[float]]:
+        """The singles of a new program engaged at candidate ``first`` (its anchor), with their gains."""
+        anchor = (float(xy[first, 0]), float(xy[first, 1]))
+        band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
+        band[first] = True
+        return self._batch(copy.copy(value), xy, band, first, ctx)
+
+    def _best_size(
+        self,
+        ctx: PlanContext,
+        kind: BlockKind,
+        xy: np.ndarray,
+        idx: list[int],
+        hold_s: float,
+        gains: list[float],
+        anchor: tuple[float, float] | None,
+    ) -> tuple[float, Block, float, float]:
+        """(gain per second, block, cost, gain) of the block size the design allows that pays best."""
+        best: tuple[float, Block, float, float] | None = None
+        for n in self.design.block_sizes(len(idx), len(ctx.indents_xy_um)):
+            block = self._block(ctx, kind, xy[idx[:n]], hold_s, anchor)
+            cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
+            gain = float(sum(gains[:n]))
+            rate = gain / cost if cost > 0 else 0.0
+            if best is None or rate > best[0]:
+                best = (rate, block, cost, gain)
+        assert best is not None
+        return best
+
     def _alternatives(
-        self, ctx: PlanContext, cand: np.ndarray, gain: np.ndarray, hold_s: float
+        self,
+        ctx: PlanContext,
+        cand: np.ndarray,
+        gain: np.ndarray,
+        hold_s: float,
+        value: _Value,
+        box: float,
     ) -> tuple[Alternative, ...]:
-        """Other places to open the next program, by the gain of one indent there (what a veto moves to);
-        the cost shown is that of opening a program there for one indent."""
+        """Other places to open the next program (what a veto moves to): spread-out candidates by the gain
+        of one indent there, each then priced as the whole program it would open, so its score is on the
+        proposal's scale (gain per second of its block) and a veto brings exactly the block listed first."""
         n = len(ctx.lattice.xy_um)
         score = np.full(n, -np.inf)
         score[cand] = gain
         cost = np.full(n, np.inf)
         cost[cand] = block_costs_s(ctx, ctx.lattice.xy_um[cand], 1, hold_s, "global")
         order = np.argsort(-score, kind="stable")[: len(cand)]
-        return alternatives(ctx, order, score, score, cost, np.full(n, "global"), skip=1)
+        spread = alternatives(ctx, order, score, score, cost, np.full(n, "global"), skip=1)
+        spread = spread[:PRICED_ALTERNATIVES]  # each priced costs as much as the proposal's own program
+        xy = ctx.lattice.xy_um[cand]
+        priced = []
+        for a in spread:
+            j = int(np.argmin(np.hypot(xy[:, 0] - a.center_x_um, xy[:, 1] - a.center_y_um)))
+            picks, gains = self._program_at(ctx, value, xy, cand, j, box)
+            anchor = (float(xy[j, 0]), float(xy[j, 1]))
+            rate, _, block_cost, block_gain = self._best_size(ctx, "global", xy, picks, hold_s, gains, anchor)
+            priced.append(replace(a, score=rate, acquisition=block_gain, cost_s=block_cost))
+        return tuple(sorted(priced, key=lambda a: -a.score))
 
     def _batch(
         self, value: _Value, xy: np.ndarray, mask: np.ndarray, first: int | None, ctx: PlanContext

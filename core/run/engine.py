@@ -25,6 +25,7 @@ import traceback
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
+from core.describe import describe_block
 from core.driver import (
     Driver,
     DriverAborted,
@@ -408,9 +409,9 @@ class Engine:
     def _describe(self, d: Decision) -> str:
         b = d.block
         score = "" if d.score is None or math.isnan(d.score) else f", score {d.score:.4g}"
+        words = describe_block(b, self.driver.profile.reconfig_threshold_um, self.driver.position_um())
         return (
-            f"block {b.block_id}: {b.kind} {b.grid_g}×{b.grid_g} at ({b.center_x_um:.0f}, {b.center_y_um:.0f}) µm, "
-            f"hold {b.hold_s:g} s, ~{d.predicted_cost_s:,.0f} s{score}"
+            f"block {b.block_id}: {words}, ~{d.predicted_cost_s:,.0f} s{score}"
             + (f" [{d.phase}]" if d.phase else "")
             + (f": {d.reason}" if d.reason else "")
         )

@@ -28,6 +28,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any, Literal
 
+from core.describe import sites_words
 from core.errors import InputError
 from core.plan import Block, IndentSpec
 from core.profile import InViewSettings
@@ -323,6 +324,8 @@ def ticket_text(ticket: Ticket) -> str:
         )
     methods = "\n".join(f'   hold {m.hold_s:g} s: "{m.method}" ({_ranges(m)})' for m in t.methods)
     grid = f" ({t.grid_g}×{t.grid_g} at {t.pitch_um:g} µm)" if t.grid_g > 1 else ""
+    words = sites_words(t.kind, t.sites_um, t.grid_g, t.pitch_um, None)
+    array_words = f"{words.program}: {words.layout} {words.extent}".rstrip()
     return (
         f"AE-NI ticket  run {t.run}  block {t.block_id}{resumed}\n"
         f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
@@ -331,6 +334,7 @@ def ticket_text(ticket: Ticket) -> str:
         f"{move}\n"
         f"3. Array dialog: import outbox/{t.sites_file}\n"
         f"   {t.n_sites} sites{grid}, µm offsets from the crosshair, {sign}.\n"
+        f"   ({array_words})\n"
         f"4. Test method:\n{methods}\n"
         f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline}.\n"
         f"6. Export (Sample File → Export, CSV or Excel) as inbox/{t.export_stem}.xlsx (or .csv).\n"
@@ -342,10 +346,12 @@ def ticket_panel(ticket: Ticket) -> tuple[str, ...]:
     """The ticket in short lines (≤ 40 characters where it can) for the console at 80×24."""
     t = ticket
     xmm, ymm = t.origin_mm
-    how = "find the surface" if t.kind == "global" else "stay engaged"
+    how = "find the surface" if t.kind == "global" else "tip on the surface"
+    words = sites_words(t.kind, t.sites_um, t.grid_g, t.pitch_um, None)
     lines = [
         f"move to X {xmm:.4f} mm  Y {ymm:.4f} mm",
         f"  = ({t.origin_x_um:.1f}, {t.origin_y_um:.1f}) µm; {how}",
+        f"{words.program}: {words.layout} {words.extent}".rstrip(),
         f"array: {t.n_sites} sites, x{t.array_x_sign:+d} y{t.array_y_sign:+d}"
         + (" swap" if t.array_swap_xy else ""),
         f"  outbox/{t.sites_file}",

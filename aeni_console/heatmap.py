@@ -563,10 +563,10 @@ def render_heatmap(
             line = text_lines[row + 1]
             for col in range(cols):
                 key = (int(lower[row, col, 0]), int(lower[row, col, 1]), int(lower[row, col, 2]))
-                style = styles.get(key)
-                if style is None:
-                    style = styles[key] = Style(bgcolor=f"rgb({key[0]},{key[1]},{key[2]})")
-                line.stylize(style, x0 + col, x0 + col + 1)
+                bg = styles.get(key)
+                if bg is None:
+                    bg = styles[key] = Style(bgcolor=f"rgb({key[0]},{key[1]},{key[2]})")
+                line.stylize(bg, x0 + col, x0 + col + 1)
         text = Text("\n", no_wrap=True, end="").join(text_lines)
     return HeatmapImage(
         text=text,

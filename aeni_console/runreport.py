@@ -249,12 +249,14 @@ def _overlay(ax: Any, data: RunData, indents: bool = True, vetoes: bool = True) 
             zorder=4,
         )
     for i, region in enumerate(data.exclusions):
-        label = "sample exclusions" if i == 0 else None
+        region_label = "sample exclusions" if i == 0 else None
         if hasattr(region, "radius_um"):
             patch: Any = Circle((region.x_um, region.y_um), region.radius_um)
         else:
             patch = Polygon(np.asarray(region.vertices_um, dtype=float), closed=True)
-        patch.set(facecolor=(0.8, 0.1, 0.1, 0.25), edgecolor="tab:red", hatch="//", label=label, zorder=3)
+        patch.set(
+            facecolor=(0.8, 0.1, 0.1, 0.25), edgecolor="tab:red", hatch="//", label=region_label, zorder=3
+        )
         ax.add_patch(patch)
     if data.earlier_indents_um:
         ex, ey = zip(*data.earlier_indents_um, strict=True)

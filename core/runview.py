@@ -13,11 +13,11 @@ import numpy as np
 
 from core.driver import InstrumentWait
 from core.plan import Block, Decision, IndentSpec, PlannerSettings
-from core.sample.model import Sample
 
 # the state machine's names, re-exported for the read side
 from core.run.machine import CommandKind as CommandKind
 from core.run.machine import EngineState as EngineState
+from core.sample.model import Sample
 
 
 @dataclass(frozen=True)

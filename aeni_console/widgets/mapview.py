@@ -128,7 +128,6 @@ class MapPanel(Vertical):
 
     def _legend(self) -> Text:
         """One entry per meaning drawn on this map (it wraps to a second line on a narrow panel)."""
-        i = 1 if self.no_color else 0
         marks = self.marks
         present = {MARK_OUTLINE: bool(marks.outline_um), MARK_EXCLUDED: bool(marks.exclusions)}
         present[MARK_EARLIER] = bool(marks.earlier_um)
@@ -147,7 +146,7 @@ class MapPanel(Vertical):
             if used and used + entry > width:  # a mark and its word stay on one line
                 t.append("\n")
                 used = 0
-            t.append(mark[i], style="bold" if mark is MARK_NEWEST else "")
+            t.append(mark[1] if self.no_color else mark[0], style="bold" if mark is MARK_NEWEST else "")
             t.append(f" {word} ")
             used += entry
         if not t.plain:

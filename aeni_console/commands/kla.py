@@ -62,6 +62,13 @@ def register(subparsers: Any) -> None:
         action="store_false",
         help="export without X/Y Test Position columns (a lab template that leaves them out)",
     )
+    fake.add_argument(
+        "--ledger",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="append every indent this fake instrument makes to FILE (JSON lines; outside the exchange folder)",
+    )
     fake.set_defaults(func=_fake_inview)
 
     check = actions.add_parser(
@@ -172,6 +179,7 @@ def _fake_inview(args: argparse.Namespace) -> int:
         invalid_rate=args.invalid_rate,
         positions=args.positions,
         log=lambda line: print(f"fake-inview: {line}", flush=True),
+        ledger=args.ledger,
     )
 
     def stop(_signum: int, _frame: object) -> None:

@@ -178,6 +178,8 @@ class KlaDriver(InstrumentState):
     def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         if self._abort.is_set():
             raise DriverAborted("driver was aborted")
+        if start_index >= block.n_indents:
+            return  # every indent is in the journal (a crash before the block was observed): nothing to run
         ticket = yield from self._with_folder(block.block_id, lambda: self._ticket(block, start_index))
         end = self._recorded_end(ticket)
         if end is None:

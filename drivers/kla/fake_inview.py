@@ -96,6 +96,9 @@ class FakeInView:
     write_s: float = 0.6  # wall seconds a slow export write takes
     positions: bool = True  # False: a lab template without X/Y Test Position columns
     log: Callable[[str], None] = print
+    # the instrument's own record of every indent it made (JSON lines), kept outside the exchange folder:
+    # the soak checks the journal against it
+    ledger: Path | None = None
     _done: set[tuple[str, int]] = field(default_factory=set)
     _sim: SimulatedDriver | None = None
 
@@ -122,40 +125,101 @@ class FakeInView:
         return out
 
     def serve_forever(self, poll_s: float = 0.2, stop: Callable[[], bool] = lambda: False) -> None:
+        gone = False
         while not stop():
-            for path in self.pending():
-                self.serve(path)
+            if not (self.exchange / "outbox").is_dir():  # the stick was carried away: wait for it
+                if not gone:
+                    self.log(f"exchange folder {self.exchange} is gone: waiting for it")
+                gone = True
+                time.sleep(poll_s)
+                continue
+            if gone:
+                self.log(f"exchange folder {self.exchange} is back")
+                gone = False
+            try:
+                for path in self.pending():
+                    self.serve(path)
+            except FileNotFoundError as exc:  # taken away mid-ticket: what was not written is retried
+                self.log(f"exchange folder went away while serving: {exc}")
             time.sleep(poll_s)
+
+    def _deliver(self, write: Callable[[], None], poll_s: float = 0.2) -> None:
+        """Write into the exchange folder; while it is gone, wait and write again once it is back.
+
+        InView cannot write to a share that is not there: the operator exports again when it returns.
+        """
+        while True:
+            while not (self.exchange / "inbox").is_dir():
+                time.sleep(poll_s)
+            try:
+                write()
+                return
+            except FileNotFoundError:
+                self.log("exchange folder went away while writing: writing again when it is back")
+
+    def _record(self, ticket: Ticket, results: list[IndentResult], exported: bool) -> None:
+        if self.ledger is None:
+            return
+        lines = []
+        for r in results:
+            invalid = self._invalid(ticket, r.indent_index)
+            lines.append(
+                json.dumps(
+                    {
+                        "run": ticket.run,
+                        "block_id": ticket.block_id,
+                        "indent_index": r.indent_index,
+                        "token": ticket.token,
+                        "x_um": r.commanded_x_um,  # where this instrument sent the tip
+                        "y_um": r.commanded_y_um,
+                        "hardness_gpa": None if invalid else r.hardness_gpa,
+                        "invalid": invalid,
+                        "exported": exported,
+                    }
+                )
+            )
+        with self.ledger.open("a", encoding="utf-8") as fh:
+            fh.write("".join(line + "\n" for line in lines))
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def _invalid(self, ticket: Ticket, indent_index: int) -> bool:
+        """InView marks this indent invalid (1.797e308): the same draw for the export and the ledger."""
+        return random.Random(f"{ticket.run}/{ticket.block_id}/{indent_index}").random() < self.invalid_rate
 
     # -- one ticket ------------------------------------------------------------------------------
     def serve(self, ticket_path: Path) -> None:
         data = json.loads(ticket_path.read_text(encoding="utf-8"))
         ticket = Ticket.from_dict(data, str(ticket_path))
-        self._done.add((ticket.run, ticket.block_id))
         folder = ExchangeFolder(self.exchange, ticket.run, self.profile.inview)
         tag = f"{ticket.run} block {ticket.block_id}"
-        block = self._block(ticket, folder)
+        block = self._block(ticket, folder)  # a folder gone before this: the ticket is served when it is back
+        self._done.add((ticket.run, ticket.block_id))
         started = folder.report_path(ticket.block_id, "started")
-        _write_atomic(started, ticket.token + "\n")
+        self._deliver(lambda: _write_atomic(started, ticket.token + "\n"))
         self.log(f"{tag}: started ({ticket.n_sites} sites, token {ticket.token})")
         if self._fault("surface-not-found", ticket.block_id):
-            _write_atomic(folder.report_path(ticket.block_id, "surface-not-found"), ticket.token + "\n")
+            report = folder.report_path(ticket.block_id, "surface-not-found")
+            self._deliver(lambda: _write_atomic(report, ticket.token + "\n"))
             self.log(f"{tag}: surface not found (fault)")
             return
         stop_after = ticket.n_sites // 2 if self._fault("aborted", ticket.block_id) else ticket.n_sites
         results = self._run(block, ticket, stop_after)
         if stop_after < ticket.n_sites:
-            _write_atomic(folder.report_path(ticket.block_id, "aborted"), ticket.token + "\n")
+            report = folder.report_path(ticket.block_id, "aborted")
+            self._deliver(lambda: _write_atomic(report, ticket.token + "\n"))
             self.log(f"{tag}: aborted after {stop_after} of {ticket.n_sites} indents (fault)")
         if self._fault("missing-export", ticket.block_id):
+            self._record(ticket, results, exported=False)
             self.log(f"{tag}: no export (fault)")
             return
         payload = self._export_bytes(results, ticket)
         target = folder.inbox / f"{ticket.export_stem}.{self.fmt}"
+        self._record(ticket, results, exported=True)
         if ticket.block_id % 2:
-            self._write_slowly(target, payload)
+            self._deliver(lambda: self._write_slowly(target, payload))
         else:
-            _write_bytes_atomic(target, payload)
+            self._deliver(lambda: _write_bytes_atomic(target, payload))
         self.log(f"{tag}: exported {target.name} ({len(results)} rows)")
         if self._fault("duplicate-export", ticket.block_id):
             deadline = time.monotonic() + 30
@@ -215,10 +279,9 @@ class FakeInView:
             depth_nm = 100.0 if r.depth_at_max_load_nm is None else r.depth_at_max_load_nm
             load_mn = r.hardness_gpa * BERKOVICH_C0 * depth_nm**2 * 1e-6
             values = [r.modulus_gpa, r.hardness_gpa, r.drift_rate_nm_s, depth_nm, load_mn]
-            invalid = (
-                random.Random(f"{ticket.run}/{ticket.block_id}/{r.indent_index}").random() < self.invalid_rate
-            )
-            if invalid:  # the surface find or the unload failed for this indent: InView writes DBL_MAX
+            if self._invalid(
+                ticket, r.indent_index
+            ):  # the surface find or the unload failed for this indent: InView writes DBL_MAX
                 values = [INVALID, INVALID, r.drift_rate_nm_s, INVALID, INVALID]
             else:
                 valid.append(values)

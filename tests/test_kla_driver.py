@@ -322,3 +322,16 @@ def test_resume_detach_refuses_at_once_when_the_exchange_folder_is_gone(
     out, err = capsys.readouterr()
     assert code == 2 and out == "" and "exchange folder does not exist" in err, (code, out, err)
     assert not engine_running(path)
+
+
+def test_a_block_whose_indents_are_all_journaled_runs_nothing_on_resume(
+    exchange: Path, tmp_path: Path
+) -> None:
+    """Killed after the last indent was journaled but before the block was observed: resume continues at
+    indent n of n. The driver must neither make a ticket nor move (the soak found a crash here)."""
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    assert list(d.execute_block(b, b.n_indents)) == []
+    outbox = exchange / "outbox"
+    assert not outbox.exists() or not any(outbox.iterdir())  # no ticket
+    assert d.clock_s() == 0.0 and d.position_um() == (0.0, 0.0)

@@ -49,7 +49,9 @@ def test_an_old_journal_opens_replays_and_exports(tmp_path: Path, capsys: pytest
 def test_an_old_aborted_journal_resumes_to_the_indents_of_the_uninterrupted_old_run(tmp_path: Path) -> None:
     path = _copy(tmp_path, "aborted.sqlite")
     assert len(_indents(path)) == 1
-    assert main(["resume", str(path), "--quiet"]) == 0
+    # it was stopped by a signal: resume refuses it unless told to go on (issue 23)
+    assert main(["resume", str(path), "--quiet"]) == 2
+    assert main(["resume", str(path), "--quiet", "--continue"]) == 0
     with JournalReader(path) as r:
         snap = r.snapshot()
     assert snap.state is EngineState.STOPPED

@@ -202,3 +202,35 @@ def test_a_silent_instrument_and_a_lost_exchange_folder_alert(receiver: Receiver
     finally:
         send_command(path, Command(CommandKind.ABORT, author="tester"))
         engine.join(120)
+
+
+def test_a_supervised_run_nobody_answers_goes_on_after_the_timeout_and_alerts(
+    receiver: Receiver, tmp_path: Path
+) -> None:
+    """Issue 23's done-when: supervised, approval_timeout_s set, nobody at the keys; the global jumps are
+    approved by the timeout (journaled), the run reaches its budget, and the receiver got the alerts."""
+    from aeni_console.commands.run import run_engine
+    from core.journal import JournalReader
+
+    cfg = make_campaign_config("alone", policy="cost-aware", lattice_n=30, settings={"indent_budget": 60})
+    path = tmp_path / "alone.sqlite"
+    opts = RunOptions(supervision="supervised", approval_timeout_s=1.0, on_timeout="approve")
+    notify = NotifyConfig(urls=(receiver.url,))
+    assert run_engine(path, create=(cfg, opts), quiet=True, notify=notify) == 0
+    with JournalReader(path) as r:
+        snap = r.snapshot()
+        texts = [e.text for e in r.events()]
+        reason = str(r.q.engine_row().get("stop_reason"))
+    assert snap.n_indents >= 50 and "indent budget" in reason, reason
+    timed_out = [t for t in texts if "timed out after 1 s: approve" in t]
+    assert len(timed_out) >= 2, texts  # every global jump went ahead on its own
+    _wait(
+        lambda: (
+            any("timed out" in b for b in receiver.bodies())
+            and any("run ended" in b for b in receiver.bodies())
+        )
+    )
+    bodies = receiver.bodies()
+    assert any("waits for approval" in b for b in bodies), bodies
+    assert any("timed out" in b for b in bodies), bodies
+    assert any("run ended" in b for b in bodies), bodies

@@ -21,6 +21,7 @@ writes ``soak.json`` (one row per run) and ``soak.md`` (the table) to ``--out`` 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -107,7 +108,7 @@ def _block_wall_s(journal: Path) -> list[float]:
     from datetime import datetime
 
     stamps = [datetime.fromisoformat(r[0]).timestamp() for r in rows]
-    return [b - a for a, b in zip(stamps, stamps[1:], strict=False) if b > a]
+    return [b - a for a, b in itertools.pairwise(stamps) if b > a]
 
 
 def _watch(

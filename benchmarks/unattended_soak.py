@@ -55,6 +55,7 @@ class RunOutcome:
     folder_away_at_s: float
     folder_away_s: float
     folder_removed: bool
+    resumes_refused: int = 0  # `aeni resume` refused while the exchange folder was away (then tried again)
     end_state: str = ""
     stop_reason: str = ""
     wall_s: float = 0.0
@@ -260,11 +261,24 @@ def soak_one(k: int, base_seed: int, budget_s: float, invalid_rate: float, stall
                 engine.send_signal(signal.SIGKILL)
                 engine.wait()
                 out.killed = True
-                engine = subprocess.Popen(
-                    _aeni("resume", str(journal), "--quiet"), stdout=log, stderr=subprocess.STDOUT, text=True,
-                    env=_env(),
-                )  # fmt: skip
-            if not out.stalled:
+                # the operator resumes; refused while the stick is away (exit 2), again once it is back
+                while True:
+                    engine = subprocess.Popen(
+                        _aeni("resume", str(journal), "--quiet"), stdout=log, stderr=subprocess.STDOUT,
+                        text=True, env=_env(),
+                    )  # fmt: skip
+                    _watch(engine, journal, stall_s, deadline, out)
+                    if (
+                        out.stalled
+                        or engine.returncode != 2
+                        or exchange.is_dir()
+                        or time.monotonic() > deadline
+                    ):
+                        break
+                    out.resumes_refused += 1
+                    while not exchange.is_dir() and time.monotonic() < deadline:
+                        time.sleep(0.1)
+            if not out.stalled and not out.killed:
                 _watch(engine, journal, stall_s, deadline, out)
             stop_event.set()
             mover.join(timeout=10)
@@ -307,12 +321,14 @@ def table(rows: list[RunOutcome]) -> str:
     n = len(rows)
     walls = sorted(r.wall_s for r in rows)
     lines = [
-        "| runs | stalled | lost | duplicated | changed | ended stopped | killed + resumed | folder away | "
+        "| runs | stalled | lost | duplicated | changed | ended stopped | killed + resumed | resume refused "
+        "(folder away) | folder away | "
         "indents made | recorded as made | unexported | faults used |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
         f"| {n} | {sum(r.stalled for r in rows)} | {sum(r.lost for r in rows)} | "
         f"{sum(r.duplicated for r in rows)} | {sum(r.changed for r in rows)} | "
         f"{sum(r.end_state.startswith('stopped') for r in rows)} | {sum(r.killed for r in rows)} | "
+        f"{sum(r.resumes_refused for r in rows)} | "
         f"{sum(r.folder_removed for r in rows)} | {sum(r.indents_made for r in rows)} | "
         f"{sum(r.recorded_made for r in rows)} | {sum(r.indents_unexported for r in rows)} | "
         f"{', '.join(sorted({f.split('@')[0] for r in rows for f in r.faults}))} |",

@@ -268,10 +268,13 @@ def soak_one(k: int, base_seed: int, budget_s: float, invalid_rate: float, stall
                         text=True, env=_env(),
                     )  # fmt: skip
                     _watch(engine, journal, stall_s, deadline, out)
+                    log.flush()
+                    said = (tmp / "engine.log").read_text(errors="replace").splitlines()[-1:]
+                    folder_away = bool(said) and "exchange folder does not exist" in said[0]
                     if (
                         out.stalled
                         or engine.returncode != 2
-                        or exchange.is_dir()
+                        or not folder_away
                         or time.monotonic() > deadline
                     ):
                         break

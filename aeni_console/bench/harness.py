@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from core.errors import InputError
+from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
 MAX_CENTRES = 2000
 GRID_REFIT_EVERY = 9  # the grid baseline never looks at the model: fit it once per row of blocks
@@ -160,7 +161,8 @@ class BenchConfig:
     # too slow to fit (O(n³)); replicate-grid policies stay far below it
     max_centres: int = MAX_CENTRES
     scenarios: tuple[BenchScenario, ...] = FULL_SCENARIOS
-    failure_rate: float = 0.0  # the simulated instrument's failures (drivers.sim.failures); 0: none
+    # the simulated instrument fails like a real one (drivers.sim.failures); 0: never
+    failure_rate: float = REALISTIC_FAILURE_RATE
 
     @classmethod
     def make(
@@ -263,6 +265,7 @@ class RunRecord:
     maps: dict[str, Any] | None = None  # seed-0 final maps for the report (not stored in results.json)
     interlock_refusals: int = 0  # blocks the interlock refused (the engine vetoed them and asked again)
     approvals: int = 0  # blocks that waited for an approval (none in the bench's auto supervision)
+    failed_indents: int = 0  # indents the simulated instrument failed or never made (never learnt from)
 
 
 # -- one run -------------------------------------------------------------------------------------------
@@ -357,6 +360,7 @@ def run_one(spec: RunSpec) -> RunRecord:
             super().__init__()
             self.block: dict[int, Block] = {}
             self.results: list[IndentResult] = []
+            self.failed = 0  # indents the simulated instrument failed or never made
 
         def emit(self, event: RunEvent) -> None:
             super().emit(event)
@@ -366,6 +370,7 @@ def run_one(spec: RunSpec) -> RunRecord:
                 self.block[event.block.block_id] = event.block
             elif isinstance(event, Indent):
                 self.results.append(event.result)
+                self.failed += int(event.result.status != "measured")
             elif isinstance(event, Observed):
                 self.observed(self.block[event.block_id], event.fit.collapse_alarm, event.t_s)
                 self.results = []
@@ -376,7 +381,7 @@ def run_one(spec: RunSpec) -> RunRecord:
             fast += int(b.hold_s < campaign.profile.default_hold_s)
             local += int(b.kind == "local")
             alarms += int(collapse)
-            results = self.results
+            results = [r for r in self.results if r.status == "measured"]  # what the run learnt
             if results:
                 h_true = sim.truth.hardness_gpa(
                     np.array([r.actual_x_um for r in results]), np.array([r.actual_y_um for r in results])
@@ -399,7 +404,8 @@ def run_one(spec: RunSpec) -> RunRecord:
             return f"centre cap ({spec.max_centres} tested centres)"
         return None
 
-    result = run_auto(campaign, driver, evaluator, sinks=[BlockWatch()], stop_when=stop_when)
+    watch = BlockWatch()
+    result = run_auto(campaign, driver, evaluator, sinks=[watch], stop_when=stop_when)
     trajectory = list(result.trajectory)
     if (
         is_grid
@@ -434,6 +440,7 @@ def run_one(spec: RunSpec) -> RunRecord:
         stop_reason=result.stop_reason,
         interlock_refusals=result.refusals,
         approvals=result.approvals,
+        failed_indents=watch.failed,
         wall_s=time.monotonic() - start,
         trajectory=trajectory,
         max_found=max_found,
@@ -660,9 +667,11 @@ class PolicySummary:
     wall_s: float  # total over seeds
     # against the grid at 1×, 1.5× and 2× its final MAPE: (median, worst seed) of the paired speed-ups
     suite_vs_grid: dict[str, tuple[float, float] | None] = field(default_factory=dict)
-    # totals over the seeds: blocks the interlock refused, blocks that waited for an approval
+    # totals over the seeds: blocks the interlock refused, blocks that waited for an approval, indents the
+    # simulated instrument failed or never made
     interlock_refusals: int = 0
     approvals: int = 0
+    failed_indents: int = 0
 
 
 # the reference each idea is measured against (SPEC §7; the targets)
@@ -797,6 +806,8 @@ def records_from_json(data: dict[str, Any]) -> tuple[list[RunRecord], BenchConfi
             margin=float(proto["margin"]),
             max_blocks=int(proto["max_blocks"]),
             max_centres=int(proto.get("max_centres", MAX_CENTRES)),
+            # results of the release before failures were on by default ran without them
+            failure_rate=float(proto.get("failure_rate", 0.0)),
         )
         names = {f.name for f in fields(RunRecord)}
         records = []
@@ -824,7 +835,7 @@ def merge_results(
     if not parts:
         raise InputError("--render-from", "no results to merge")
     first = parts[0][1]
-    keep = ("quick", "lattice_n", "margin")
+    keep = ("quick", "lattice_n", "margin", "failure_rate")
     caps: dict[str, Any] = {
         "max_blocks": max(c.max_blocks for _, c, _ in parts),
         "max_centres": max(c.max_centres for _, c, _ in parts),
@@ -944,6 +955,7 @@ def summarise(records: Sequence[RunRecord]) -> list[PolicySummary]:
                 },
                 interlock_refusals=sum(r.interlock_refusals for r in vals),
                 approvals=sum(r.approvals for r in vals),
+                failed_indents=sum(r.failed_indents for r in vals),
             )
         )
     return out
@@ -1008,6 +1020,7 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
                 "margin": config.margin,
                 "max_blocks": config.max_blocks,
                 "max_centres": config.max_centres,
+                "failure_rate": config.failure_rate,
                 "scenarios": [
                     {"key": s.key, "scenario": s.scenario, "title": s.title, "policies": list(s.policies)}
                     for s in config.scenarios

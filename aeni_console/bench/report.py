@@ -105,9 +105,9 @@ def scenario_table(rows: Sequence[PolicySummary]) -> str:
     head = (
         "| policy | reached | time to grid's final MAPE | speed-up vs grid | vs uncertainty | vs its reference "
         f"| speed-up at {LOOSE_FACTOR:g}× that MAPE | final MAPE | max found (true) | reconfig. | indents "
-        "| interlock refusals | approvals |"
+        "| interlock refusals | approvals | failed indents |"
     )
-    lines = [head, "|" + "---|" * 13]
+    lines = [head, "|" + "---|" * 14]
     for r in rows:
         ref = ""
         for name, q in r.speedup_ref.items():
@@ -118,7 +118,7 @@ def scenario_table(rows: Sequence[PolicySummary]) -> str:
             f"| {_fmt_ratio(r.speedup_grid)} | {_fmt_ratio(r.speedup_uncertainty)} | {ref or '—'} "
             f"| {_fmt_ratio(r.speedup_grid_loose)} | {_fmt_num(r.final_mape_pct, 3, ' %')} | {mx} "
             f"| {_fmt_num(r.reconfigurations, 0)} | {_fmt_num(r.indents, 0)} "
-            f"| {r.interlock_refusals} | {r.approvals} |"
+            f"| {r.interlock_refusals} | {r.approvals} | {r.failed_indents} |"
         )
     return "\n".join(lines)
 
@@ -513,6 +513,17 @@ def results_markdown(
         " does not decide it.",
         f"- Candidate lattice {config.lattice_n}×{config.lattice_n} (the product's default on the 1000 µm square"
         " is 100×100); the decisions use the same cost model, GP and rules as `aeni simulate`.",
+        "- Every campaign runs through the engine an operator runs, in `auto` supervision: each block passes the"
+        " interlock; a refused one is vetoed and the planner asked again (the **interlock refusals** column, totals"
+        " over the seeds); **approvals** counts blocks that waited for one.",
+        (
+            f"- The simulated instrument fails like a real one: {100 * config.failure_rate:g} % of indents come back"
+            f" invalid and {25 * config.failure_rate:g} % of blocks each find no surface or stop half way (the"
+            " **failed indents** column, totals over the seeds). A failed indent is priced and kept away from,"
+            " never learnt from."
+            if config.failure_rate
+            else "- The simulated instrument never fails (`--failure-rate 0`)."
+        ),
         "",
     ]
     flat = flat_map_errors(config)

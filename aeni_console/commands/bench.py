@@ -23,7 +23,7 @@ def _handler(args: argparse.Namespace) -> int:
     config = BenchConfig.make(
         quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios, policies=args.policies
     )
-    if args.failure_rate:
+    if args.failure_rate is not None:
         from dataclasses import replace
 
         from drivers.sim.failures import FailureModes
@@ -136,9 +136,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--failure-rate",
         dest="failure_rate",
         type=float,
-        default=0.0,
+        default=None,
         help="share of indents the simulated instrument fails (invalid values; a quarter of it of the blocks "
-        "find no surface or are aborted); default 0",
+        "find no surface or are aborted); default 0.015, about what a real instrument does; 0: never",
     )
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

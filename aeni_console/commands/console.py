@@ -100,12 +100,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from aeni_console.commands.run import start_engine_process
     from core.journal import default_journal_path
     from core.runconfig import make_campaign_config
-    from drivers.sim.scenarios import DEMO_FAILURE_RATE
+    from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
     # the simulated instrument fails now and then, as a real one does (a KLA demo's fake InView has its own)
     failure_rate = args.failure_rate
     if failure_rate is None and args.driver == "sim":
-        failure_rate = DEMO_FAILURE_RATE
+        failure_rate = REALISTIC_FAILURE_RATE
     config = make_campaign_config(
         "demo",
         source="command line",

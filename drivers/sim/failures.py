@@ -18,6 +18,8 @@ from core.errors import InputError
 
 BlockFault = Literal["surface-not-found", "aborted"]
 MAX_FAILURE_RATE = 0.5
+# what `aeni demo` and `aeni bench` run with: about what a real instrument does (1-2 % of indents invalid)
+REALISTIC_FAILURE_RATE = 0.015
 INVALID_VALUE = 1.797e308  # what InView writes where it has no value
 
 

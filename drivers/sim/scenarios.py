@@ -39,11 +39,9 @@ from drivers.sim.emulator import (
 from drivers.sim.evaluator import TruthEvaluator
 from drivers.sim.failures import FailureModes
 
-# the share of indents a scenario's simulated instrument fails by default (drivers.sim.failures); none yet:
-# the bench's figures are without failures until they are regenerated with them
+# the share of indents a scenario's simulated instrument fails by default (drivers.sim.failures) when a run
+# names no rate: none, so `aeni simulate` repeats `aeni run` of the same seed indent for indent
 SCENARIO_FAILURE_RATE: dict[str, float] = {}
-# what `aeni demo` runs with: about what a real instrument does
-DEMO_FAILURE_RATE = 0.015
 
 # scenario samples: the whole square is usable (no edge band, no exclusions), as in the paper's studies
 SCENARIO_EDGE_BAND_UM = 0.0

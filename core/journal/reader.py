@@ -18,6 +18,7 @@ from typing import Any
 from core.cost import indent_steps
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
 from core.journal.codec import (
+    APPROVAL_CATEGORY,
     INDENT_COLS,
     BlockRecord,
     DriverState,
@@ -40,6 +41,7 @@ from core.journal.schema import (
 from core.plan import LEDGER_CATEGORIES, Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import profile_from_dict
 from core.runview import (
+    ApprovalDeadline,
     DriftStatus,
     EngineState,
     GpStatus,
@@ -432,8 +434,18 @@ class JournalReader:
                 "SELECT detail FROM events WHERE category = 'instrument' AND detail IS NOT NULL "
                 "ORDER BY event_id DESC LIMIT 1"
             ).fetchone()
+            asked_row = c.execute(
+                "SELECT wall_utc, detail FROM events WHERE category = ? AND detail IS NOT NULL "
+                "ORDER BY event_id DESC LIMIT 1",
+                (APPROVAL_CATEGORY,),
+            ).fetchone()
         state, finished = self._effective_state(eng)
         waiting = state is EngineState.WAITING_FOR_INSTRUMENT and wait_row is not None and not finished
+        deadline = None
+        if state is EngineState.AWAITING_APPROVAL and pending is not None and asked_row and not finished:
+            deadline = ApprovalDeadline.from_record(asked_row[0], asked_row[1])
+            if deadline.decision_id != pending.decision_id:
+                deadline = None  # the deadline of an earlier wait (this one has none)
         current = open_blk[0] if open_blk and open_blk[1] in ("planned", "running", "aborted") else None
         done = open_blk[2] if open_blk and current is not None else 0
         pos = ds.position_um if ds else (0.0, 0.0)
@@ -495,6 +507,7 @@ class JournalReader:
             instrument_wait=instrument_wait_from_json(wait_row[0]) if waiting else None,
             reconfig_threshold_um=self.profile.reconfig_threshold_um,
             position_um=ds.position_um if ds else None,
+            approval_deadline=deadline,
         )
 
 
@@ -562,6 +575,7 @@ class ReplayView:
             self.final,
             can_command=False,
             instrument_wait=None,
+            approval_deadline=None,
             instrument_s=float(t_end),
             wall_s=wall_s,
             n_indents=len(results),

@@ -12,9 +12,16 @@ import json
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from core.journal.codec import INDENT_COLS, block_from_dict, decision_from_dict, result_from_row
+from core.journal.codec import (
+    APPROVAL_CATEGORY,
+    INDENT_COLS,
+    block_from_dict,
+    decision_from_dict,
+    result_from_row,
+)
 from core.plan import StepRecord
 from core.run.events import (
+    ApprovalAsked,
     BlockEnded,
     BlockStarted,
     CommandDone,
@@ -46,6 +53,18 @@ def _waiting(j: Any, e: Waiting) -> None:
     """What the instrument wait says is logged by the engine (Logged events); the wait itself is the state."""
 
 
+def _approval_asked(j: Any, e: ApprovalAsked) -> None:
+    """A log row the console counts down from: its wall time plus ``timeout_s`` is the deadline."""
+    detail = {"decision_id": e.decision_id, "timeout_s": e.timeout_s, "on_timeout": e.on_timeout}
+    j.log(
+        "info",
+        f"decision {e.decision_id} waits {e.timeout_s:g} s for an answer, then: {e.on_timeout}",
+        category=APPROVAL_CATEGORY,
+        block_id=e.block_id,
+        detail=json.dumps(detail),
+    )
+
+
 _WRITERS: dict[type, Callable[[Any, Any], None]] = {
     SessionBegan: lambda j, e: j.begin_session(e.kind),
     SessionEnded: lambda j, e: j.end_session(e.state),
@@ -74,6 +93,7 @@ _WRITERS: dict[type, Callable[[Any, Any], None]] = {
         e.steps, e.driver, text=e.text, category=e.category, block_id=e.block_id
     ),
     Waiting: _waiting,
+    ApprovalAsked: _approval_asked,
     PlanChanged: lambda j, e: j.record_campaign_state(
         e.plan.block_id, e.plan.point, e.plan.state, e.plan.settings
     ),

@@ -107,3 +107,24 @@ def test_a_headless_record_folds_its_events_the_same_way() -> None:
     h = record.history()
     assert h is not None and h.completed and [b.block_id for b, _ in h.observed] == [0, 1, 2]
     assert all(len(r) == b.n_indents for b, r in h.observed) and h.last_snapshot_id == 3
+
+
+def test_replay_is_the_live_view_cut_off_after_a_block(tmp_path: Path) -> None:
+    """One view: the last replay step of a finished run is the live view but for what came after the last
+    block (the lift and stop), and every step counts only the rows up to its block."""
+    from test_engine import run_engine
+
+    from aeni_console.journal_source import JournalReplay, JournalSource
+
+    _, path = run_engine(tmp_path, FakeCampaign(n_blocks=3))
+    live = JournalSource(path).snapshot()
+    replay = JournalReplay(path)
+    steps = [replay.snapshot_at(i) for i in range(replay.n_blocks())]
+    assert [s.n_blocks for s in steps] == [1, 2, 3] and [s.n_indents for s in steps] == [4, 8, 12]
+    assert [len(s.indents) for s in steps] == [4, 8, 12] and [len(s.tested) for s in steps] == [1, 2, 3]
+    assert [s.gp.snapshot_id for s in steps] == [1, 2, 3] and not any(s.can_command for s in steps)
+    last = steps[-1]
+    differs = {f for f in live.__dataclass_fields__ if getattr(live, f) != getattr(last, f)}
+    assert differs <= {"instrument_s", "wall_s", "ledger", "log"}
+    assert last.instrument_s <= live.instrument_s and last.ledger["indent"] == live.ledger["indent"]
+    assert [s.pending is not None for s in steps] == [True, True, False]  # the decision that came next

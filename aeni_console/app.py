@@ -268,7 +268,9 @@ class ConsoleApp(App[None]):
             or old.last_decision != snap.last_decision
             or old.state != snap.state
             or old.gp != snap.gp
+            or old.approval_deadline != snap.approval_deadline
         ):
+            self.decision_panel.now_unix = self.clock()
             self.decision_panel.show(snap)
         if old is None or old.log != snap.log:
             self.log_panel.show_events(snap.log)
@@ -319,6 +321,8 @@ class ConsoleApp(App[None]):
         self.status_bar.show(snap, now, replay, self.note, wall_s)
         if self.ticket_panel.display:
             self.ticket_panel.tick(self.clock())
+        elif self.decision_panel.display:
+            self.decision_panel.tick(self.clock())
 
     # ------------------------------------------------------------------ which keys apply now
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:

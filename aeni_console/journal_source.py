@@ -1,9 +1,10 @@
 """The console's sources backed by a real run journal: a live run, and a finished run to step through.
 
 ``JournalSource`` is a thin, lock-guarded wrapper over ``core.journal.JournalReader`` (one reader per
-console, used from the feed thread). ``JournalReplay`` walks ``core.journal.ReplayView``: the snapshot
-the console would have shown just after each block finished, rebuilt by the reader's own rules, so an
-operator can walk a run block by block and see the map, the ledger and the decision that came next.
+console, used from the feed thread). ``JournalReplay`` steps through the same view cut off just after
+each observed block (``JournalReader.snapshot(upto=...)``): one set of rules for the live console and
+replay, so an operator can walk a run block by block and see the map, the ledger and the decision that
+came next as the console showed them.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from core.errors import InputError
-from core.journal import JournalReader, ReplayView, engine_running, send_command
+from core.journal import JournalReader, engine_running, send_command
 from core.runview import Command, IndentMark, MapFields, RunSnapshot
 from core.sample.model import Sample, sample_from_dict
 
@@ -69,10 +70,14 @@ class JournalSource:
             self._indents.append(IndentMark(float(x), float(y), int(bid), str(status)))
         return tuple(self._indents)
 
-    def snapshot(self) -> RunSnapshot:
+    def snapshot(self, upto: int | None = None) -> RunSnapshot:
+        """The run now, or (``upto``) just after that observed block, with the sample and the indents so far."""
         with self._lock:
-            snap = self._reader.snapshot(self.reader_user)
-            return replace(snap, sample=self._sample, indents=self._new_indents())
+            snap = self._reader.snapshot(self.reader_user, upto)
+            indents = self._new_indents()
+            if upto is not None:
+                indents = tuple(m for m in indents if m.block_id <= upto)
+            return replace(snap, sample=self._sample, indents=indents)
 
     def map_fields(self, snapshot_id: int) -> MapFields | None:
         with self._lock:
@@ -94,25 +99,23 @@ class JournalReplay(JournalSource):
 
     def __init__(self, path: str | Path, reader_user: str | int | None = None) -> None:
         super().__init__(path, reader_user)
-        self._view: ReplayView | None = None
+        self._blocks: list[int] | None = None
 
-    def _load(self) -> ReplayView:
-        with self._lock:
-            self._view = ReplayView(self._reader, self.reader_user)
-        return self._view
+    def _steps(self) -> list[int]:
+        if self._blocks is None:
+            with self._lock:
+                self._blocks = self._reader.replay_blocks()
+        return self._blocks
 
     def n_blocks(self) -> int:
-        return len(self._load().observed)
+        self._blocks = None  # a running run may have observed more since
+        return len(self._steps())
 
     def send(self, command: Command) -> None:
         raise PermissionError("a replay cannot command the run; attach with `aeni console RUN` instead")
 
     def snapshot_at(self, block_index: int) -> RunSnapshot:
-        view = self._view if self._view is not None else self._load()
-        snap = view.snapshot_at(block_index)
-        upto = view.observed[block_index].block.block_id
-        with self._lock:
-            indents = tuple(m for m in self._new_indents() if m.block_id <= upto)
-        # the tip was at that block's last indent (the final snapshot's position is the run's end)
-        at = (indents[-1].x_um, indents[-1].y_um) if indents else None
-        return replace(snap, sample=self._sample, indents=indents, position_um=at)
+        blocks = self._steps()
+        if not 0 <= block_index < len(blocks):
+            raise IndexError(f"block index {block_index} is outside 0–{len(blocks) - 1}")
+        return self.snapshot(blocks[block_index])

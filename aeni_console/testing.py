@@ -155,6 +155,8 @@ class LiveRun:
         display_n: int = 40,
         sample: Sample | None = None,
         unmeasured: Mapping[tuple[int, int], IndentStatus] | None = None,
+        approval_timeout_s: float | None = None,
+        on_timeout: str = "approve",
     ) -> None:
         from core.campaign import CampaignConfig
 
@@ -163,7 +165,11 @@ class LiveRun:
         self.unmeasured = unmeasured  # (block, indent) -> failed | not_run: what the instrument reports
         self.supervision = supervision
         self.display_n = display_n
+        self.approval_timeout_s = approval_timeout_s
+        self.on_timeout = on_timeout
         self.clock = ManualWallClock()
+        # the engine's own wall clock (what approval_timeout_s is measured on): moved only by pass_wall_time
+        self.waited_s = 0.0
         self._gate = _Gate()
         self._ready = threading.Event()
         self._error: BaseException | None = None
@@ -222,6 +228,9 @@ class LiveRun:
                 map_display_n=self.display_n,
                 interlock=Interlock(campaign.sample, campaign.profile),
                 evaluator=scenario.evaluator(),
+                approval_timeout_s=self.approval_timeout_s,
+                on_timeout=self.on_timeout,
+                wall_clock=lambda: self.waited_s,
             )
         except BaseException as exc:
             self._error = exc
@@ -312,6 +321,10 @@ class LiveRun:
                 raise TimeoutError(f"command {command.kind.value} was not processed")
             with self._gate.cv:
                 self._gate.cv.wait(0.01)
+
+    def pass_wall_time(self, seconds: float) -> None:
+        """Let ``seconds`` of wall time pass for the engine (an unanswered approval times out on them)."""
+        self.waited_s += seconds
 
     def until_awaiting(self, max_indents: int = 2000) -> RunSnapshot:
         """Run until a proposal waits for the operator (an error if the run ends or never asks)."""

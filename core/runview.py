@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from datetime import datetime
 
 import numpy as np
 
@@ -86,6 +87,25 @@ class IndentMark:
 
 
 @dataclass(frozen=True)
+class ApprovalDeadline:
+    """A waiting decision's deadline (``approval_timeout_s``) and what happens at it (``on_timeout``)."""
+
+    decision_id: int
+    deadline_unix: float
+    on_timeout: str  # approve | veto | pause | stop
+
+    def remaining_s(self, now_unix: float) -> float:
+        return max(self.deadline_unix - now_unix, 0.0)
+
+    @staticmethod
+    def from_record(wall_utc: str, detail: str) -> ApprovalDeadline:
+        """The journal's row of an ApprovalAsked event: the wait began at its wall time."""
+        d = json.loads(detail)
+        began = datetime.fromisoformat(wall_utc.replace("Z", "+00:00")).timestamp()
+        return ApprovalDeadline(int(d["decision_id"]), began + float(d["timeout_s"]), str(d["on_timeout"]))
+
+
+@dataclass(frozen=True)
 class RunSnapshot:
     """Everything the console shows, read at one moment."""
 
@@ -127,6 +147,8 @@ class RunSnapshot:
     # the sample as the run has it (outline, exclusions, earlier indents) and every indent of the run so far
     sample: Sample | None = None
     indents: tuple[IndentMark, ...] = ()
+    # AWAITING APPROVAL with an approval_timeout_s: when the wait ends and what the engine does then
+    approval_deadline: ApprovalDeadline | None = None
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from aeni_console.cli import main
-from core.journal import JournalReader, ReplayView
+from core.journal import JournalReader
 from core.runview import EngineState
 
 DATA = Path(__file__).parent / "data" / "journal_before_one_loop"
@@ -36,8 +36,7 @@ def test_an_old_journal_opens_replays_and_exports(tmp_path: Path, capsys: pytest
     path = _copy(tmp_path, "finished.sqlite")
     with JournalReader(path) as r:
         snap = r.snapshot()
-        replay = ReplayView(r)
-        steps = [replay.snapshot_at(i) for i in range(len(replay.observed))]
+        steps = [r.snapshot(upto=b) for b in r.replay_blocks()]
     assert snap.state is EngineState.STOPPED and snap.n_indents == 17 and snap.n_blocks == 2
     assert steps and steps[-1].n_indents == 17
     assert main(["export", str(path), "--out", str(tmp_path / "out")]) == 0

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import time
+
 from rich.console import Group
 from rich.table import Table
 from rich.text import Text
@@ -27,7 +30,29 @@ def shown_scores(decision: Decision) -> dict[str, float]:
     return out
 
 
-def decision_renderable(snap: RunSnapshot, width: int, replay: bool = False) -> Group | Text:
+def countdown(seconds: float) -> str:
+    """0:42, 12:05, 1:02:03: the time left to answer."""
+    total = max(math.ceil(seconds), 0)
+    h, rest = divmod(total, 3600)
+    m, s = divmod(rest, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+def deadline_text(snap: RunSnapshot, now_unix: float) -> Text | None:
+    """How long the waiting decision has before the engine answers it itself, and how."""
+    dl = snap.approval_deadline
+    if dl is None or snap.state is not EngineState.AWAITING_APPROVAL:
+        return None
+    t = Text(no_wrap=True, overflow="ellipsis")
+    t.append(f"⏱ answer in {countdown(dl.remaining_s(now_unix))}", style="bold yellow")
+    t.append(f" → {dl.on_timeout}", style="bold")
+    t.append(" (approval_timeout_s)", style="dim")
+    return t
+
+
+def decision_renderable(
+    snap: RunSnapshot, width: int, replay: bool = False, now_unix: float | None = None
+) -> Group | Text:
     waiting = snap.state is EngineState.AWAITING_APPROVAL and snap.pending is not None
     d = snap.pending if snap.pending is not None else snap.last_decision
     parts: list[object] = []
@@ -62,6 +87,9 @@ def decision_renderable(snap: RunSnapshot, width: int, replay: bool = False) -> 
     head.append(words.program.upper(), style=program_style)
     head.append(f" {words.layout}")
     parts.append(head)
+    due = None if replay else deadline_text(snap, time.time() if now_unix is None else now_unix)
+    if due is not None:
+        parts.append(due)
     where = Text(no_wrap=True, overflow="ellipsis")
     where.append(f"#{b.block_id} " + " ".join(p for p in (words.extent, words.where) if p))
     parts.append(where)
@@ -109,9 +137,17 @@ class DecisionPanel(SnapshotPanel):
 
     replay = False  # in replay the pending decision is the one the planner made after this block
 
+    now_unix: float = 0.0  # the console's clock, for the approval countdown
+
+    def tick(self, now_unix: float) -> None:
+        """The approval countdown goes on between snapshots (the console calls this every second)."""
+        self.now_unix = now_unix
+        if self.snap is not None and self.snap.approval_deadline is not None and not self.replay:
+            self.show(self.snap)
+
     def show(self, snap: RunSnapshot) -> None:
         self.snap = snap
-        self.update(decision_renderable(snap, max(self.size.width - 2, 20), self.replay))
+        self.update(decision_renderable(snap, max(self.size.width - 2, 20), self.replay, self.now_unix))
         waiting = snap.state is EngineState.AWAITING_APPROVAL and not self.replay
         self.set_class(waiting, "-waiting")
         self.set_class(snap.gp.collapse_alarm, "-alarm")

@@ -22,7 +22,7 @@ from core.journal.codec import (
     to_json,
     utc_now,
 )
-from core.journal.reader import JournalReader, Queries, ReplayView
+from core.journal.reader import JournalReader, Queries
 from core.journal.schema import (
     SCHEMA_VERSION,
     TERMINAL_STATES,
@@ -44,7 +44,6 @@ __all__ = [
     "JournalReader",
     "NotOwnerError",
     "Queries",
-    "ReplayView",
     "StoredCommand",
     "StoredDecision",
     "append_event",

@@ -209,6 +209,8 @@ def result_to_row(r: IndentResult) -> tuple[Any, ...]:
     )
 
 
+APPROVAL_CATEGORY = "approval"  # the log rows of ApprovalAsked events: the console counts down from them
+
 INDENT_COLS = (
     "block_id, indent_index, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, hold_s, "
     "hardness_gpa, modulus_gpa, drift_rate_nm_s, t_s, status, note, depth_at_max_load_nm"

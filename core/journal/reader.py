@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import pwd
 import sqlite3
 import statistics
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -18,6 +18,7 @@ from typing import Any
 from core.cost import indent_steps
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
 from core.journal.codec import (
+    APPROVAL_CATEGORY,
     INDENT_COLS,
     BlockRecord,
     DriverState,
@@ -40,6 +41,7 @@ from core.journal.schema import (
 from core.plan import LEDGER_CATEGORIES, Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import profile_from_dict
 from core.runview import (
+    ApprovalDeadline,
     DriftStatus,
     EngineState,
     GpStatus,
@@ -51,6 +53,8 @@ from core.runview import (
     instrument_wait_from_json,
 )
 from core.settings import settings_from_dict
+
+_ALL = 2**62  # a block id above every block: no cut-off
 
 
 class Queries:
@@ -353,7 +357,7 @@ class JournalReader:
                 reader_uid = None
         return owner, reader_uid == self.owner_uid
 
-    def _tested_centres(self, c: sqlite3.Connection) -> tuple[TestedCenter, ...]:
+    def _tested_centres(self, c: sqlite3.Connection, upto: int | None) -> tuple[TestedCenter, ...]:
         new = c.execute(
             "SELECT b.block_id, b.center_x_um, b.center_y_um FROM blocks b WHERE b.status = 'observed' "
             "AND b.block_id > ?",
@@ -368,9 +372,11 @@ class JournalReader:
             ]
             if hs:
                 self._tested[bid] = TestedCenter(cx, cy, bid, float(statistics.median(hs)))
-        return tuple(self._tested[k] for k in sorted(self._tested))
+        return tuple(self._tested[k] for k in sorted(self._tested) if upto is None or k <= upto)
 
-    def _drift(self, c: sqlite3.Connection, last: Decision | None) -> DriftStatus:
+    def _drift(
+        self, c: sqlite3.Connection, last: Decision | None, upto: int | None, t_end: float
+    ) -> DriftStatus:
         for rowid, t_s, rate in c.execute(
             "SELECT rowid, t_s, drift_rate_nm_s FROM indents WHERE rowid > ? ORDER BY rowid",
             (self._drift_seen_rowid,),
@@ -379,10 +385,13 @@ class JournalReader:
             if rate is not None and area_error_pct(rate) >= AREA_ERROR_THRESHOLD_PCT:
                 self._drift_events.append((t_s, rate))
         row = c.execute(
-            "SELECT drift_rate_nm_s FROM indents WHERE drift_rate_nm_s IS NOT NULL ORDER BY rowid DESC LIMIT 1"
+            "SELECT drift_rate_nm_s FROM indents WHERE drift_rate_nm_s IS NOT NULL AND block_id <= ? "
+            "ORDER BY block_id DESC, indent_index DESC LIMIT 1",
+            (_ALL if upto is None else upto,),
         ).fetchone()
         rate = None if row is None else float(row[0])
-        return drift_status(rate, last, tuple(self._drift_events))
+        events = tuple(e for e in self._drift_events if upto is None or e[0] <= t_end + 1e-6)
+        return drift_status(rate, last, events)
 
     def _queue(
         self, current: Block | None, done: int, nxt: Block | None, pos: tuple[float, float], is_open: bool
@@ -399,54 +408,117 @@ class JournalReader:
                 items.append(QueueItem(block.block_id, i, spec, block.grid_g, eta))
         return tuple(items)
 
-    def snapshot(self, reader_user: str | int | None = None) -> RunSnapshot:
-        """The console's whole view, read in one consistent transaction."""
+    def replay_blocks(self) -> list[int]:
+        """The blocks a replay steps through: every observed block with indents, in order."""
+        rows = self.conn.execute(
+            "SELECT block_id FROM blocks b WHERE status = 'observed' "
+            "AND EXISTS (SELECT 1 FROM indents i WHERE i.block_id = b.block_id) ORDER BY block_id"
+        ).fetchall()
+        return [int(r[0]) for r in rows]
+
+    def snapshot(self, reader_user: str | int | None = None, upto: int | None = None) -> RunSnapshot:
+        """The console's whole view, read in one consistent transaction: the run now, or (``upto``, a block
+        of :meth:`replay_blocks`) the run as it was just after that block was observed (replay).
+
+        One set of rules for both: a replay is the same view with every row after its block left out.
+        """
         owner, can_command = self._owner_view(reader_user)
+        cut = _ALL if upto is None else upto  # the last block whose rows count
         with self._read() as c:
             eng = self.q.engine_row()
             ds = self.q.latest_driver_state()
             ledger = dict.fromkeys(LEDGER_CATEGORIES, 0.0)
             n_reconf = 0
             for cat, total, n in c.execute(
-                "SELECT category, SUM(seconds), COUNT(*) FROM steps GROUP BY category"
+                "SELECT category, SUM(seconds), COUNT(*) FROM steps "
+                + (
+                    ""
+                    if upto is None
+                    else "WHERE block_id IN (SELECT block_id FROM blocks WHERE block_id <= ?) "
+                )
+                + "GROUP BY category",
+                () if upto is None else (upto,),
             ):
                 ledger[cat] = round(float(total), 6)
                 if cat == "reconfigure":
                     n_reconf = int(n)
-            n_indents = int(c.execute("SELECT COUNT(*) FROM indents").fetchone()[0])
-            n_blocks = int(c.execute("SELECT COUNT(DISTINCT block_id) FROM indents").fetchone()[0])
-            open_blk = self.q.open_block()
-            pending = self.q.pending_decision()
-            last = self.q.last_accepted_decision()
+            n_indents, n_blocks = c.execute(
+                "SELECT COUNT(*), COUNT(DISTINCT block_id) FROM indents WHERE block_id <= ?", (cut,)
+            ).fetchone()
+            last_indent = c.execute(
+                "SELECT t_s, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um FROM indents "
+                "WHERE block_id <= ? ORDER BY block_id DESC, indent_index DESC LIMIT 1",
+                (cut,),
+            ).fetchone()
+            if upto is None:
+                open_blk = self.q.open_block()
+                pending = self.q.pending_decision()
+                last = self.q.last_accepted_decision()
+                t_end = ds.clock_s if ds else 0.0
+            else:  # replay: no block open; the decision that came next waits; the block's own was the last
+                open_blk = None
+                nxt = c.execute(
+                    "SELECT decision_id FROM blocks WHERE block_id > ? ORDER BY block_id LIMIT 1", (upto,)
+                ).fetchone()
+                pending = None if nxt is None or nxt[0] is None else self.q.decision(int(nxt[0]))
+                own = c.execute(
+                    "SELECT decision_id, finished_t_s FROM blocks WHERE block_id = ?", (upto,)
+                ).fetchone()
+                last = None if own is None or own[0] is None else self.q.decision(int(own[0]))
+                t_end = float(own[1]) if own is not None and own[1] is not None else float(last_indent[0])
             gp_row = c.execute(
-                "SELECT snapshot_id, summary_json FROM gp_snapshots ORDER BY snapshot_id DESC LIMIT 1"
+                "SELECT snapshot_id, summary_json FROM gp_snapshots WHERE block_id <= ? "
+                "ORDER BY snapshot_id DESC LIMIT 1",
+                (cut,),
             ).fetchone()
             cs = c.execute("SELECT settings_json FROM campaign_states ORDER BY id DESC LIMIT 1").fetchone()
             sessions = c.execute("SELECT started_unix, ended_unix FROM sessions").fetchall()
-            tested = self._tested_centres(c)
-            drift = self._drift(c, last.decision if last else None)
+            tested = self._tested_centres(c, upto)
+            drift = self._drift(c, last.decision if last else None, upto, t_end)
             log_rows = c.execute(
-                "SELECT wall_utc, t_s, level, text FROM events ORDER BY event_id DESC LIMIT ?", (LOG_TAIL,)
+                "SELECT wall_utc, t_s, level, text FROM events "
+                + ("" if upto is None else "WHERE t_s <= ? ")
+                + "ORDER BY event_id DESC LIMIT ?",
+                (LOG_TAIL,) if upto is None else (t_end + 1e-6, LOG_TAIL),
             ).fetchall()
+            first_wall = c.execute("SELECT wall_utc FROM events ORDER BY event_id LIMIT 1").fetchone()
             wait_row = c.execute(
                 "SELECT detail FROM events WHERE category = 'instrument' AND detail IS NOT NULL "
                 "ORDER BY event_id DESC LIMIT 1"
             ).fetchone()
+            asked_row = c.execute(
+                "SELECT wall_utc, detail FROM events WHERE category = ? AND detail IS NOT NULL "
+                "ORDER BY event_id DESC LIMIT 1",
+                (APPROVAL_CATEGORY,),
+            ).fetchone()
         state, finished = self._effective_state(eng)
-        waiting = state is EngineState.WAITING_FOR_INSTRUMENT and wait_row is not None and not finished
+        live = upto is None and not finished
+        waiting = live and state is EngineState.WAITING_FOR_INSTRUMENT and wait_row is not None
+        deadline = None
+        if live and state is EngineState.AWAITING_APPROVAL and pending is not None and asked_row:
+            deadline = ApprovalDeadline.from_record(asked_row[0], asked_row[1])
+            if deadline.decision_id != pending.decision_id:
+                deadline = None  # the deadline of an earlier wait (this one has none)
         current = open_blk[0] if open_blk and open_blk[1] in ("planned", "running", "aborted") else None
         done = open_blk[2] if open_blk and current is not None else 0
-        pos = ds.position_um if ds else (0.0, 0.0)
-        is_open = ds.program_open if ds else False
+        if upto is None:
+            pos = ds.position_um if ds else (0.0, 0.0)
+            is_open = ds.program_open if ds else False
+            at = ds.position_um if ds else None
+        else:  # just after the block's last indent
+            pos, is_open = (float(last_indent[1]), float(last_indent[2])), True
+            ax, ay = last_indent[3], last_indent[4]
+            seen = ax is not None and ay is not None and math.isfinite(ax) and math.isfinite(ay)
+            at = (float(ax), float(ay)) if seen else pos  # where the tip went, else where it was sent
         queue = (
             ()
-            if finished
+            if finished and upto is None
             else self._queue(current, done, pending.decision.block if pending else None, pos, is_open)
         )
         summary: dict[str, Any] = json.loads(gp_row[1]) if gp_row else {}
         gp = GpStatus(
-            lengthscales_um=tuple(summary.get("lengthscales_um", ())),
-            noise_lengthscales_um=tuple(summary.get("noise_lengthscales_um", ())),
+            lengthscales_um=tuple(summary.get("lengthscales_um", ()) or ()),
+            noise_lengthscales_um=tuple(summary.get("noise_lengthscales_um", ()) or ()),
             collapse_alarm=bool(summary.get("collapse_alarm", False)),
             collapse_reason=str(summary.get("collapse_reason", "")),
             refit_s=summary.get("refit_s"),
@@ -457,8 +529,11 @@ class JournalReader:
             if cs
             else settings_from_dict(dict(self._meta.get("config", {}).get("settings", {})))
         )
-        now = time.time()
-        wall_s = float(sum((e if e is not None else now) - s for s, e in sessions))
+        if upto is None:
+            now = time.time()
+            wall_s = float(sum((e if e is not None else now) - s for s, e in sessions))
+        else:  # from the run's first event to this block's last
+            wall_s = _wall_seconds(first_wall[0], log_rows[0][0]) if log_rows and first_wall else 0.0
         cfg = self._meta.get("config") or {}
         bounds = self._meta.get("stage_bounds_um") or [0.0, 0.0, 0.0, 0.0]
         return RunSnapshot(
@@ -469,11 +544,11 @@ class JournalReader:
             policy=str(cfg.get("policy", "")),
             profile_name=self.profile.name,
             owner=owner,
-            can_command=can_command and not finished,
-            instrument_s=ds.clock_s if ds else 0.0,
+            can_command=can_command and live,
+            instrument_s=float(t_end),
             wall_s=wall_s,
-            n_indents=n_indents,
-            n_blocks=n_blocks,
+            n_indents=int(n_indents),
+            n_blocks=int(n_blocks),
             reconfigurations=n_reconf,
             ledger=ledger,
             grid_baseline_s=float(self._meta.get("grid_baseline_s", 0.0)),
@@ -494,7 +569,8 @@ class JournalReader:
             allowed_holds_s=self.profile.allowed_holds_s,
             instrument_wait=instrument_wait_from_json(wait_row[0]) if waiting else None,
             reconfig_threshold_um=self.profile.reconfig_threshold_um,
-            position_um=ds.position_um if ds else None,
+            position_um=at,
+            approval_deadline=deadline,
         )
 
 
@@ -505,77 +581,3 @@ def _wall_seconds(a: str, b: str) -> float:
     except ValueError:
         return 0.0
     return max((end - start).total_seconds(), 0.0)
-
-
-class ReplayView:
-    """A finished (or running) run as the console showed it just after each observed block: replay.
-
-    Built from one read of the journal's block records, events and final snapshot; ``snapshot_at(i)``
-    rebuilds the view after the i-th observed block with the same rules as :meth:`JournalReader.snapshot`.
-    """
-
-    def __init__(self, reader: JournalReader, reader_user: str | int | None = None) -> None:
-        self.reader = reader
-        self.final = reader.snapshot(reader_user)
-        self.records = reader.blocks()
-        self.events = reader.events()
-        self.observed = [r for r in self.records if r.status == "observed" and r.results]
-
-    def snapshot_at(self, block_index: int) -> RunSnapshot:
-        if not 0 <= block_index < len(self.observed):
-            raise IndexError(f"block index {block_index} is outside 0–{len(self.observed) - 1}")
-        rec = self.observed[block_index]
-        bid = rec.block.block_id
-        upto = [r for r in self.records if r.block.block_id <= bid]
-        ledger = dict.fromkeys(LEDGER_CATEGORIES, 0.0)
-        n_reconf = 0
-        for r in upto:
-            for s in r.steps:
-                ledger[s.category] = ledger.get(s.category, 0.0) + s.seconds
-                n_reconf += s.category == "reconfigure"
-        results = [res for r in upto for res in r.results]
-        t_end = (
-            rec.finished_t_s if rec.finished_t_s is not None else max((x.t_s for x in results), default=0.0)
-        )
-        tested = tuple(
-            TestedCenter(r.block.center_x_um, r.block.center_y_um, r.block.block_id, float(r.median_gpa))
-            for r in self.observed[: block_index + 1]
-            if r.median_gpa is not None  # a block whose indents all failed has no centre value
-        )
-        later = [r for r in self.records if r.block.block_id > bid]
-        nxt: Decision | None = later[0].decision if later else None
-        last_pos = (results[-1].commanded_x_um, results[-1].commanded_y_um) if results else (0.0, 0.0)
-        rates = [(x.t_s, x.drift_rate_nm_s) for x in results if x.measured]
-        events = tuple((t, rate) for t, rate in rates if area_error_pct(rate) >= AREA_ERROR_THRESHOLD_PCT)
-        fs: dict[str, Any] = rec.fit_summary
-        gp = GpStatus(
-            lengthscales_um=tuple(fs.get("lengthscales_um", ()) or ()),
-            noise_lengthscales_um=tuple(fs.get("noise_lengthscales_um", ()) or ()),
-            collapse_alarm=bool(fs.get("collapse_alarm", False)),
-            collapse_reason=str(fs.get("collapse_reason", "")),
-            refit_s=fs.get("refit_s"),
-            snapshot_id=rec.snapshot_id,
-        )
-        log = [e for e in self.events if e.t_s <= t_end + 1e-6]
-        wall_s = _wall_seconds(self.events[0].wall_utc, log[-1].wall_utc) if log else 0.0
-        return replace(
-            self.final,
-            can_command=False,
-            instrument_wait=None,
-            instrument_s=float(t_end),
-            wall_s=wall_s,
-            n_indents=len(results),
-            n_blocks=block_index + 1,
-            reconfigurations=n_reconf,
-            ledger={k: round(v, 6) for k, v in ledger.items()},
-            queue=self.reader._queue(None, 0, nxt.block if nxt else None, last_pos, True),
-            current_block=None,
-            pending=nxt,
-            last_decision=rec.decision,
-            drift=drift_status(rates[-1][1] if rates else None, rec.decision, events),
-            gp=gp,
-            mape_pct=fs.get("mape_pct"),
-            max_found_gpa=fs.get("max_found_gpa"),
-            tested=tested,
-            log=tuple(log[-LOG_TAIL:]),
-        )

@@ -1,5 +1,6 @@
 """The journal as a run's record: it writes each engine event in one transaction, hands the engine the
-operator's commands, and folds what it holds back into a RunHistory when a run resumes.
+operator's commands, and, when a run resumes, feeds its rows back through the one fold of a run's events
+(core.run.history) into the RunHistory the engine starts from.
 
 The engine never calls the journal's writing methods itself; it emits events (core.run.events) and this
 module is where each one becomes rows.
@@ -7,10 +8,20 @@ module is where each one becomes rows.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from core.journal.codec import (
+    APPROVAL_CATEGORY,
+    INDENT_COLS,
+    block_from_dict,
+    decision_from_dict,
+    result_from_row,
+)
+from core.plan import StepRecord
 from core.run.events import (
+    ApprovalAsked,
     BlockEnded,
     BlockStarted,
     CommandDone,
@@ -28,6 +39,7 @@ from core.run.events import (
     Steps,
     Waiting,
 )
+from core.run.history import HistoryFold
 
 if TYPE_CHECKING:
     from core.journal.writer import Journal
@@ -39,6 +51,18 @@ def _plan(p: Any) -> tuple[int, str, dict[str, Any], Any] | None:
 
 def _waiting(j: Any, e: Waiting) -> None:
     """What the instrument wait says is logged by the engine (Logged events); the wait itself is the state."""
+
+
+def _approval_asked(j: Any, e: ApprovalAsked) -> None:
+    """A log row the console counts down from: its wall time plus ``timeout_s`` is the deadline."""
+    detail = {"decision_id": e.decision_id, "timeout_s": e.timeout_s, "on_timeout": e.on_timeout}
+    j.log(
+        "info",
+        f"decision {e.decision_id} waits {e.timeout_s:g} s for an answer, then: {e.on_timeout}",
+        category=APPROVAL_CATEGORY,
+        block_id=e.block_id,
+        detail=json.dumps(detail),
+    )
 
 
 _WRITERS: dict[type, Callable[[Any, Any], None]] = {
@@ -69,6 +93,7 @@ _WRITERS: dict[type, Callable[[Any, Any], None]] = {
         e.steps, e.driver, text=e.text, category=e.category, block_id=e.block_id
     ),
     Waiting: _waiting,
+    ApprovalAsked: _approval_asked,
     PlanChanged: lambda j, e: j.record_campaign_state(
         e.plan.block_id, e.plan.point, e.plan.state, e.plan.settings
     ),
@@ -96,27 +121,54 @@ def write_event(journal: Journal, event: RunEvent) -> None:
 
 
 def fold_history(journal: Journal) -> RunHistory | None:
-    """The run so far, folded from the journal's tables (None: no engine has run on it yet)."""
+    """The run so far: the journal's rows fed, kind by kind in the order written, through the fold the
+    engine's events go through (core.run.history). None: no engine has run on it yet."""
     if not journal.has_history():
         return None
-    q = journal.q
-    row = q.engine_row()
-    open_blk = q.open_block()
-    pending = q.pending_decision()
-    last_decision = journal.conn.execute("SELECT COALESCE(MAX(decision_id), 0) FROM decisions").fetchone()
-    return RunHistory(
-        completed=bool(row.get("completed")),
-        stop_reason=str(row.get("stop_reason") or ""),
-        last_state=str(row.get("state", "idle")),
-        plan=q.latest_campaign_state(),
-        observed=q.observed_blocks(),
-        driver=q.latest_driver_state(),
-        recovery_s=q.recovery_seconds(),
-        open_block=None if open_blk is None else (open_blk[0], q.results(open_blk[0].block_id)),
-        pending=None
-        if pending is None
-        else (pending.decision_id, pending.decision, pending.needs_approval_reason or "awaiting approval"),
-        queued_commands=len(q.unprocessed_commands()),
-        last_decision_id=int(last_decision[0]),
-        last_snapshot_id=journal.next_snapshot_id() - 1,
+    c = journal.conn
+    fold = HistoryFold()
+    fold.session()
+    row = journal.q.engine_row()
+    fold.state_changed(
+        str(row.get("state", "idle")), bool(row.get("completed")), str(row.get("stop_reason") or "")
     )
+    # Decided (auto or pending), then what answered it: BlockStarted (approved) or Resolved
+    for did, decision_json, status, why in c.execute(
+        "SELECT decision_id, decision_json, status, needs_approval_reason FROM decisions ORDER BY decision_id"
+    ):
+        fold.decided(
+            int(did),
+            decision_from_dict(json.loads(decision_json)),
+            status if status == "auto" else "pending",
+            why,
+        )
+        if status not in ("auto", "pending"):
+            fold.resolved(int(did))
+    blocks = [
+        (block_from_dict(json.loads(j)), status)
+        for j, status in c.execute("SELECT block_json, status FROM blocks ORDER BY block_id")
+    ]
+    for block, _ in blocks:  # BlockStarted, or the block of an auto decision
+        fold.block_planned(block)
+    for r in c.execute(f"SELECT {INDENT_COLS} FROM indents ORDER BY block_id, indent_index"):  # Indent
+        fold.indent(result_from_row(r))
+    for block, status in blocks:  # BlockEnded; an observed block is Observed's below
+        if status not in ("planned", "running", "observed"):
+            fold.block_status(block.block_id, status)
+    for sid, bid in c.execute(
+        "SELECT snapshot_id, block_id FROM gp_snapshots ORDER BY snapshot_id"
+    ):  # Observed
+        fold.observed(int(bid), int(sid))
+    fold.steps(  # the steps of Indent and Steps
+        StepRecord(cat, sec, bid, idx)
+        for bid, idx, cat, sec in c.execute(
+            "SELECT block_id, indent_index, category, seconds FROM steps ORDER BY step_id"
+        )
+    )
+    driver = journal.q.latest_driver_state()  # the instrument state of the last Indent or Steps
+    if driver is not None:
+        fold.instrument(driver)
+    plan = journal.q.latest_campaign_state()  # the plan of the last event that carried one
+    if plan is not None:
+        fold.planner(*plan)
+    return fold.history(queued_commands=len(journal.q.unprocessed_commands()))

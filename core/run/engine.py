@@ -42,6 +42,7 @@ from core.journal.schema import user_name
 from core.metrics import MapEvaluator, MapScore
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.run.events import (
+    ApprovalAsked,
     BlockEnded,
     BlockStarted,
     CommandDone,
@@ -265,14 +266,27 @@ class Engine:
         """Move the machine; a change of state (or of what the engine row holds) is journaled."""
         before = self.machine.state
         after = self.machine.fire(trigger)
-        if after is EngineState.AWAITING_APPROVAL and (
+        asked = after is EngineState.AWAITING_APPROVAL and (
             before is not EngineState.AWAITING_APPROVAL or trigger is Trigger.ASK
-        ):
+        )
+        if asked:
             self._approval_deadline = (
                 None if self.approval_timeout_s is None else self.wall_clock() + self.approval_timeout_s
             )
         if after != before or kw:
             self._emit(StateChanged(self._clock(), after, **kw))
+        if asked and self._approval_deadline is not None and self._pending is not None:
+            did, decision, _ = self._pending
+            assert self.approval_timeout_s is not None
+            self._emit(
+                ApprovalAsked(
+                    self._clock(),
+                    did,
+                    decision.block.block_id,
+                    self.approval_timeout_s,
+                    self._timeout_action(),
+                )
+            )
 
     @property
     def _stopping(self) -> bool:

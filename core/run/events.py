@@ -167,6 +167,18 @@ class Waiting:
 
 
 @dataclass(frozen=True)
+class ApprovalAsked:
+    """A decision waits for an answer for ``timeout_s`` from now (``approval_timeout_s``); if nobody answers,
+    the engine does ``on_timeout`` (approve, veto, pause, stop) for it. The console counts down to it."""
+
+    t_s: float
+    decision_id: int
+    block_id: int
+    timeout_s: float
+    on_timeout: str
+
+
+@dataclass(frozen=True)
 class PlanChanged:
     """The operator adjusted the planner's settings."""
 
@@ -210,6 +222,7 @@ RunEvent = (
     | Indent
     | Steps
     | Waiting
+    | ApprovalAsked
     | PlanChanged
     | Observed
     | CommandDone

@@ -28,6 +28,7 @@ from core.run.events import (
     Sink,
     Steps,
 )
+from core.run.history import HistoryFold
 
 if TYPE_CHECKING:
     from core.campaign import Campaign
@@ -73,15 +74,24 @@ class RunTally:
 
 
 class MemoryRecord(RunTally):
-    """A run record in memory: no history, no commands (nobody can send one), the tally of its events."""
+    """A run record in memory: the tally of its events, their fold (core.run.history), no commands (nobody
+    can send one)."""
 
     name = "headless run"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._fold = HistoryFold()
+
+    def emit(self, event: RunEvent) -> None:
+        super().emit(event)
+        self._fold.emit(event)
 
     def owner_uid(self) -> int:
         return os.getuid()
 
     def history(self) -> RunHistory | None:
-        return None
+        return self._fold.history()
 
     def pending_commands(self) -> list[StoredCommand]:
         return []

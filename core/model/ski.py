@@ -1,4 +1,4 @@
-"""The GP for large designs: structured kernel interpolation (KISS-GP) on a fixed 2-D grid, solved exactly.
+"""The GP for large designs: structured kernel interpolation (KISS-GP) on a 2-D grid, solved exactly.
 
 The kernel is approximated as K ≈ W Kmm Wᵀ (Wilson & Nickisch 2015), W the cubic-convolution interpolation
 weights of each point onto an m-point regular grid (16 per point, as gpytorch's ``GridInterpolationKernel``).
@@ -10,7 +10,7 @@ b = Wᵀ D⁻¹ (y − c), Kmm = Lm Lmᵀ and B = I + Lmᵀ S Lm = LB LBᵀ,
     log p(y) = −½ [n log 2π + Σ log D + 2 Σ log diag LB + (y − c)ᵀ D⁻¹ (y − c) − ‖LB⁻¹ Lmᵀ b‖²].
 
 Where gpytorch's KISS-GP solves with conjugate gradients and estimates the log-determinant with random
-Lanczos probes, a 20 × 20 grid is small enough for dense Cholesky factors: the same value every time, so a
+Lanczos probes, a grid of at most 28 × 28 (``grid_for``: its spacing follows the fitted length-scale) is small enough for dense Cholesky factors: the same value every time, so a
 resumed run fits and predicts exactly as before. The grid values' posterior is N(G c, G Gᵀ) with G = Lm LB⁻ᵀ;
 a candidate's latent mean and variance read 16 and 256 of its entries (the interpolated prior's, as KISS-GP's
 own predictive variance; the deficit k** − w*ᵀ Kmm w* at a candidate would add ~1 % of the prior variance as if it were
@@ -23,6 +23,7 @@ collapse guard carry over when a design outgrows the exact GP.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import torch
@@ -32,8 +33,13 @@ from core.model.problem import Problem
 
 # more centres than this: the interpolated GP (benchmarks/scale.py: where it decides faster than the exact GP)
 SKI_ABOVE = 1000
-GRID_PER_SIDE = 20  # the mean GP's grid: m = 400 points, 0.055 of the side apart
-NOISE_GRID_PER_SIDE = 14  # the noise GP's (a smoother field, the log-variance): m = 196
+# the grid follows the fitted length-scale: cubic interpolation of a Matérn-5/2 kernel is within the exact GP's
+# map error once a length-scale spans this many grid steps (edge spot, 1,000 centres, on the exact GP's own
+# hyperparameters: 2.8 steps +1.5 %, 4.1 steps −1.0 %; docs/benchmarks.md)
+STEPS_PER_LENGTHSCALE = 4.0
+MIN_PER_SIDE = 12  # long length-scales (the ternary's ≈ 1): 9 steps across are already ≥ 4 per length-scale
+MAX_PER_SIDE = 28  # m = 784: a fit's cost grows as m³, so shorter length-scales get fewer steps each
+GRID_PER_SIDE = 20  # a grid before any length-scale is known (a cold fit starts on it)
 GRID_MARGIN_UV = 0.02  # the grid covers [−margin, 1 + margin]: indents of a centre on the edge lie inside
 JITTER = 1e-6  # relative to the outputscale, on Kmm's diagonal
 
@@ -83,6 +89,15 @@ class Grid:
         idx = (i1[:, 0, :, None] * g + i1[:, 1, None, :]).reshape(-1, 16)
         w = (w1[:, 0, :, None] * w1[:, 1, None, :]).reshape(-1, 16)
         return idx, w
+
+
+def grid_for(lengthscales_uv: Sequence[float] | None) -> Grid:
+    """The grid for these length-scales: STEPS_PER_LENGTHSCALE steps per the shorter one, within the bounds
+    (deterministic in the hyperparameters: a resumed run conditions on the same grid)."""
+    if lengthscales_uv is None:
+        return Grid(GRID_PER_SIDE)
+    steps = math.ceil((1.0 + 2.0 * GRID_MARGIN_UV) * STEPS_PER_LENGTHSCALE / min(lengthscales_uv))
+    return Grid(min(max(steps + 3, MIN_PER_SIDE), MAX_PER_SIDE))
 
 
 def _kernel(kernel: KernelName, a: torch.Tensor, lengthscale: torch.Tensor) -> torch.Tensor:

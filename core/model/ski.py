@@ -1,17 +1,19 @@
-"""The GP for large designs: structured kernel interpolation (KISS-GP) on a fixed 2-D grid, solved exactly.
+"""The GP for large designs: structured kernel interpolation (KISS-GP) on a 2-D grid, solved exactly.
 
-The kernel is approximated as K ≈ W Kmm Wᵀ (Wilson & Nickisch 2015), W the bilinear interpolation weights of
-each point onto an m-point regular grid (4 per point). With the per-point noise D, the marginal likelihood of
-N(c, W Kmm Wᵀ + D) needs only m-sized algebra (Woodbury): with S = Wᵀ D⁻¹ W (sparse, summed once per
-evaluation in O(16 n)), b = Wᵀ D⁻¹ (y − c), Kmm = Lm Lmᵀ and B = I + Lmᵀ S Lm = LB LBᵀ,
+The kernel is approximated as K ≈ W Kmm Wᵀ (Wilson & Nickisch 2015), W the cubic-convolution interpolation
+weights of each point onto an m-point regular grid (16 per point, as gpytorch's ``GridInterpolationKernel``).
+The variance this loses at each data point, k(x, x) − wᵀ Kmm w, is added to its noise D (a diagonal
+correction, as FITC makes: see ``variance_deficit``). The marginal likelihood of N(c, W Kmm Wᵀ + D) needs only
+m-sized algebra (Woodbury): with S = Wᵀ D⁻¹ W (sparse, summed once per evaluation in O(256 n)),
+b = Wᵀ D⁻¹ (y − c), Kmm = Lm Lmᵀ and B = I + Lmᵀ S Lm = LB LBᵀ,
 
     log p(y) = −½ [n log 2π + Σ log D + 2 Σ log diag LB + (y − c)ᵀ D⁻¹ (y − c) − ‖LB⁻¹ Lmᵀ b‖²].
 
 Where gpytorch's KISS-GP solves with conjugate gradients and estimates the log-determinant with random
-Lanczos probes, a 20 × 20 grid is small enough for dense Cholesky factors: the same value every time, so a
+Lanczos probes, a grid of at most 28 × 28 (``grid_for``: its spacing follows the fitted length-scale) is small enough for dense Cholesky factors: the same value every time, so a
 resumed run fits and predicts exactly as before. The grid values' posterior is N(G c, G Gᵀ) with G = Lm LB⁻ᵀ;
-a candidate's latent mean and variance read 4 and 16 of its entries (the interpolated prior's, as KISS-GP's
-own predictive variance; a FITC-style k** − w*ᵀ Kmm w* term would add ~1 % of the prior variance as if it were
+a candidate's latent mean and variance read 16 and 256 of its entries (the interpolated prior's, as KISS-GP's
+own predictive variance; the deficit k** − w*ᵀ Kmm w* at a candidate would add ~1 % of the prior variance as if it were
 independent of the data, more than the posterior variance itself on a dense design). O(m³) per fit
 whatever n is, and no matrix of size n × (candidates).
 Same raw vector, prior and constraints as the exact GP (``core.model.kernels``): warm starts and the
@@ -21,6 +23,7 @@ collapse guard carry over when a design outgrows the exact GP.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import torch
@@ -30,17 +33,32 @@ from core.model.problem import Problem
 
 # more centres than this: the interpolated GP (benchmarks/scale.py: where it decides faster than the exact GP)
 SKI_ABOVE = 1000
-GRID_PER_SIDE = 20  # the mean GP's grid: m = 400 points, 0.055 of the side apart
-NOISE_GRID_PER_SIDE = 14  # the noise GP's (a smoother field, the log-variance): m = 196
-GRID_MARGIN_UV = 0.02  # the grid spans [−margin, 1 + margin]: indents of a centre on the edge lie inside
+# the grid follows the fitted length-scale: cubic interpolation of a Matérn-5/2 kernel is within the exact GP's
+# map error once a length-scale spans this many grid steps (edge spot, 1,000 centres, on the exact GP's own
+# hyperparameters: 2.8 steps +1.5 %, 4.1 steps −1.0 %; docs/benchmarks.md)
+STEPS_PER_LENGTHSCALE = 4.0
+MIN_PER_SIDE = 12  # long length-scales (the ternary's ≈ 1): 9 steps across are already ≥ 4 per length-scale
+MAX_PER_SIDE = 28  # m = 784: a fit's cost grows as m³, so shorter length-scales get fewer steps each
+GRID_PER_SIDE = 20  # a grid before any length-scale is known (a cold fit starts on it)
+GRID_MARGIN_UV = 0.02  # the grid covers [−margin, 1 + margin]: indents of a centre on the edge lie inside
 JITTER = 1e-6  # relative to the outputscale, on Kmm's diagonal
+
+
+def _cubic(d: torch.Tensor) -> torch.Tensor:
+    """Keys' cubic convolution kernel (a = −½) at distances ``d`` in grid steps: gpytorch's KISS-GP weights."""
+    a = d.abs()
+    near = (1.5 * a - 2.5) * a.square() + 1.0
+    far = ((-0.5 * a + 2.5) * a - 4.0) * a + 2.0
+    return torch.where(a <= 1.0, near, torch.where(a < 2.0, far, torch.zeros_like(a)))
 
 
 @dataclass(frozen=True)
 class Grid:
+    """A regular per_side × per_side grid whose cubic stencils cover [−margin, 1 + margin]² (one extra
+    step outside on each side, as gpytorch pads its KISS-GP grid)."""
+
     per_side: int = GRID_PER_SIDE
-    lo: float = -GRID_MARGIN_UV
-    hi: float = 1.0 + GRID_MARGIN_UV
+    margin: float = GRID_MARGIN_UV
 
     @property
     def m(self) -> int:
@@ -48,25 +66,38 @@ class Grid:
 
     @property
     def step(self) -> float:
-        return (self.hi - self.lo) / (self.per_side - 1)
+        return (1.0 + 2.0 * self.margin) / (self.per_side - 3)
+
+    @property
+    def lo(self) -> float:
+        return -self.margin - self.step
 
     def points(self) -> torch.Tensor:
-        c = torch.linspace(self.lo, self.hi, self.per_side, dtype=DTYPE)
+        c = self.lo + self.step * torch.arange(self.per_side, dtype=DTYPE)
         u, v = torch.meshgrid(c, c, indexing="ij")
         return torch.stack([u.reshape(-1), v.reshape(-1)], dim=1)
 
     def weights(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Bilinear interpolation: (n, 4) grid indices and (n, 4) weights; points outside are clamped in."""
-        t = ((x - self.lo) / self.step).clamp(0.0, self.per_side - 1.0)
-        i = t.floor().clamp_max(self.per_side - 2)
-        f = t - i
-        i = i.long()
-        iu, iv = i[:, 0], i[:, 1]
-        fu, fv = f[:, 0], f[:, 1]
+        """Cubic interpolation: (n, 16) grid indices and (n, 16) weights; points outside are clamped in."""
+        t = ((x - self.lo) / self.step).clamp(1.0, self.per_side - 2.0)
+        base = t.floor().clamp_max(self.per_side - 3)  # the stencil is base − 1 … base + 2
+        offsets = torch.arange(-1, 3, dtype=DTYPE)
+        node = base.unsqueeze(-1) + offsets  # (n, 2, 4)
+        w1 = _cubic(t.unsqueeze(-1) - node)
+        i1 = node.long()
         g = self.per_side
-        idx = torch.stack([iu * g + iv, (iu + 1) * g + iv, iu * g + iv + 1, (iu + 1) * g + iv + 1], dim=1)
-        w = torch.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], dim=1)
+        idx = (i1[:, 0, :, None] * g + i1[:, 1, None, :]).reshape(-1, 16)
+        w = (w1[:, 0, :, None] * w1[:, 1, None, :]).reshape(-1, 16)
         return idx, w
+
+
+def grid_for(lengthscales_uv: Sequence[float] | None) -> Grid:
+    """The grid for these length-scales: STEPS_PER_LENGTHSCALE steps per the shorter one, within the bounds
+    (deterministic in the hyperparameters: a resumed run conditions on the same grid)."""
+    if lengthscales_uv is None:
+        return Grid(GRID_PER_SIDE)
+    steps = math.ceil((1.0 + 2.0 * GRID_MARGIN_UV) * STEPS_PER_LENGTHSCALE / min(lengthscales_uv))
+    return Grid(min(max(steps + 3, MIN_PER_SIDE), MAX_PER_SIDE))
 
 
 def _kernel(kernel: KernelName, a: torch.Tensor, lengthscale: torch.Tensor) -> torch.Tensor:
@@ -80,14 +111,9 @@ def _kernel(kernel: KernelName, a: torch.Tensor, lengthscale: torch.Tensor) -> t
 
 
 def _quad_form(mat: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """wᵢᵀ M wᵢ per row for the 4 × 4 grid entries each row touches."""
-    m = mat.shape[0]
-    flat = mat.reshape(-1)
-    total = torch.zeros(idx.shape[0], dtype=DTYPE)
-    for a in range(4):
-        for b in range(4):
-            total = total + w[:, a] * w[:, b] * flat[idx[:, a] * m + idx[:, b]]
-    return total
+    """wᵢᵀ M wᵢ per row from the k × k grid entries each row touches."""
+    block = mat[idx.unsqueeze(2), idx.unsqueeze(1)]  # (n, k, k)
+    return torch.einsum("na,nab,nb->n", w, block, w)
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,13 +133,15 @@ class SkiProblem(Problem):
         object.__setattr__(self, "idx", idx)
         object.__setattr__(self, "w", w)
         object.__setattr__(self, "pair_idx", (idx.unsqueeze(2) * m + idx.unsqueeze(1)).reshape(-1))
-        object.__setattr__(self, "pair_w", (w.unsqueeze(2) * w.unsqueeze(1)).reshape(idx.shape[0], 16))
+        object.__setattr__(self, "pair_w", (w.unsqueeze(2) * w.unsqueeze(1)).reshape(idx.shape[0], -1))
         object.__setattr__(self, "z", self.grid.points())
 
     def _solve(self, u: Unpacked) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(−2·log p(y) without the n log 2π, Lm, LB, LB⁻¹ Lmᵀ b) at the constrained values ``u``."""
         m = self.grid.m
-        noise = self.noise(u)
+        kmm = u.outputscale * _kernel(self.kernel, self.z, u.lengthscale)
+        kmm = kmm + (JITTER * u.outputscale) * torch.eye(m, dtype=DTYPE)
+        noise = self.noise(u) + self.variance_deficit(u, kmm)
         inv_d = 1.0 / noise
         s = torch.zeros(m * m, dtype=DTYPE).index_add(
             0, self.pair_idx, (self.pair_w * inv_d[:, None]).reshape(-1)
@@ -123,8 +151,6 @@ class SkiProblem(Problem):
         b = torch.zeros(m, dtype=DTYPE).index_add(
             0, self.idx.reshape(-1), (self.w * (resid * inv_d)[:, None]).reshape(-1)
         )
-        kmm = u.outputscale * _kernel(self.kernel, self.z, u.lengthscale)
-        kmm = kmm + (JITTER * u.outputscale) * torch.eye(m, dtype=DTYPE)
         lm = torch.linalg.cholesky(kmm)
         big_b = lm.T @ s @ lm + torch.eye(m, dtype=DTYPE)
         lb = torch.linalg.cholesky(big_b)
@@ -132,6 +158,18 @@ class SkiProblem(Problem):
         logdet = noise.log().sum() + 2.0 * lb.diagonal().log().sum()
         quad = (resid.square() * inv_d).sum() - c.square().sum()
         return logdet + quad, lm, lb, c
+
+    def variance_deficit(self, u: Unpacked, kmm: torch.Tensor) -> torch.Tensor:
+        """k(xᵢ, xᵢ) − wᵢᵀ Kmm wᵢ per point: the prior variance the interpolation loses between grid points.
+
+        Without it the likelihood sees a kernel that is smoother than the exact one at the data, and fits a
+        shorter length-scale to make up for it (edge spot, 1,000 centres: 0.17 against the exact GP's 0.19,
+        +5 % map error; on the exact GP's hyperparameters the interpolated map is within 0.5 %). Added to the
+        per-point noise it restores the exact prior variance at every data point, as FITC does for inducing
+        points (Wilson, Dann & Nickisch 2015, "Thoughts on massively scalable GPs"), at O(256 n).
+        """
+        lost = u.outputscale - (self.pair_w * kmm.reshape(-1)[self.pair_idx].reshape(self.n, -1)).sum(dim=1)
+        return lost.clamp_min(0.0)  # cubic weights can overshoot by rounding's worth
 
     def _neg_objective(self, theta: torch.Tensor) -> torch.Tensor:
         u = unpack(theta, self.floor_uv, self.learn_noise)
@@ -186,10 +224,10 @@ class SkiConditioned:
         return (w * self.grid_mean[idx]).sum(dim=1) + self.constant
 
     def mean_f32(self, xs: torch.Tensor) -> torch.Tensor:
-        return self.mean(xs)  # 4 terms per point: no cheaper path needed
+        return self.mean(xs)  # 16 terms per point: no cheaper path needed
 
     def mean_var(self, xs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Latent mean and variance per candidate from 4 and 16 grid entries (no joint covariance)."""
+        """Latent mean and variance per candidate from 16 and 256 grid entries (no joint covariance)."""
         idx, w = self.grid.weights(xs)
         mean = (w * self.grid_mean[idx]).sum(dim=1) + self.constant
         var = _quad_form(self.grid_cov, idx, w).clamp_min_(0.0)

@@ -2,7 +2,7 @@
 
 The mean GP sees one robust value per executed local grid (the median of its g² indents) with a fixed
 per-point noise eff·σ²(x)/n, where σ²(x) comes from the noise model (``core.model.noise``). Up to
-``ski_above`` centres both GPs are exact (``core.model.exact``); above it, GPs interpolated on a fixed 2-D
+``ski_above`` centres both GPs are exact (``core.model.exact``); above it, GPs interpolated on a 2-D
 grid (KISS-GP, ``core.model.ski``) with the same noise, priors, refit schedule and guard. Decisions take 0.05 s at
 100 centres and 0.2 s at 400 with the exact GP (benchmarks/decision_latency.py; benchmarks/scale.py beyond).
 """
@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -24,14 +25,15 @@ from core.model.exact import ExactProblem, objective
 from core.model.fitting import COLD_WIN_NATS, cold_search_due, fit_problem, optimisation_due
 from core.model.guard import GUARDS, CollapseRule, GuardName, cold_search_confirms
 from core.model.hyper import Hyperparameters, ModelKind, NoiseKind
-from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName, unpack
+from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName, lengthscales_of, unpack
 from core.model.noise import MIN_SPREADS_FOR_GP, NoiseData, NoiseField, noise_data, noise_kind_for
 from core.model.observations import Observations, pooled_var, spread_mask, standardise
 from core.model.problem import Predictor, Problem
-from core.model.ski import NOISE_GRID_PER_SIDE, SKI_ABOVE, Grid, SkiProblem
+from core.model.ski import SKI_ABOVE, Grid, SkiProblem, grid_for
 
 MAX_THREADS = 2  # torch intra-op threads; 1 is the default: on a busy 2-core machine a second thread
 # mostly waits for a core (measured 3–5× slower decisions under load, no gain when idle)
+REGRID_PASSES = 2  # refits on a grid that follows the length-scale (the interpolated GP)
 PREDICT_CHUNK = 4096  # candidates per block of the predictive diagonal (fastest measured at n = 100–400)
 
 
@@ -176,12 +178,13 @@ class HeteroskedasticGP:
         noise_raw: tuple[float, ...] | None = None
         if kind == "gp":
             warm_noise = prev.noise_raw if compatible and prev is not None else None
-            pn, _ = self._noise_problem(obs, model)
+            pn = self._noise_problem(obs, model, warm_noise)[0]
             theta_n, it = fit_problem(pn, warm_noise, self.max_iter, self.warm_max_iter)
+            theta_n, it = self._regrid(lambda raw: self._noise_problem(obs, model, raw)[0], pn, theta_n, it)
             iterations += it
             noise_raw = tuple(theta_n.tolist())
-        pm = self._mean_problem_for(obs, model, kind, noise_raw)
         warm_mean = prev.mean_raw if compatible and prev is not None else None
+        pm = self._mean_problem_for(obs, model, kind, noise_raw, warm_mean)
         cold_n = prev.cold_n if compatible and prev is not None else 0
         cold_won = False
         theta_m, it = fit_problem(pm, warm_mean, self.max_iter, self.warm_max_iter)
@@ -204,6 +207,10 @@ class HeteroskedasticGP:
                 # which keep-last-good would otherwise veto at every refit
                 cold_won = True
             cold_n = obs.n
+        theta_m, it = self._regrid(
+            lambda raw: self._mean_problem_for(obs, model, kind, noise_raw, raw), pm, theta_m, 0
+        )
+        iterations += it
         hyper = Hyperparameters(
             kernel=self.kernel,
             lengthscale_floor_uv=self.floor_uv,
@@ -354,11 +361,30 @@ class HeteroskedasticGP:
             )
         return model
 
-    def _noise_problem(self, obs: Observations, model: ModelKind) -> tuple[Problem, NoiseData]:
+    def _grid(self, raw: Sequence[float] | None) -> Grid:
+        """The interpolated GP's grid for a raw vector (None: before any fit)."""
+        return grid_for(None if raw is None else lengthscales_of(raw, self.floor_uv))
+
+    def _regrid(
+        self, make: Callable[[Sequence[float]], Problem], p: Problem, theta: torch.Tensor, iterations: int
+    ) -> tuple[torch.Tensor, int]:
+        """An interpolated GP fitted on a grid too coarse (or needlessly fine) for the length-scale it found
+        is fitted again, warm, on the grid for it; twice at most (deterministic: resume does the same)."""
+        for _ in range(REGRID_PASSES):
+            if not isinstance(p, SkiProblem) or self._grid(theta.tolist()) == p.grid:
+                break
+            p = make(theta.tolist())
+            theta, it = fit_problem(p, theta.tolist(), self.max_iter, self.warm_max_iter)
+            iterations += it
+        return theta, iterations
+
+    def _noise_problem(
+        self, obs: Observations, model: ModelKind, raw: Sequence[float] | None
+    ) -> tuple[Problem, NoiseData]:
         data = noise_data(obs)
         problem = _problem(
             model,
-            Grid(NOISE_GRID_PER_SIDE),
+            self._grid(raw),
             kernel=self.kernel,
             floor_uv=self.floor_uv,
             with_prior=self.lengthscale_prior,
@@ -370,7 +396,12 @@ class HeteroskedasticGP:
         return problem, data
 
     def _mean_problem_for(
-        self, obs: Observations, model: ModelKind, kind: NoiseKind, noise_raw: tuple[float, ...] | None
+        self,
+        obs: Observations,
+        model: ModelKind,
+        kind: NoiseKind,
+        noise_raw: tuple[float, ...] | None,
+        mean_raw: Sequence[float] | None,
     ) -> Problem:
         """The mean GP's data; its fixed per-centre noise eff·σ²(x_i)/n_i comes from the noise model."""
         self._y_loc, self._y_scale = standardise(obs.median_gpa)
@@ -382,7 +413,7 @@ class HeteroskedasticGP:
         self._noise = NoiseField(None)
         if kind == "gp":
             assert noise_raw is not None
-            pn, data = self._noise_problem(obs, model)
+            pn, data = self._noise_problem(obs, model, noise_raw)
             gp = pn.condition(torch.tensor(noise_raw, dtype=DTYPE))
             self._noise = NoiseField(gp, data.loc, data.scale)
             with torch.no_grad():
@@ -394,7 +425,7 @@ class HeteroskedasticGP:
             fixed = fixed.clamp_min(MIN_NOISE_STD)
         return _problem(
             model,
-            Grid(),
+            self._grid(mean_raw),
             kernel=self.kernel,
             floor_uv=self.floor_uv,
             with_prior=self.lengthscale_prior,
@@ -407,7 +438,7 @@ class HeteroskedasticGP:
 
     def _install(self, hyper: Hyperparameters, obs: Observations) -> None:
         """Condition on ``obs`` with ``hyper``: the one path shared by fit and set_hyper (resume is bit-identical)."""
-        pm = self._mean_problem_for(obs, hyper.model, hyper.noise_kind, hyper.noise_raw)
+        pm = self._mean_problem_for(obs, hyper.model, hyper.noise_kind, hyper.noise_raw, hyper.mean_raw)
         theta = torch.tensor(hyper.mean_raw, dtype=DTYPE)
         self._mean = pm.condition(theta)
         self._mean_problem = pm

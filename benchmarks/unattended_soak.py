@@ -392,16 +392,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
     started = time.monotonic()
-    with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
-        rows = list(
-            pool.map(
-                lambda k: soak_one(
-                    plan_run(k, args.seed), args.budget_s, args.invalid_rate, args.stall_x,
-                    args.min_block_s, args.run_wall_s,
-                ),
-                range(args.runs),
-            )
+    done = threading.Lock()
+
+    def one(k: int) -> RunOutcome:
+        out = soak_one(
+            plan_run(k, args.seed), args.budget_s, args.invalid_rate, args.stall_x, args.min_block_s,
+            args.run_wall_s,
         )  # fmt: skip
+        with done:  # each run as it ends, so a soak cut short still says what it saw
+            print(
+                f"run {k}: {out.wall_s:.0f} s, stalled {out.stalled}, lost {out.lost}, duplicated "
+                f"{out.duplicated}, changed {out.changed}, {out.end_state}",
+                flush=True,
+            )
+            if args.out is not None:
+                args.out.mkdir(parents=True, exist_ok=True)
+                with (args.out / "soak.jsonl").open("a", encoding="utf-8") as fh:
+                    fh.write(json.dumps(asdict(out)) + "\n")
+        return out
+
+    with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
+        rows = list(pool.map(one, range(args.runs)))
     text = table(rows) + f"\ntotal wall time {time.monotonic() - started:.0f} s"
     print(text)
     for r in rows:

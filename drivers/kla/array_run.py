@@ -3,8 +3,9 @@
 The operator (or a helper on the instrument PC) reports what happened, each report counting only with
 the ticket's token: started, aborted (the rows present are kept), surface not found (nothing ran). The
 operator may also take a site out of the array. The block ends when an export is accepted, when the
-surface was not found, or at the deadline (a stable partial export is then taken as it is, otherwise
-every site is "not run"). Every report and every refusal is kept in ``events`` for the journal.
+surface was not found, or at the deadline (a stable partial export is then taken as it is; otherwise the
+sites a refused export placed, or, after a confirmed start, every site, are "unverified", the rest "not
+run"). Every report and every refusal is kept in ``events`` for the journal.
 """
 
 from __future__ import annotations

@@ -55,6 +55,9 @@ class RunOutcome:
     folder_away_at_s: float
     folder_away_s: float
     folder_removed: bool
+    # "refused": the kill comes once an export was refused (the moment that lost flipped-Y rows), or at
+    # kill_at_s if none was; "": at kill_at_s
+    kill_on: str = ""
     resumes_refused: int = 0  # `aeni resume` refused while the exchange folder was away (then tried again)
     end_state: str = ""
     stop_reason: str = ""
@@ -134,6 +137,22 @@ def _watch(
     return True
 
 
+def _wait_for_kill(engine: subprocess.Popen[str], out: RunOutcome, journal: Path) -> None:
+    """Return when the engine ended by itself; TimeoutExpired when the planned moment of the kill came."""
+    assert out.kill_at_s is not None
+    if out.kill_on != "refused":
+        engine.wait(timeout=out.kill_at_s)
+        return
+    manifest = journal.with_name(journal.name + ".exports") / "manifest.jsonl"
+    until = time.monotonic() + out.kill_at_s
+    while engine.poll() is None:
+        if manifest.exists() and '"status": "refused"' in manifest.read_text(encoding="utf-8"):
+            raise subprocess.TimeoutExpired(engine.args, out.kill_at_s)
+        if time.monotonic() > until:
+            raise subprocess.TimeoutExpired(engine.args, out.kill_at_s)
+        time.sleep(0.05)
+
+
 def _compare(journal: Path, ledger: Path, run_name: str, out: RunOutcome) -> None:
     made: dict[tuple[int, int], list[dict[str, object]]] = {}
     if ledger.exists():
@@ -184,17 +203,20 @@ def _compare(journal: Path, ledger: Path, run_name: str, out: RunOutcome) -> Non
             out.changed += 1
             out.notes.append(f"block {key[0]} indent {key[1]}: valid value recorded as failed ({got[4]})")
     for key in journal_made.keys() - made.keys():
+        status, x_um = journal_made[key][0], journal_made[key][2]
+        if status == "unverified" and x_um is None:
+            continue  # held as taken because no export said what ran (no claim that it was made)
         out.duplicated += 1
         out.notes.append(f"block {key[0]} indent {key[1]}: recorded as made, the instrument never made it")
 
 
-def soak_one(k: int, base_seed: int, budget_s: float, invalid_rate: float, stall_x: float, min_block_s: float,
-             run_wall_s: float) -> RunOutcome:  # fmt: skip
+def plan_run(k: int, base_seed: int) -> RunOutcome:
+    """Run ``k``'s random faults, kill moment and folder removal (its outcome fields still empty)."""
     rng = random.Random(base_seed * 100_003 + k)
     faults = [f"{FAULTS[k % len(FAULTS)]}@{rng.randrange(0, 3)}"]
     if rng.random() < 0.5:
         faults.append(f"{rng.choice(FAULTS)}@{rng.randrange(0, 4)}")
-    out = RunOutcome(
+    return RunOutcome(
         run=k,
         seed=base_seed + k,
         faults=faults,
@@ -204,6 +226,12 @@ def soak_one(k: int, base_seed: int, budget_s: float, invalid_rate: float, stall
         folder_away_s=rng.uniform(0.5, 4.0),
         folder_removed=False,
     )
+
+
+def soak_one(out: RunOutcome, budget_s: float, invalid_rate: float, stall_x: float, min_block_s: float,
+             run_wall_s: float) -> RunOutcome:  # fmt: skip
+    """One run as planned by ``out`` (see :func:`plan_run`); fills in what came of it."""
+    k, faults = out.run, out.faults
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix=f"soak{k}-") as tmp_s:
         tmp = Path(tmp_s)
@@ -237,8 +265,8 @@ def soak_one(k: int, base_seed: int, budget_s: float, invalid_rate: float, stall
         try:
             # the folder goes away and comes back while the run goes on
             def carry_away() -> None:
-                while _progress(journal) is None and not stop_event.is_set():
-                    time.sleep(0.1)  # away once the engine runs (a folder missing at the start is refused)
+                while not any(exchange.glob("outbox/*-ticket.json")) and not stop_event.is_set():
+                    time.sleep(0.1)  # away once a block is out (a folder missing at the start is refused)
                 time.sleep(out.folder_away_at_s)
                 if exchange.is_dir() and not stop_event.is_set():
                     os.rename(exchange, away)
@@ -256,7 +284,7 @@ def soak_one(k: int, base_seed: int, budget_s: float, invalid_rate: float, stall
             while engine.poll() is None and _progress(journal) is None and time.monotonic() < deadline:
                 time.sleep(0.1)  # the kill comes once the engine has started writing its journal
             try:
-                engine.wait(timeout=out.kill_at_s)
+                _wait_for_kill(engine, out, journal)
             except subprocess.TimeoutExpired:
                 engine.send_signal(signal.SIGKILL)
                 engine.wait()
@@ -364,16 +392,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
     started = time.monotonic()
-    with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
-        rows = list(
-            pool.map(
-                lambda k: soak_one(
-                    k, args.seed, args.budget_s, args.invalid_rate, args.stall_x, args.min_block_s,
-                    args.run_wall_s,
-                ),
-                range(args.runs),
-            )
+    done = threading.Lock()
+
+    def one(k: int) -> RunOutcome:
+        out = soak_one(
+            plan_run(k, args.seed), args.budget_s, args.invalid_rate, args.stall_x, args.min_block_s,
+            args.run_wall_s,
         )  # fmt: skip
+        with done:  # each run as it ends, so a soak cut short still says what it saw
+            print(
+                f"run {k}: {out.wall_s:.0f} s, stalled {out.stalled}, lost {out.lost}, duplicated "
+                f"{out.duplicated}, changed {out.changed}, {out.end_state}",
+                flush=True,
+            )
+            if args.out is not None:
+                args.out.mkdir(parents=True, exist_ok=True)
+                with (args.out / "soak.jsonl").open("a", encoding="utf-8") as fh:
+                    fh.write(json.dumps(asdict(out)) + "\n")
+        return out
+
+    with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
+        rows = list(pool.map(one, range(args.runs)))
     text = table(rows) + f"\ntotal wall time {time.monotonic() - started:.0f} s"
     print(text)
     for r in rows:

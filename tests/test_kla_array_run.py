@@ -109,7 +109,7 @@ def test_fault_surface_not_found_closes_the_block_and_a_late_export_is_stale(
     )
 
 
-def test_fault_missing_export_ends_at_the_deadline_as_not_run(
+def test_fault_missing_export_ends_at_the_deadline_with_the_sites_held_as_taken(
     exchange: ExchangeFolder, watcher: InboxWatcher
 ) -> None:
     run, clock = start(exchange, watcher)
@@ -121,8 +121,18 @@ def test_fault_missing_export_ends_at_the_deadline_as_not_run(
     clock.t += timedelta(seconds=331)
     end = run.poll()
     assert end is not None and end.how.startswith("no export by the deadline")
-    assert all(o.status == "not_run" for o in end.outcomes)
-    assert watcher.archive.closed("r1", 2) is not None
+    assert all(o.status == "unverified" and o.x_um is None for o in end.outcomes)  # started: maybe made
+    closed = watcher.archive.closed("r1", 2)
+    assert closed is not None and len(closed["outcomes"]) == run.ticket.n_sites  # a resume keeps them
+
+
+def test_no_export_and_no_start_confirmation_by_the_deadline_leaves_the_sites_free(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
+    run, clock = start(exchange, watcher)  # nobody confirmed the start: nothing says the array ran
+    clock.t += timedelta(hours=1)
+    end = run.poll()
+    assert end is not None and {o.status for o in end.outcomes} == {"not_run"}
 
 
 def test_stable_partial_export_is_taken_at_the_deadline(

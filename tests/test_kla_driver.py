@@ -142,13 +142,19 @@ def test_fault_surface_not_found_runs_nothing(exchange: Path, tmp_path: Path) ->
     assert steps == [] and d.clock_s() == 0.0 and not d.program_open()
 
 
-def test_fault_missing_export_times_out_to_not_run(exchange: Path, tmp_path: Path) -> None:
+def test_fault_missing_export_times_out_to_sites_held_as_taken(exchange: Path, tmp_path: Path) -> None:
+    """The array was confirmed started and no export came by the deadline: nothing says which sites the tip
+    went down on, so every site is unverified (taken at its planned place, no value), never free."""
     d = driver(exchange, tmp_path)
     b = block(0)
     for _ in running_fake(exchange, "missing-export"):
         results, _, waits = run_block(d, b)
     check_invariants(b, results)
-    assert all(r.status == "not_run" and r.note.startswith("no export by the deadline") for r in results)
+    assert {r.status for r in results} == {"unverified"}
+    assert all(
+        r.note.startswith("no export by the deadline") and "may have indented" in r.note for r in results
+    )
+    assert all(math.isnan(r.actual_x_um) for r in results)
     assert waits[-2].started and waits[-2].seconds_left < 2.0
 
 
@@ -335,3 +341,46 @@ def test_a_block_whose_indents_are_all_journaled_runs_nothing_on_resume(
     outbox = exchange / "outbox"
     assert not outbox.exists() or not any(outbox.iterdir())  # no ticket
     assert d.clock_s() == 0.0 and d.position_um() == (0.0, 0.0)
+
+
+def test_a_block_partly_journaled_before_a_kill_reports_only_the_rest_on_resume(
+    exchange: Path, tmp_path: Path
+) -> None:
+    """Killed while the engine journaled an accepted block (indents 0-3 of 9 in): resume continues at indent
+    4, and the driver reports indents 4-8 from the archive, once each, without a new ticket (it reported the
+    whole block again, which journaled indent 4 twice: the soak's IntegrityError)."""
+    journal = tmp_path / "r1.sqlite"
+    b = block(0)
+    for _ in running_fake(exchange):
+        first, _, _ = run_block(make_kla_driver(PROFILE, journal, exchange, speed=1e6), b)
+    ticket = (exchange / "outbox" / "r1-000-ticket.json").read_text()
+    again = make_kla_driver(PROFILE, journal, None, speed=1e6)
+    rest = [ev for ev in again.execute_block(b, 4) if isinstance(ev, IndentResult)]
+    assert [r.indent_index for r in rest] == [4, 5, 6, 7, 8]
+    assert [r.hardness_gpa for r in rest] == [r.hardness_gpa for r in first[4:]]
+    assert (exchange / "outbox" / "r1-000-ticket.json").read_text() == ticket  # nothing new went out
+
+
+def test_a_refusal_is_kept_so_a_resume_journals_the_refused_rows_as_made(
+    exchange: Path, tmp_path: Path
+) -> None:
+    """An export refused (flipped Y on a grid that is no permutation of the plan), then the engine dies while
+    the array waits for a corrected export: the resumed driver still knows which indents were made."""
+    journal = tmp_path / "r1.sqlite"
+    b = block(0)
+    b = replace(b, indents=b.indents[:5])  # five of nine sites: mirrored in Y they lie off the plan
+    d = make_kla_driver(PROFILE, journal, exchange, speed=1e6)
+    gen = d.execute_block(b)
+    for _ in running_fake(exchange, "flipped-y"):
+        for ev in gen:
+            if isinstance(ev, InstrumentWait) and any("refused" in n for n in ev.notes):
+                break  # refused; the array now waits for a corrected export until its deadline
+    del gen  # kill -9 before the deadline
+    again = make_kla_driver(PROFILE, journal, None, speed=1e6)
+    results, steps, _ = run_block(again, b)
+    check_invariants(b, results)
+    assert {r.status for r in results} == {"unverified"}
+    assert [r.actual_y_um for r in results] == pytest.approx([2 * b.center_y_um - s.y_um for s in b.indents])
+    assert len([s for s in steps if s.category == "indent"]) == 5  # made, so priced
+    made = d.archive.refused_made("r1", 0)  # kept with the refusal, before the block closed
+    assert [o.indent_index for o in made] == list(range(5)) and {o.status for o in made} == {"unverified"}

@@ -541,3 +541,29 @@ def test_a_refused_export_with_positions_says_which_indents_were_made(
     made = refused[0].made
     assert [o.status for o in made] == ["unverified"] * 6 and all(o.hardness_gpa is None for o in made)
     assert [o.y_um for o in made] == pytest.approx([2 * t.origin_y_um - y for _, y in t.sites_um])
+
+
+class _Killed(Exception):
+    pass
+
+
+def test_a_kill_while_an_export_is_archived_loses_nothing(
+    exchange: ExchangeFolder, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The engine dies after the archive copied an export but before it recorded it: the file is still in the
+    inbox and the next engine accepts it; dies after the record: the record holds what the file said."""
+    t = ticket_for(block())
+    path = write_export(exchange.inbox / "r1-002-export.csv", rows_for(t))
+    archive = ExportArchive(tmp_path / "run.sqlite.exports")
+
+    def killed(_self: ExportArchive, _entry: dict[str, object]) -> None:
+        raise _Killed
+
+    monkeypatch.setattr(ExportArchive, "_append", killed)
+    with pytest.raises(_Killed):
+        poll_until(InboxWatcher(exchange, archive), t)
+    assert path.exists() and archive.accepted("r1", 2) is None  # copied, not recorded, still in the inbox
+    monkeypatch.undo()
+    accepted = poll_until(InboxWatcher(exchange, archive), t).accepted  # the resumed engine
+    assert accepted is not None and not path.exists() and accepted.archived.is_file()
+    assert archive.accepted_export("r1", 2) is not None

@@ -308,12 +308,15 @@ def test_every_fault_through_the_engine_is_journaled_as_specified(tmp_path: Path
         return [s for b, _, s, *_ in sorted(rows) if b == block]
 
     assert statuses(0)[12:] == ["not_run"] * 13 and "measured" in statuses(0)[:12]  # aborted half way
-    assert statuses(1) == ["not_run"] * 25 and statuses(2) == ["not_run"] * 25  # no surface; no export
+    # no surface: free; no export after a confirmed start: held as taken, no value
+    assert statuses(1) == ["not_run"] * 25 and statuses(2) == ["unverified"] * 25
     notes = {n for b, _, _, _, n in rows if b in (1, 2)}
     assert notes == {"surface not found"} | {n for n in notes if n.startswith("no export by the deadline")}
     assert len(notes) == 2
     for block in (3, 4, 5):  # duplicate refused, flipped Y and mm-as-µm still measured where they were
-        assert set(statuses(block)) <= {"measured", "failed"} and statuses(block).count("measured") >= 15
+        # (block 5 may be cut by the budget: block 2's sites, held as taken, were priced as run)
+        assert set(statuses(block)) <= {"measured", "failed"}
+        assert statuses(block).count("measured") >= 0.6 * len(statuses(block))
     assert "failed" in {s for _, _, s, *_ in rows}  # 1.797e308 rows became failed indents
     assert any("refused: duplicate: same SHA-256 as the export accepted for block 3" in t for t in refusals)
     accepted = [e["block_id"] for e in manifest(journal) if e["status"] == "accepted"]

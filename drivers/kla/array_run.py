@@ -3,8 +3,9 @@
 The operator (or a helper on the instrument PC) reports what happened, each report counting only with
 the ticket's token: started, aborted (the rows present are kept), surface not found (nothing ran). The
 operator may also take a site out of the array. The block ends when an export is accepted, when the
-surface was not found, or at the deadline (a stable partial export is then taken as it is, otherwise
-every site is "not run"). Every report and every refusal is kept in ``events`` for the journal.
+surface was not found, or at the deadline (a stable partial export is then taken as it is; otherwise the
+sites a refused export placed, or, after a confirmed start, every site, are "unverified", the rest "not
+run"). Every report and every refusal is kept in ``events`` for the journal.
 """
 
 from __future__ import annotations
@@ -57,6 +58,16 @@ class ArrayRun:
     made: tuple[SiteOutcome, ...] = ()
     _ignored_files: set[tuple[str, str]] = field(default_factory=set)
     _aborted_at: datetime | None = None
+
+    def __post_init__(self) -> None:
+        # a resumed block: what a refusal before the restart said was made (the archive kept it)
+        t = self.ticket
+        if not self.made:
+            self.made = tuple(
+                o
+                for o in self.watcher.archive.refused_made(t.run, t.block_id)
+                if t.first_index <= o.indent_index < t.first_index + t.n_sites
+            )
 
     @property
     def started(self) -> bool:
@@ -174,9 +185,25 @@ class ArrayRun:
         self._event("refused", f"export {r.file} refused: {r.reason}", False, "inbox")
 
     def _close(self, why: str) -> ArrayEnd:
-        """Every site not run, except those a refused export said were made (``unverified``)."""
+        """Every site not run, except those a refused export said were made, and, when the array was
+        confirmed started but no export said what ran, every site not skipped: both ``unverified``.
+
+        Without an export nothing tells which sites the tip went down on. Counting them taken (at the
+        planned place, with no value) costs a few sites; counting them free could put a new indent on an
+        old one, whose value the model would then learn as if it were clean.
+        """
         t = self.ticket
         made = {o.indent_index: o for o in self.made}
+        maybe = self.started and not self.surface_not_found and not made
+        for k in range(t.n_sites):
+            i = t.first_index + k
+            if maybe and i not in self.skipped:
+                made[i] = SiteOutcome(
+                    i,
+                    "unverified",
+                    reason=f"{why}: the array was confirmed started, so the tip may have indented here "
+                    "(taken, no value)",
+                )
         outcomes = tuple(
             made.get(t.first_index + k)
             or SiteOutcome(
@@ -187,5 +214,11 @@ class ArrayRun:
             for k in range(t.n_sites)
         )
         self.watcher.archive.close(t.run, t.block_id, why, tuple(made.values()))
-        notes = (f"{len(made)} indent(s) made but unverified (the export was refused)",) if made else ()
+        notes: tuple[str, ...]
+        if maybe:
+            notes = (f"{len(made)} site(s) held as taken: the array started and no export came",)
+        elif made:
+            notes = (f"{len(made)} indent(s) made but unverified (the export was refused)",)
+        else:
+            notes = ()
         return ArrayEnd(outcomes, why, notes=notes)

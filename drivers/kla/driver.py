@@ -157,21 +157,23 @@ class KlaDriver(InstrumentState):
         self.folder.publish(ticket)
         return ticket
 
-    def _recorded_end(self, ticket: Ticket) -> ArrayEnd | None:
-        """A block the archive already closed (the engine died after that, before journaling it)."""
-        accepted = self.archive.accepted_export(ticket.run, ticket.block_id)
+    def _recorded_end(self, block: Block, start_index: int) -> ArrayEnd | None:
+        """A block the archive already closed (the engine died after that, before journaling all of it):
+        the outcomes of its sites from ``start_index`` on (those before are in the journal already)."""
+        run, rest = self.folder.run, range(start_index, block.n_indents)
+        accepted = self.archive.accepted_export(run, block.block_id)
         if accepted is not None:
             return ArrayEnd(
-                accepted.outcomes, "export accepted before the restart", accepted.sha256, accepted.archived
+                tuple(o for o in accepted.outcomes if o.indent_index >= start_index),
+                "export accepted before the restart",
+                accepted.sha256,
+                accepted.archived,
             )
-        closed = self.archive.closed(ticket.run, ticket.block_id)
+        closed = self.archive.closed(run, block.block_id)
         if closed is not None:
             why = str(closed["reason"])
             made = {o["indent_index"]: SiteOutcome(**o) for o in closed.get("outcomes", [])}
-            outcomes = tuple(
-                made.get(ticket.first_index + k) or SiteOutcome(ticket.first_index + k, "not_run", reason=why)
-                for k in range(ticket.n_sites)
-            )
+            outcomes = tuple(made.get(i) or SiteOutcome(i, "not_run", reason=why) for i in rest)
             return ArrayEnd(outcomes, why)
         return None
 
@@ -180,9 +182,9 @@ class KlaDriver(InstrumentState):
             raise DriverAborted("driver was aborted")
         if start_index >= block.n_indents:
             return  # every indent is in the journal (a crash before the block was observed): nothing to run
-        ticket = yield from self._with_folder(block.block_id, lambda: self._ticket(block, start_index))
-        end = self._recorded_end(ticket)
+        end = self._recorded_end(block, start_index)  # closed before a restart: no new ticket goes out
         if end is None:
+            ticket = yield from self._with_folder(block.block_id, lambda: self._ticket(block, start_index))
             array = ArrayRun(self.folder, self.watcher, ticket, now=self.now)
             self._array = array
             shown = 0
@@ -209,7 +211,7 @@ class KlaDriver(InstrumentState):
                         raise DriverAborted(f"aborted while block {block.block_id} waited for the instrument")
             finally:
                 self._array = None
-        yield from self._results(block, ticket, end)
+        yield from self._results(block, end)
 
     def _with_folder(self, block_id: int, action: Callable[[], _T]) -> Generator[DriverEvent, None, _T]:
         """``action`` on the exchange folder; while the folder is missing or unreadable the block waits
@@ -237,7 +239,7 @@ class KlaDriver(InstrumentState):
             if self._abort.wait(self.profile.inview.poll_s):
                 raise DriverAborted(f"aborted while block {block_id} waited for the exchange folder")
 
-    def _results(self, block: Block, ticket: Ticket, end: ArrayEnd) -> Iterator[DriverEvent]:
+    def _results(self, block: Block, end: ArrayEnd) -> Iterator[DriverEvent]:
         """The cost model's steps for the sites that ran, and one result per site in indent order."""
         for outcome in sorted(end.outcomes, key=lambda o: o.indent_index):
             i = outcome.indent_index

@@ -15,7 +15,7 @@ import itertools
 import json
 import math
 import shutil
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
@@ -150,24 +150,30 @@ class ExportArchive:
             fh.write(json.dumps(entry) + "\n")
             fh.flush()
 
-    def _move(self, src: Path, sha: str, sub: str = "") -> Path:
+    def _keep(self, src: Path, sha: str, entry: dict[str, Any], sub: str = "") -> Path:
+        """Copy the file into the archive, record ``entry``, then take the file out of the inbox.
+
+        In that order a kill at any point loses nothing: before the record the file is still in the inbox
+        (read again on resume), after it the record holds what the file said (a copy left in the inbox is
+        then refused as a duplicate). A copy, not a rename: the inbox may be a share on another file system.
+        """
         folder = self.folder / sub if sub else self.folder
         folder.mkdir(exist_ok=True)
         dst = folder / f"{sha[:12]}-{src.name}"
-        # copy, then remove: the inbox may be a share where rename across file systems fails
         shutil.copy2(src, dst)
+        entry["file"] = f"{sub}/{dst.name}" if sub else dst.name
+        self._append(entry)
         src.unlink(missing_ok=True)
         return dst
 
     def accept(self, src: Path, sha: str, run: str, block_id: int, export: AcceptedExport) -> AcceptedExport:
         """Archive the file and record what it said, so a resumed run never parses it again."""
-        dst = self._move(src, sha)
-        entry = _entry("accepted", run, block_id, sha, src.name, dst.name, "")
+        entry = _entry("accepted", run, block_id, sha, src.name, "", "")
         if export.fmt:
             entry["format"] = export.fmt
         entry["outcomes"] = [asdict(o) for o in export.outcomes]
         entry["notes"] = list(export.notes)
-        self._append(entry)
+        dst = self._keep(src, sha, entry)
         return AcceptedExport(block_id, dst, sha, export.outcomes, export.notes, src.name, export.fmt)
 
     def accepted_export(self, run: str, block_id: int) -> AcceptedExport | None:
@@ -187,14 +193,39 @@ class ExportArchive:
             e.get("format", ""),
         )
 
-    def refuse(self, src: Path, sha: str | None, run: str, block_id: int, reason: str, fmt: str = "") -> None:
+    def refuse(
+        self,
+        src: Path,
+        sha: str | None,
+        run: str,
+        block_id: int,
+        reason: str,
+        fmt: str = "",
+        made: tuple[SiteOutcome, ...] = (),
+    ) -> None:
+        """Keep a refused file in ``refused/``; ``made``: the indents its rows say were made (``unverified``),
+        recorded with the refusal so a run killed before the block closes still journals them."""
         if sha is None:
             sha = sha256_of(src)
-        dst = self._move(src, sha, "refused")
-        entry = _entry("refused", run, block_id, sha, src.name, f"refused/{dst.name}", reason)
+        entry = _entry("refused", run, block_id, sha, src.name, "", reason)
         if fmt:
             entry["format"] = fmt
-        self._append(entry)
+        if made:
+            entry["outcomes"] = [asdict(o) for o in made]
+        self._keep(src, sha, entry, "refused")
+
+    def refused_made(self, run: str, block_id: int) -> tuple[SiteOutcome, ...]:
+        """The indents the block's last refused export said were made (nothing when none said so)."""
+        found: tuple[SiteOutcome, ...] = ()
+        for e in self.entries():
+            if (
+                e["status"] == "refused"
+                and e["run"] == run
+                and e["block_id"] == block_id
+                and e.get("outcomes")
+            ):
+                found = tuple(SiteOutcome(**o) for o in e["outcomes"])
+        return found
 
     def close(self, run: str, block_id: int, reason: str, outcomes: tuple[SiteOutcome, ...] = ()) -> None:
         """A block ended without an accepted export (deadline, skip, surface not found); ``outcomes``
@@ -489,11 +520,20 @@ class InboxWatcher:
         seen.stable += 1
         return seen.stable >= self.folder.settings.stable_polls and st.st_size > 0
 
-    def _refuse(self, path: Path, sha: str | None, block_id: int, reason: str, fmt: str = "") -> Refusal:
-        """Keep the file in the archive's refused/ and say why (the manifest names the reader's format)."""
-        self.archive.refuse(path, sha, self.folder.run, block_id, reason, fmt)
+    def _refuse(
+        self,
+        path: Path,
+        sha: str | None,
+        block_id: int,
+        reason: str,
+        fmt: str = "",
+        made: tuple[SiteOutcome, ...] = (),
+    ) -> Refusal:
+        """Keep the file in the archive's refused/ and say why (the manifest names the reader's format and
+        the indents the rows say were made)."""
+        self.archive.refuse(path, sha, self.folder.run, block_id, reason, fmt, made)
         self._seen.pop(path.name, None)
-        return Refusal(path.name, reason, sha)
+        return Refusal(path.name, reason, sha, made)
 
     def poll(
         self,
@@ -595,8 +635,8 @@ class InboxWatcher:
         match = match_rows(export, ticket, tolerance, skipped, partial=partial_ok or final)
         if match.refusal:
             reason = f"positions do not match the plan: {match.refusal} ({export.summary})"
-            refusal = self._refuse(path, sha, ticket.block_id, reason, export.software)
-            return replace(refusal, made=made_where_reported(export, ticket, f"export {path.name} refused"))
+            made = made_where_reported(export, ticket, f"export {path.name} refused")
+            return self._refuse(path, sha, ticket.block_id, reason, export.software, made)
         if n_rows < n_expected and not (partial_ok or final):
             return (
                 f"{path.name} has {n_rows} of {n_expected} rows: waiting for an 'aborted' report "

@@ -29,6 +29,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from aeni_console.bench.harness import GRID_REFIT_EVERY  # noqa: E402
 from core.campaign import Campaign  # noqa: E402
 from core.metrics import time_to_mape  # noqa: E402
 from core.run.events import Observed, RunEvent  # noqa: E402
@@ -50,16 +51,20 @@ def one_run(
     weights: dict[str, float],
     targets: tuple[float, float] | None,
     cap_s: float | None,
+    lattice_n: int,
 ) -> dict[str, Any]:
     """A run with both maps scored after every refit; stopped once both reach ``targets`` (H, E) if given."""
     config = make_campaign_config(
         scenario=scenario,
         policy=policy,
         seed=seed,
+        lattice_n=lattice_n,
         settings={"budget_s": cap_s, "map_weights": weights},
     )
     scen = sim_scenario(config.driver_options, seed)
     campaign = Campaign(config, scen.sample)
+    if policy == "grid":
+        campaign.refit_every = GRID_REFIT_EVERY  # as the bench: the grid's map is scored where it is measured
     driver = scen.make_driver(campaign.profile)
     evaluator = scen.evaluator()
     modulus: list[tuple[float, float]] = []
@@ -114,11 +119,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--scenario", default="ternary")
     ap.add_argument("--cap-s", type=float, default=60_000.0, help="instrument-time cap of the aeni runs")
+    ap.add_argument("--lattice-n", type=int, default=50, help="candidates per side (the bench's 50)")
     ap.add_argument("--out", type=Path, default=RESULTS / "two_maps")
     args = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
     for seed in args.seeds:
-        grid = one_run(args.scenario, "grid", seed, MODES["hardness"], None, None)
+        grid = one_run(args.scenario, "grid", seed, MODES["hardness"], None, None, args.lattice_n)
         target_h, target_e = grid["final_mape_pct"], grid["final_mape_modulus_pct"]
         t_grid_h = _t(grid["trajectory"], target_h)
         t_grid_e = _t(grid["trajectory_modulus"], target_e)
@@ -131,7 +137,9 @@ def main(argv: list[str] | None = None) -> int:
             "runs": {"grid": grid},
         }
         for mode, weights in MODES.items():
-            run = one_run(args.scenario, "aeni", seed, weights, (target_h, target_e), args.cap_s)
+            run = one_run(
+                args.scenario, "aeni", seed, weights, (target_h, target_e), args.cap_s, args.lattice_n
+            )
             t_h, t_e = _t(run["trajectory"], target_h), _t(run["trajectory_modulus"], target_e)
             row["runs"][mode] = run
             row[f"{mode}_t_h_s"], row[f"{mode}_t_e_s"] = t_h, t_e
@@ -143,6 +151,10 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
         rows.append(row)
+        print(
+            f"seed {seed} grid: H {target_h:.3f} % E {target_e:.3f} %, wall {grid['wall_s']:.0f} s",
+            flush=True,
+        )
     lines = _table(rows, args)
     print("\n".join(lines))
     args.out.parent.mkdir(parents=True, exist_ok=True)

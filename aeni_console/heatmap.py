@@ -20,14 +20,29 @@ from rich.text import Text
 from core.runview import IndentMark, MapFields, RunSnapshot
 from core.sample.model import Exclusion, PolygonExclusion
 
-# The four GP fields of the paper's Figure 8, in the order `m` cycles through them.
-FIELD_KEYS: tuple[str, ...] = ("mean", "epistemic", "noise", "total")
+# The four GP fields of the paper's Figure 8, in the order `m` cycles through them, then the modulus map's
+# mean and sd and H/E where the run learns a modulus map (issue 27)
+HARDNESS_KEYS: tuple[str, ...] = ("mean", "epistemic", "noise", "total")
+MODULUS_KEYS: tuple[str, ...] = ("modulus", "modulus_sd", "h_over_e")
+FIELD_KEYS: tuple[str, ...] = HARDNESS_KEYS + MODULUS_KEYS
 FIELD_LABELS: dict[str, str] = {
     "mean": "mean hardness",
     "epistemic": "epistemic sd",
     "noise": "noise sd",
     "total": "total sd",
+    "modulus": "mean modulus",
+    "modulus_sd": "modulus epistemic sd",
+    "h_over_e": "H/E",
 }
+FIELD_UNITS: dict[str, str] = {key: "GPa" for key in FIELD_KEYS} | {"h_over_e": "H/E, no unit"}
+
+
+def field_keys_of(fields: MapFields | None) -> tuple[str, ...]:
+    """The fields `m` cycles through: the modulus ones only where there is a modulus map."""
+    if fields is None or fields.modulus_mean_gpa is None:
+        return HARDNESS_KEYS
+    return FIELD_KEYS
+
 
 # Perceptually ordered anchors (viridis for the mean, inferno for the uncertainties): readable on a dark
 # terminal and monotone in lightness, so the greyscale fallback keeps the order.
@@ -193,16 +208,21 @@ def outline_cells(
 
 
 def colour_map_for(field_key: str) -> str:
-    return "viridis" if field_key == "mean" else "inferno"
+    return "viridis" if field_key in ("mean", "modulus", "h_over_e") else "inferno"
 
 
 def field_array(fields: MapFields, field_key: str) -> np.ndarray:
     """The (ny, nx) array of one field, by its key."""
+    nan = np.full(np.shape(fields.mean_gpa), np.nan)
+    e_mean = fields.modulus_mean_gpa if fields.modulus_mean_gpa is not None else nan
     arrays = {
         "mean": fields.mean_gpa,
         "epistemic": fields.epistemic_sd_gpa,
         "noise": fields.noise_sd_gpa,
         "total": fields.total_sd_gpa,
+        "modulus": e_mean,
+        "modulus_sd": fields.modulus_sd_gpa if fields.modulus_sd_gpa is not None else nan,
+        "h_over_e": np.asarray(fields.mean_gpa, float) / np.where(np.asarray(e_mean) > 0, e_mean, np.nan),
     }
     if field_key not in arrays:
         raise ValueError(f"unknown map field {field_key!r}; expected one of {', '.join(FIELD_KEYS)}")

@@ -67,6 +67,7 @@ class RunData:
     commands: list[dict[str, Any]] = field(default_factory=list)
     stop_reason: str = ""
     recorded_mape_pct: float | None = None
+    final_maps: Any | None = None  # aeni_console.finalmaps.FinalMaps: both maps rebuilt from the journal
 
 
 def read_run(path: str | Path) -> RunData:
@@ -144,6 +145,9 @@ def read_run(path: str | Path) -> RunData:
             stop_reason=str(row.get("stop_reason") or ""),
             recorded_mape_pct=recorded,
         )
+    from aeni_console.finalmaps import final_maps
+
+    data.final_maps = final_maps(p)
     return data
 
 
@@ -311,6 +315,53 @@ def _map_figure(plt: Any, data: RunData, out: Path) -> Path:
     axes[0].legend(loc="upper left", fontsize=7, framealpha=0.8)
     fig.suptitle(f"{data.name}: the model after {len(data.indents)} indents ({data.state})")
     return _save(fig, plt, out / "maps.png")
+
+
+def _modulus_figure(plt: Any, data: RunData, out: Path) -> Path:
+    """The modulus map beside the hardness one (issue 27): its mean, its epistemic sd and H/E."""
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    fm = data.final_maps
+    panels = (
+        ("mean modulus (GPa)", "modulus_mean_gpa", "viridis"),
+        ("modulus epistemic sd (GPa)", "modulus_epistemic_sd_gpa", "magma"),
+        ("H/E", "h_over_e", "cividis"),
+    )
+    for ax, (title, attr, cmap) in zip(axes, panels, strict=True):
+        values = None if fm is None else np.asarray(getattr(fm, attr), float)
+        if fm is not None and values is not None and np.isfinite(values).sum() >= 3:
+            ok = np.isfinite(values)
+            im = ax.tripcolor(fm.x_um[ok], fm.y_um[ok], values[ok], cmap=cmap, shading="gouraud")
+            fig.colorbar(im, ax=ax, shrink=0.85)
+        else:
+            ax.text(0.5, 0.5, "no modulus map yet", transform=ax.transAxes, ha="center", va="center")
+        _overlay(ax, data, vetoes=False)
+        ax.set_title(title)
+        _stage_axes(ax, data)
+    how = (
+        "planned for (map_weights)"
+        if fm is not None and fm.modulus_planned
+        else "fitted from the same indents for this report"
+    )
+    fig.suptitle(f"{data.name}: the modulus map, {how}")
+    return _save(fig, plt, out / "modulus.png")
+
+
+def modulus_mape_pct(data: RunData) -> tuple[float, int] | None:
+    """MAPE (%) of the modulus map against the simulated modulus truth at its points (None: not simulated,
+    or no modulus map)."""
+    fm = data.final_maps
+    if data.driver != "sim" or fm is None or not np.isfinite(fm.modulus_mean_gpa).any():
+        return None
+    from core.campaign import campaign_config_from_dict
+    from drivers.registry import sim_scenario
+    from drivers.sim.emulator import truth_modulus_gpa
+
+    cfg = campaign_config_from_dict(data.config)
+    scenario = sim_scenario(cfg.driver_options, cfg.seed, cfg.sample)
+    truth = truth_modulus_gpa(scenario.truth, fm.x_um, fm.y_um)
+    mean = np.asarray(fm.modulus_mean_gpa, dtype=float)
+    ok = np.isfinite(mean) & np.isfinite(truth) & (truth != 0)
+    return float(100.0 * np.mean(np.abs(mean[ok] - truth[ok]) / np.abs(truth[ok]))), int(ok.sum())
 
 
 def _time_figure(plt: Any, data: RunData, out: Path) -> Path:
@@ -501,6 +552,22 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         lines.append(
             f"- measured hardness {min(hard):.3f}–{max(hard):.3f} GPa (median {float(np.median(hard)):.3f} GPa)"
         )
+    mod = [r.modulus_gpa for r in data.indents if r.measured and np.isfinite(r.modulus_gpa)]
+    if mod:
+        lines.append(
+            f"- measured modulus {min(mod):.1f}–{max(mod):.1f} GPa (median {float(np.median(mod)):.1f} GPa)"
+        )
+    fm = data.final_maps
+    if fm is not None and np.isfinite(fm.modulus_mean_gpa).any():
+        lines.append(
+            "- modulus map: "
+            + (
+                "planned for beside the hardness (map_weights)"
+                if fm.modulus_planned
+                else "fitted from the same indents"
+            )
+            + f"; H/E {np.nanmin(fm.h_over_e):.4f}–{np.nanmax(fm.h_over_e):.4f}"
+        )
     lines.append(
         f"- decisions: {len(data.decisions)} ("
         + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
@@ -514,11 +581,18 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
             )
         else:
             lines.append("- map error against the simulated truth: no model yet")
+        e_mape = modulus_mape_pct(data)
+        if e_mape is not None:
+            lines.append(
+                f"- modulus map error against the simulated truth: MAPE {e_mape[0]:.2f} % over the "
+                f"{e_mape[1]} candidate points inside the sample"
+            )
     else:
         lines.append("- map error: not known (a real sample has no ground truth)")
     lines += ["", "## Figures", ""]
     captions = {
         "maps.png": "mean and total sd maps in stage µm as the sample is seen, with the indents and exclusions",
+        "modulus.png": "the modulus map: mean, epistemic sd and H/E, with the indents",
         "time.png": "instrument time by category",
         "uncertainty.png": "the model's uncertainty over time",
         "drift.png": "drift readings and the holds used",
@@ -530,7 +604,8 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
 
 
 def write_report(path: str | Path, out_dir: str | Path) -> list[Path]:
-    """Write maps.png, time.png, uncertainty.png, drift.png, decisions.png and summary.md to ``out_dir``."""
+    """Write maps.png, modulus.png, time.png, uncertainty.png, drift.png, decisions.png and summary.md to
+    ``out_dir``."""
     _pyplot()  # before reading anything: a missing matplotlib is said at once
     return render_report(read_run(path), out_dir)
 
@@ -543,6 +618,7 @@ def render_report(data: RunData, out_dir: str | Path) -> list[Path]:
     out = check_out_folder(out_dir)
     figures = [
         _map_figure(plt, data, out),
+        _modulus_figure(plt, data, out),
         _time_figure(plt, data, out),
         _uncertainty_figure(plt, data, out),
         _drift_figure(plt, data, out),

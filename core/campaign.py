@@ -25,8 +25,9 @@ from core.errors import InputError
 from core.geometry import CandidateLattice
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
+from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
 from core.plan import Block, Decision, IndentResult, PlannerSettings
-from core.policies.base import DEFAULT_PITCH_UM, GPSummary, PlanContext, base_mask
+from core.policies.base import DEFAULT_PITCH_UM, GPSummary, ModulusView, PlanContext, base_mask
 from core.policies.registry import RECOMMENDED, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
@@ -150,6 +151,11 @@ class Campaign:
         self.surrogate: HeteroskedasticGP = parts.surrogate.build(
             parts.guard, min(self.lattice.pitch_uv), config.seed
         )
+        self.modulus_map = ModulusMap(
+            parts.surrogate.build(parts.guard, min(self.lattice.pitch_uv), config.seed),
+            parts.noise,
+            self.lattice.uv,
+        )
         self.centres: list[CentreRecord] = []
         self.noise_inflation: list[float] = []  # per centre, from the noise model's outlier rule (1: trusted)
         self.blocks: list[Block] = []
@@ -205,6 +211,31 @@ class Campaign:
         n = np.array([c.n_indents for c in self.centres])
         noise_var = median_noise_var(sd, n, self.noise.centre_estimator) * np.array(self.noise_inflation)
         return noise_var + self.surrogate.site_var_gpa2
+
+    def _modulus_view(self) -> ModulusView | None:
+        """What the planner weighs of the modulus map: only when map_weights gives it a weight."""
+        w = self.settings.map_weights
+        m = self.modulus_map
+        if not (w.maps_modulus and self._needs_covariance) or m.prediction is None:
+            return None
+        hyper, scale = m.surrogate.hyperparameters, m.surrogate.outputscale_gpa2
+        if hyper is None or scale is None:
+            return None
+        from core.policies.variance import median_noise_var
+
+        xy = m.xy_um()
+        u, v = self.calibration.to_uv(xy[:, 0], xy[:, 1])
+        sd = m.surrogate.predict(np.column_stack([u, v])).noise_sd
+        n = np.array([c.n_indents for c in m.centres])
+        noise_var = median_noise_var(sd, n, self.noise.centre_estimator) * np.array(m.noise_inflation)
+        return ModulusView(
+            prediction=m.prediction,
+            gp=GPSummary(hyper.kernel, hyper.lengthscales_uv, float(scale), m.surrogate.site_var_gpa2),
+            tested_xy_um=xy,
+            tested_noise_var_gpa2=noise_var + m.surrogate.site_var_gpa2,
+            weight_hardness=w.hardness,
+            weight_modulus=w.modulus,
+        )
 
     def _program_state(self) -> tuple[tuple[float, float] | None, float | None, int]:
         centre: tuple[float, float] | None = None
@@ -313,6 +344,7 @@ class Campaign:
             r_excl_um=self.sample.r_excl_um,
             placement_mask=self.placement_mask,
             sample=self.sample,
+            modulus=self._modulus_view(),
         )
 
     def propose(
@@ -454,6 +486,9 @@ class Campaign:
             )
         xs = np.array([r.actual_x_um for r in results])
         ys = np.array([r.actual_y_um for r in results])
+        e = modulus_values_of(results)
+        if self.noise.drift_correction:
+            e = drift_corrected_modulus_gpa(e, h_raw, h)
         # a replicate grid is one centre; a block of scattered singles (grid_g 1) is one centre per indent
         groups = [np.arange(len(h))] if block.grid_g > 1 else [np.array([i]) for i in range(len(h))]
         for idx in groups:
@@ -471,6 +506,8 @@ class Campaign:
                 )
             )
             self.noise_inflation.append(1.0)
+            last = self.centres[-1]
+            self.modulus_map.add(block.block_id, last.x_um, last.y_um, e[idx])
         self.blocks.append(block)
         self.indents_xy.extend(zip(xs.tolist(), ys.tolist(), strict=True))
         self.drift_rates.extend(r.drift_rate_nm_s for r in results)
@@ -511,6 +548,8 @@ class Campaign:
             self.surrogate.set_hyper(hyper, self.observations())
         self._last_fit = report
         self.prediction = self.surrogate.predict(self.lattice.uv)
+        if self.settings.map_weights.maps_modulus:
+            self.modulus_map.fit(self.calibration.to_uv)
         return report
 
     def _reweigh_outliers(self) -> str | None:
@@ -546,6 +585,20 @@ class Campaign:
         u, v = self.calibration.to_uv(x_um, y_um)
         return self.surrogate.predict_mean(np.column_stack([u, v]))
 
+    def has_modulus_map(self) -> bool:
+        """A modulus map exists or can be fitted now (fitted on demand when the planner does not need it)."""
+        return self.modulus_map.ensure_fitted(self.calibration.to_uv)
+
+    def predict_modulus_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> Prediction:
+        """The modulus map at stage points (GPa); call ``has_modulus_map`` first."""
+        u, v = self.calibration.to_uv(x_um, y_um)
+        return self.modulus_map.surrogate.predict(np.column_stack([u, v]))
+
+    def predict_modulus_mean_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray:
+        """The modulus map's mean at stage points (what an evaluator scores)."""
+        u, v = self.calibration.to_uv(x_um, y_um)
+        return self.modulus_map.surrogate.predict_mean(np.column_stack([u, v]))
+
     def indented_xy_um(self) -> np.ndarray:
         """Every indent of this run so far, actual positions (n, 2)."""
         return np.array(self.indents_xy, dtype=float).reshape(-1, 2)
@@ -571,6 +624,11 @@ class Campaign:
         def grid(a: np.ndarray) -> np.ndarray:
             return np.where(inside, a, np.nan).reshape(shape).astype(np.float32)
 
+        modulus: dict[str, np.ndarray] = {}
+        if self.modulus_map.prediction is not None and not self.modulus_map.stale:
+            # shown where the run keeps it fitted (map_weights), never fitted for the display alone
+            pm = self.predict_modulus_stage(gx.ravel(), gy.ravel())
+            modulus = {"modulus_mean_gpa": grid(pm.mean), "modulus_sd_gpa": grid(pm.epistemic_sd)}
         return MapFields(
             snapshot_id,
             xs,
@@ -580,6 +638,7 @@ class Campaign:
             grid(pred.noise_sd),
             grid(pred.total_sd),
             next_candidate_um,
+            **modulus,
         )
 
     # -- persistence -----------------------------------------------------------------------------
@@ -591,6 +650,10 @@ class Campaign:
             "blocks_done": len(self.blocks),
             "noise_inflation": list(self.noise_inflation),
             **({} if self.stop_at_epoch_s is None else {"stop_at_epoch_s": self.stop_at_epoch_s}),
+            # the modulus GP's record only where the planner uses it (a resumed run then decides the same)
+            **(
+                {"modulus": self.modulus_map.export_state()} if self.settings.map_weights.maps_modulus else {}
+            ),
         }
 
     def restore(self, state: dict[str, Any], blocks: Sequence[tuple[Block, Sequence[IndentResult]]]) -> None:
@@ -610,3 +673,4 @@ class Campaign:
         if hyper is not None and len(self.centres) >= 2:
             self.surrogate.set_hyper(hyper, self.observations())
             self.prediction = self.surrogate.predict(self.lattice.uv)
+        self.modulus_map.restore(state.get("modulus"), self.calibration.to_uv)

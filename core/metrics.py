@@ -52,6 +52,14 @@ class ScoredMap(Protocol):
     def indented_xy_um(self) -> np.ndarray: ...
 
 
+class ScoredModulusMap(Protocol):
+    """What a modulus evaluator may ask: whether there is a modulus map (fitting it if need be), its mean."""
+
+    def has_modulus_map(self) -> bool: ...
+
+    def predict_modulus_mean_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray: ...
+
+
 class MapEvaluator(Protocol):
     """Scores a map against a truth the campaign never sees (the simulated instrument's evaluator)."""
 

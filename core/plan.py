@@ -178,6 +178,32 @@ class Decision:
         return self.block.kind == "global"
 
 
+MAPS: tuple[str, ...] = ("hardness", "modulus")
+
+
+@dataclass(frozen=True)
+class MapWeights:
+    """How much each map's relative error counts in the acquisition; a weight of 0 drops that map.
+
+    Hardness-only by default this version: the published figures were measured so (issue 27)."""
+
+    hardness: float = 1.0
+    modulus: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in MAPS:
+            w = getattr(self, name)
+            if isinstance(w, bool) or not isinstance(w, int | float) or not math.isfinite(w) or w < 0:
+                raise ValueError(f"map_weights.{name} must be a finite number ≥ 0, got {w!r}")
+        if self.hardness == 0 and self.modulus == 0:
+            raise ValueError("map_weights: at least one map needs a weight > 0")
+
+    @property
+    def maps_modulus(self) -> bool:
+        """The modulus map is planned for (and so learned after every block)."""
+        return self.modulus > 0
+
+
 @dataclass(frozen=True)
 class PlannerSettings:
     """Operator-adjustable knobs (the console's adjust form edits these)."""
@@ -195,6 +221,7 @@ class PlannerSettings:
     stop_at: str | None = None  # local wall clock "HH:MM": the last block is one that ends before it
     stop_rel_sd_pct: float | None = None  # stop when the map's relative epistemic sd (p95) falls below
     avoid_centers_um: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+    map_weights: MapWeights = field(default_factory=MapWeights)
 
 
 def local_grid(

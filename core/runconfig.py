@@ -103,6 +103,7 @@ class PlannerSection(_Strict):
     stop_at: Any = None
     stop_rel_sd_pct: Any = None
     avoid_centers_um: list[tuple[float, float]] = Field(default_factory=list)
+    map_weights: dict[str, float] | None = None  # { hardness = 1.0, modulus = 1.0 }: checked by core.settings
 
     @field_validator(*ADJUSTABLE)
     @classmethod

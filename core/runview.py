@@ -163,6 +163,9 @@ class MapFields:
     noise_sd_gpa: np.ndarray
     total_sd_gpa: np.ndarray
     next_candidate_um: tuple[float, float] | None = None
+    # the modulus map (issue 27), where the run learns one: its mean and epistemic sd, GPa
+    modulus_mean_gpa: np.ndarray | None = None
+    modulus_sd_gpa: np.ndarray | None = None
 
 
 def instrument_wait_from_json(text: str) -> InstrumentWait:

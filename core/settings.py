@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any, Literal
 
 from core.errors import InputError
-from core.plan import PlannerSettings
+from core.plan import MAPS, MapWeights, PlannerSettings
 
 HOLD_POLICIES: tuple[str, ...] = ("fixed", "adaptive")
 SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
@@ -253,7 +253,31 @@ _FIELDS = tuple(f.name for f in fields(PlannerSettings))
 def settings_to_dict(settings: PlannerSettings) -> dict[str, Any]:
     out = {name: getattr(settings, name) for name in _FIELDS}
     out["avoid_centers_um"] = [list(p) for p in settings.avoid_centers_um]
+    out["map_weights"] = {name: getattr(settings.map_weights, name) for name in MAPS}
     return out
+
+
+def _map_weights(value: Any) -> MapWeights:
+    """``{ hardness = 1.0, modulus = 1.0 }``: a table of the maps' weights (a missing map keeps its default)."""
+    if not isinstance(value, Mapping):
+        raise InputError(
+            "map_weights",
+            f"{value!r} is not allowed: expected a table such as {{ hardness = 1.0, modulus = 1.0 }}",
+        )
+    unknown = sorted(set(value) - set(MAPS))
+    if unknown:
+        raise InputError(
+            "map_weights", f"unknown map(s) {', '.join(map(repr, unknown))} (known: {', '.join(MAPS)})"
+        )
+    clean: dict[str, float] = {}
+    for name, w in value.items():
+        if isinstance(w, bool) or not isinstance(w, int | float) or not math.isfinite(w) or w < 0:
+            raise InputError(f"map_weights.{name}", f"{w!r} is not allowed: expected a number ≥ 0")
+        clean[name] = float(w)
+    try:
+        return MapWeights(**clean)
+    except ValueError as exc:
+        raise InputError("map_weights", str(exc).removeprefix("map_weights: ")) from None
 
 
 def _avoid(value: Any) -> tuple[tuple[float, float], ...]:
@@ -277,6 +301,8 @@ def settings_from_dict(
     for name, value in data.items():
         if name == "avoid_centers_um":
             clean[name] = _avoid(value)
+        elif name == "map_weights":
+            clean[name] = _map_weights(value)
         elif name == "fixed_hold_s" and value is None:
             clean[name] = None  # not chosen: the profile's default hold
         elif name in RULE_BY_NAME:

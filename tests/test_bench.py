@@ -519,3 +519,45 @@ def test_merged_full_runs_keep_the_full_scenarios() -> None:
     assert [s.title for s in merged.scenarios] == [full["ternary"].title, full["step"].title]
     assert merged.scenarios[0].policies == config.scenarios[0].policies and wall == 3.0
     assert len(records) == 5
+
+
+def test_with_map_weights_the_bench_scores_both_maps_and_without_it_writes_what_it_wrote() -> None:
+    """``--map-weights``: every run scores the modulus map too, the grid's final modulus MAPE is the others'
+    second target, and the report gains the both-maps table; a hardness-only run keeps results.json as it was."""
+    from dataclasses import replace
+
+    from aeni_console.bench.harness import RunSpec, records_to_json, run_one
+    from aeni_console.bench.report import two_maps_table
+
+    config = BenchConfig.make(quick=True)
+    sc = config.scenarios[0]
+    both = {"hardness": 1.0, "modulus": 1.0}
+    grid = run_one(RunSpec(sc, "grid", 0, lattice_n=10, max_blocks=4, map_weights=both))
+    assert (
+        grid.final_mape_modulus_pct is not None
+        and grid.target_mape_modulus_pct == grid.final_mape_modulus_pct
+    )
+    assert grid.t_hit_modulus_s is not None and grid.trajectory_modulus[-1][1] == grid.final_mape_modulus_pct
+    spec = RunSpec(
+        sc,
+        "aeni",
+        0,
+        lattice_n=10,
+        max_blocks=6,
+        budget_s=grid.instrument_s,
+        target_mape_pct=grid.final_mape_pct,
+        map_weights=both,
+        target_mape_modulus_pct=grid.final_mape_modulus_pct,
+    )
+    aeni = run_one(spec)
+    assert len(aeni.trajectory_modulus) == len(aeni.trajectory) > 0
+    assert aeni.target_mape_modulus_pct == grid.final_mape_modulus_pct
+    table = "\n".join(two_maps_table([grid, aeni]))
+    assert "## Both maps: hardness and modulus" in table and "| ternary | aeni |" in table
+    data = records_to_json([grid, aeni], config, 1.0)
+    assert all("trajectory_modulus" in r for r in data["runs"])
+    # hardness only: no modulus is scored, and nothing of it is written
+    plain = run_one(replace(spec, map_weights=None, target_mape_modulus_pct=None))
+    assert plain.trajectory_modulus == [] and plain.final_mape_modulus_pct is None
+    run = records_to_json([plain], config, 1.0)["runs"][0]
+    assert not any("modulus" in k for k in run) and two_maps_table([plain]) == []

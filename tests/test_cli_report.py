@@ -11,7 +11,7 @@ from aeni_console.cli import main
 
 pytest.importorskip("matplotlib")
 
-FIGURES = ("maps.png", "time.png", "uncertainty.png", "drift.png", "decisions.png")
+FIGURES = ("maps.png", "modulus.png", "time.png", "uncertainty.png", "drift.png", "decisions.png")
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def _image(path: Path) -> np.ndarray:
 def test_report_writes_figures_with_content(demo_run: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = demo_run.parent / "notebook"
     assert main(["report", str(demo_run), "--out", str(out)]) == 0
-    assert "wrote 6 files" in capsys.readouterr().out
+    assert "wrote 7 files" in capsys.readouterr().out
     for name in FIGURES:
         img = _image(out / name)
         h, w = img.shape[:2]
@@ -70,6 +70,16 @@ def test_report_summary_names_what_happened(demo_run: Path) -> None:
     assert mape[0] == pytest.approx(data.recorded_mape_pct, rel=0.25)
     for name in FIGURES:
         assert f"]({name})" in text
+    # the modulus map: fitted from the same indents (the run planned for hardness only), scored against the truth
+    from aeni_console.runreport import modulus_mape_pct
+
+    e_mape = modulus_mape_pct(data)
+    assert (
+        e_mape is not None
+        and 0 < e_mape[0] < 10
+        and f"modulus map error against the simulated truth: MAPE {e_mape[0]:.2f} %" in text
+    )
+    assert "modulus map: fitted from the same indents; H/E 0.0" in text
 
 
 def test_report_of_a_real_run_claims_no_truth(demo_run: Path) -> None:
@@ -91,7 +101,7 @@ def test_report_of_a_real_run_claims_no_truth(demo_run: Path) -> None:
     assert f"{len(data.indents) - 1} indents measured" in text and "1 failed and 0 not run" in text
     assert "nan" not in text.lower()
     written = render_report(data, demo_run.parent / "with-a-failed-indent")  # and the figures still draw
-    assert len(written) == 6 and all(p.stat().st_size > 1_000 for p in written)
+    assert len(written) == 7 and all(p.stat().st_size > 1_000 for p in written)
 
 
 def test_report_refuses_a_file_as_out_folder(demo_run: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -55,10 +55,11 @@ BAD: list[tuple[str, Any, str]] = [
 
 
 def test_every_planner_setting_has_exactly_one_rule() -> None:
-    fields = set(PlannerSettings.__dataclass_fields__) - {"avoid_centers_um"}
+    tables = {"avoid_centers_um", "map_weights"}  # run-file tables with a codec of their own
+    fields = set(PlannerSettings.__dataclass_fields__) - tables
     assert set(ADJUSTABLE) == fields and len(RULES) + len(STOP_RULES) == len(fields)
     # the run file's [planner] table names the same fields (its values go through the same rules)
-    assert set(PlannerSection.model_fields) == fields | {"avoid_centers_um"}
+    assert set(PlannerSection.model_fields) == fields | tables
 
 
 @pytest.mark.parametrize(("name", "value", "allowed"), BAD)
@@ -116,6 +117,9 @@ values = st.fixed_dictionaries(
         "budget_s": st.none() | st.floats(1, 1e7),
         "indent_budget": st.none() | st.integers(1, 10_000),
         "avoid_centers_um": st.lists(st.tuples(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4)), max_size=3),
+        "map_weights": st.fixed_dictionaries(
+            {"hardness": st.floats(0.5, 10)}, optional={"modulus": st.floats(0, 10)}
+        ),
     },
 )
 
@@ -200,3 +204,22 @@ async def test_the_adjust_form_shows_only_the_hold_settings_in_force() -> None:
             assert any(w.id == "f-hold_policy" for w in screen.query(Select)) is select_shown, policy
             changes, errors = screen.validate_form()
             assert changes == {} and errors == []
+
+
+def test_map_weights_default_to_hardness_only_and_refuse_bad_tables() -> None:
+    from core.plan import MapWeights
+
+    assert PlannerSettings().map_weights == MapWeights(1.0, 0.0)
+    both = parse_run_config({"planner": {"map_weights": {"hardness": 1.0, "modulus": 0.5}}}).campaign.settings
+    assert both.map_weights == MapWeights(1.0, 0.5) and both.map_weights.maps_modulus
+    only_e = settings_from_dict({"map_weights": {"hardness": 0, "modulus": 1}}).map_weights
+    assert only_e == MapWeights(0.0, 1.0)
+    for bad, words in (
+        ({"hardness": 0, "modulus": 0}, "at least one map needs a weight > 0"),
+        ({"hardness": -1}, r"map_weights.hardness: -1.0 is not allowed: expected a number ≥ 0"),
+        ({"modulus": "lots"}, "planner.map_weights.modulus = 'lots' is not allowed: must be a valid number"),
+        ({"stiffness": 1.0}, "unknown map.*'stiffness'.*known: hardness, modulus"),
+        (1.0, "planner.map_weights = 1.0 is not allowed: must be a valid dictionary"),
+    ):
+        with pytest.raises(InputError, match=words):
+            parse_run_config({"planner": {"map_weights": bad}})

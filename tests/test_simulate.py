@@ -30,6 +30,9 @@ JSON_KEYS = {
     "interlock_refusals",
     "wall_s",
     "trajectory",
+    "final_mape_modulus_pct",
+    "map_weights",
+    "trajectory_modulus",
 }
 FAST = ["--lattice-n", "20", "--json"]
 
@@ -61,6 +64,34 @@ def test_every_policy_keeps_the_json_contract(policy: str, capsys: pytest.Captur
     assert times == sorted(times) and all(math.isfinite(p["mape_pct"]) for p in traj)
     assert data["final_mape_pct"] == pytest.approx(traj[-1]["mape_pct"], rel=1e-6)
     assert 0 < float(data["max_found_gpa"]) <= float(data["true_max_gpa"]) + 1e-9
+    # hardness only by default: the modulus map is fitted once from the same indents and scored at the end
+    assert data["map_weights"] == {"hardness": 1.0, "modulus": 0.0} and data["trajectory_modulus"] == []
+    assert 0 < float(data["final_mape_modulus_pct"]) < 10.0
+
+
+def test_both_maps_are_scored_after_every_refit_when_the_planner_aims_at_both(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    data = _simulate(
+        capsys,
+        "--policy",
+        "aeni",
+        "--seed",
+        "1",
+        "--budget-s",
+        "9000",
+        "--map-weights",
+        "hardness=1,modulus=1",
+    )
+    assert data["map_weights"] == {"hardness": 1.0, "modulus": 1.0}
+    traj, traj_e = data["trajectory"], data["trajectory_modulus"]
+    assert isinstance(traj, list) and isinstance(traj_e, list) and len(traj_e) == len(traj)
+    assert [p["t_s"] for p in traj_e] == [p["t_s"] for p in traj]
+    assert data["final_mape_modulus_pct"] == pytest.approx(traj_e[-1]["mape_pct"], rel=1e-6)
+    # the map's error falls as indents come in
+    assert traj_e[-1]["mape_pct"] < traj_e[0]["mape_pct"]
+    assert main(["simulate", "--map-weights", "hardness=0,modulus=0", *FAST]) == 2
+    assert "at least one map needs a weight > 0" in capsys.readouterr().err
 
 
 def test_truth_from_a_rough_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -163,6 +163,8 @@ class BenchConfig:
     scenarios: tuple[BenchScenario, ...] = FULL_SCENARIOS
     # the simulated instrument fails like a real one (drivers.sim.failures); 0: never
     failure_rate: float = REALISTIC_FAILURE_RATE
+    # the planner's [planner] map_weights (issue 27); None: hardness only, and no modulus is scored
+    map_weights: dict[str, float] | None = None
 
     @classmethod
     def make(
@@ -235,6 +237,8 @@ class RunSpec:
     max_centres: int = MAX_CENTRES
     keep_maps: bool = False
     failure_rate: float = 0.0
+    map_weights: dict[str, float] | None = None  # None: hardness only, no modulus scored
+    target_mape_modulus_pct: float | None = None  # None: the grid run that defines it (or no modulus)
 
 
 @dataclass
@@ -266,6 +270,18 @@ class RunRecord:
     interlock_refusals: int = 0  # blocks the interlock refused (the engine vetoed them and asked again)
     approvals: int = 0  # blocks that waited for an approval (none in the bench's auto supervision)
     failed_indents: int = 0  # indents the simulated instrument failed or never made (never learnt from)
+    # with map_weights (issue 27): the modulus map's target, final MAPE, trajectory and time to its target
+    target_mape_modulus_pct: float | None = None
+    final_mape_modulus_pct: float | None = None
+    t_hit_modulus_s: float | None = None
+    trajectory_modulus: list[tuple[float, float]] = field(default_factory=list)
+
+    @property
+    def t_hit_both_s(self) -> float | None:
+        """When both maps had reached their targets (None if either never did)."""
+        if self.t_hit_s is None or self.t_hit_modulus_s is None:
+            return None
+        return max(self.t_hit_s, self.t_hit_modulus_s)
 
 
 # -- one run -------------------------------------------------------------------------------------------
@@ -335,7 +351,7 @@ def run_one(spec: RunSpec) -> RunRecord:
         truth_csv=spec.truth_csv,
         seed=spec.seed,
         lattice_n=spec.lattice_n,
-        settings={"budget_s": spec.budget_s},
+        settings={"budget_s": spec.budget_s, "map_weights": spec.map_weights},
         failure_rate=spec.failure_rate or None,
     )
     sim = _scenario(spec, cfg.driver_options)
@@ -347,6 +363,8 @@ def run_one(spec: RunSpec) -> RunRecord:
     evaluator = sim.evaluator()
     max_found: list[tuple[float, float]] = []
     hit: list[float] = []  # the first time MAPE reached the target
+    modulus: list[tuple[float, float]] = []  # (t_s, modulus MAPE %) after every refit, with map_weights
+    hit_e: list[float] = []  # the first time the modulus MAPE reached its target
     peak_after: list[float] = []
     alarms = 0
     sizes: dict[int, int] = {}
@@ -372,6 +390,13 @@ def run_one(spec: RunSpec) -> RunRecord:
                 self.results.append(event.result)
                 self.failed += int(event.result.status != "measured")
             elif isinstance(event, Observed):
+                if spec.map_weights is not None and event.fit.fitted:
+                    mape_e = evaluator.score_modulus(campaign)
+                    if mape_e is not None:
+                        modulus.append((event.t_s, mape_e))
+                        target_e = spec.target_mape_modulus_pct
+                        if target_e is not None and not hit_e and mape_e <= target_e:
+                            hit_e.append(event.t_s)
                 self.observed(self.block[event.block_id], event.fit.collapse_alarm, event.t_s)
                 self.results = []
 
@@ -396,7 +421,13 @@ def run_one(spec: RunSpec) -> RunRecord:
                     peak_after.append(mape)
 
     def stop_when(res: RunTally) -> str | None:
-        if hit and res.instrument_s >= hit[0] * (1.0 + spec.margin):
+        if spec.target_mape_modulus_pct is not None:  # both maps: run on past the later of the two hits
+            if hit and hit_e and res.instrument_s >= max(hit[0], hit_e[0]) * (1.0 + spec.margin):
+                return (
+                    f"reached both target MAPEs at {max(hit[0], hit_e[0]):,.0f} s and ran on "
+                    f"{100 * spec.margin:.0f} %"
+                )
+        elif hit and res.instrument_s >= hit[0] * (1.0 + spec.margin):
             return f"reached the target MAPE at {hit[0]:,.0f} s and ran on {100 * spec.margin:.0f} %"
         if res.blocks >= spec.max_blocks:
             return f"block cap ({spec.max_blocks} blocks)"
@@ -420,6 +451,23 @@ def run_one(spec: RunSpec) -> RunRecord:
     t_hit: float | None = hit[0] if hit else None
     if is_grid and final is not None:
         t_hit = next(t for t, m in trajectory if m <= final)
+    final_e: float | None = None
+    t_hit_e: float | None = hit_e[0] if hit_e else None
+    if spec.map_weights is not None:
+        if (
+            is_grid
+            and (not modulus or modulus[-1][0] < result.instrument_s - 1.0)
+            and campaign.modulus_map.n >= 2
+        ):
+            campaign.modulus_map.fit(
+                campaign.calibration.to_uv
+            )  # the grid's final modulus map on all its indents
+            mape_e = evaluator.score_modulus(campaign)
+            if mape_e is not None:
+                modulus.append((result.instrument_s, mape_e))
+        final_e = modulus[-1][1] if modulus else None
+        if is_grid and final_e is not None:
+            t_hit_e = next(t for t, m in modulus if m <= final_e)
     h = evaluator.truth_gpa
     maps = _maps(campaign) if spec.keep_maps and campaign.prediction is not None else None
     return RunRecord(
@@ -450,6 +498,10 @@ def run_one(spec: RunSpec) -> RunRecord:
         local_blocks=local,
         peak_mape_after_hit_pct=max(peak_after) if peak_after else None,
         maps=maps,
+        target_mape_modulus_pct=final_e if is_grid else spec.target_mape_modulus_pct,
+        final_mape_modulus_pct=final_e,
+        t_hit_modulus_s=t_hit_e,
+        trajectory_modulus=modulus,
     )
 
 
@@ -599,6 +651,7 @@ def run_bench(
             max_centres=config.max_centres,
             keep_maps=seed == 0 and policy in sc.maps_for,
             failure_rate=config.failure_rate,
+            map_weights=config.map_weights,
             **kw,
         )
 
@@ -619,6 +672,7 @@ def run_bench(
             s,
             budget_s=by_key[(sc.key, s)].instrument_s,
             target_mape_pct=by_key[(sc.key, s)].final_mape_pct,
+            target_mape_modulus_pct=by_key[(sc.key, s)].final_mape_modulus_pct,
         )
         for sc in config.scenarios
         for p in sc.policies
@@ -817,6 +871,7 @@ def records_from_json(data: dict[str, Any]) -> tuple[list[RunRecord], BenchConfi
             d["max_found"] = [(float(t), float(v)) for t, v in d["max_found"]]
             d["grid_sizes"] = {int(k): int(v) for k, v in d.get("grid_sizes", {}).items()}
             d["ledger"] = {str(k): float(v) for k, v in d["ledger"].items()}
+            d["trajectory_modulus"] = [(float(t), float(m)) for t, m in d.get("trajectory_modulus", [])]
             records.append(RunRecord(**d))
         return records, config, float(proto["wall_s"])
     except (KeyError, TypeError, ValueError) as exc:
@@ -1009,6 +1064,18 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
         d["trajectory"] = [[round(t, 3), round(m, 6)] for t, m in _thin(r.trajectory, r.t_hit_s)]
         steps = [p for i, p in enumerate(r.max_found) if i == 0 or p[1] != r.max_found[i - 1][1]]
         d["max_found"] = [[round(t), round(v, 4)] for t, v in steps]  # only where it rose
+        if r.trajectory_modulus or r.final_mape_modulus_pct is not None:
+            d["trajectory_modulus"] = [
+                [round(t, 3), round(m, 6)] for t, m in _thin(r.trajectory_modulus, r.t_hit_modulus_s)
+            ]
+        else:  # hardness only: results.json as before issue 27
+            for key in (
+                "target_mape_modulus_pct",
+                "final_mape_modulus_pct",
+                "t_hit_modulus_s",
+                "trajectory_modulus",
+            ):
+                d.pop(key)
         runs.append(d)
     return clean(
         {

@@ -421,6 +421,58 @@ def why_text(summaries: Sequence[PolicySummary], records: Sequence[RunRecord] = 
     return "\n".join(out)
 
 
+def two_maps_table(records: Sequence[RunRecord]) -> list[str]:
+    """With map_weights (issue 27): each policy's time to both grids' final MAPEs, hardness and modulus, and
+    the speed-up over the grid per map (medians over seeds, worst seed); nothing for a hardness-only bench."""
+    if not any(r.trajectory_modulus for r in records):
+        return []
+    grid_t = {(r.scenario, r.seed): r for r in records if r.policy == "grid"}
+    lines = [
+        "## Both maps: hardness and modulus (map_weights)",
+        "",
+        "| scenario | policy | final MAPE H % | final MAPE E % | t(H) s | t(E) s | t(both) s | speed-up H "
+        "| speed-up E | worst seed (both) |",
+        "|" + "---|" * 10,
+    ]
+    groups: dict[tuple[str, str], list[RunRecord]] = {}
+    for r in records:
+        groups.setdefault((r.scenario, r.policy), []).append(r)
+
+    def med(vals: Sequence[float | None]) -> float | None:
+        ok = [v if v is not None else math.inf for v in vals]
+        return float(np.median(ok)) if ok else None
+
+    def fmt(v: float | None, spec: str) -> str:
+        return "—" if v is None or not math.isfinite(v) else format(v, spec)
+
+    for (scenario, policy), runs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1] != "grid")):
+        sp_h, sp_e, worst = [], [], (math.inf, -1)
+        for r in runs:
+            g = grid_t.get((scenario, r.seed))
+            if g is None:
+                continue
+            sp_h.append(g.t_hit_s / r.t_hit_s if g.t_hit_s and r.t_hit_s else 0.0)
+            sp_e.append(
+                g.t_hit_modulus_s / r.t_hit_modulus_s if g.t_hit_modulus_s and r.t_hit_modulus_s else 0.0
+            )
+            both = min(sp_h[-1], sp_e[-1])
+            worst = min(worst, (both, r.seed))
+        lines.append(
+            f"| {scenario} | {policy} | {fmt(med([r.final_mape_pct for r in runs]), '.3f')} "
+            f"| {fmt(med([r.final_mape_modulus_pct for r in runs]), '.3f')} "
+            f"| {fmt(med([r.t_hit_s for r in runs]), ',.0f')} | {fmt(med([r.t_hit_modulus_s for r in runs]), ',.0f')} "
+            f"| {fmt(med([r.t_hit_both_s for r in runs]), ',.0f')} "
+            f"| {fmt(float(np.median(sp_h)) if sp_h else None, '.1f')}× | {fmt(float(np.median(sp_e)) if sp_e else None, '.1f')}× "
+            f"| {fmt(worst[0], '.1f')}× (seed {worst[1]}) |"
+        )
+    return [
+        *lines,
+        "",
+        "t(·): instrument time to the grid's final MAPE of that map (a miss counts as never).",
+        "",
+    ]
+
+
 def level_table(records: Sequence[RunRecord]) -> list[str]:
     """Each idea against its reference at the grid's final MAPE and at looser multiples of it."""
     rows = []
@@ -544,6 +596,7 @@ def results_markdown(
         lines += resolution_table(summaries, config, flat)
     lines += suite_tables(summaries, config)
     lines += level_table(records)
+    lines += two_maps_table(records)
     for group, title in (
         ("paper", "The paper's comparisons"),
         ("provocation", "Provocations: drift and length-scale collapse"),

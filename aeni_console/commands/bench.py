@@ -8,6 +8,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from aeni_console.commands.common import map_weights_arg
 from core.errors import InputError
 
 
@@ -30,6 +31,13 @@ def _handler(args: argparse.Namespace) -> int:
 
         FailureModes.at_rate(args.failure_rate, 0)  # refuse a bad rate before anything runs
         config = replace(config, failure_rate=args.failure_rate)
+    if args.map_weights is not None:
+        from dataclasses import replace
+
+        from core.settings import settings_from_dict
+
+        settings_from_dict({"map_weights": args.map_weights})  # refuse bad weights before anything runs
+        config = replace(config, map_weights=args.map_weights)
     n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()
     done = 0
@@ -139,6 +147,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="share of indents the simulated instrument fails (invalid values; a quarter of it of the blocks "
         "find no surface or are aborted); default 0.015, about what a real instrument does; 0: never",
+    )
+    p.add_argument(
+        "--map-weights",
+        type=map_weights_arg,
+        default=None,
+        metavar="hardness=W,modulus=W",
+        help="the planner's map_weights, and score the modulus map too: each policy's time to both grids' "
+        "final MAPEs (default: hardness only, no modulus scored)",
     )
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

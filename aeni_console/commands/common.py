@@ -193,3 +193,17 @@ def check_out_folder(path: str | Path) -> Path:
     if p.exists() and not p.is_dir():
         raise InputError(str(p), "is a file; --out takes a folder (it is created when missing)")
     return make_folder(p, "output folder")
+
+
+def map_weights_arg(text: str) -> dict[str, float]:
+    """``hardness=1,modulus=0.5`` as the run file's ``map_weights`` table (checked where the settings are)."""
+    out: dict[str, float] = {}
+    for part in text.split(","):
+        name, sep, value = part.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected hardness=W,modulus=W, got {text!r}") from None
+        if not sep:
+            raise argparse.ArgumentTypeError(f"expected hardness=W,modulus=W, got {text!r}")
+    return out

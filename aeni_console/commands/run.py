@@ -614,7 +614,8 @@ def _export_files(journal: Path, indents: Any) -> list[str]:
 
 
 def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[Path]:
-    """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events."""
+    """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events,
+    sessions and predictions (both maps' final means and sds, and H/E)."""
     import pandas as pd
 
     from core.journal import JournalReader
@@ -699,6 +700,13 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
         for name in ("events", "sessions"):
             cols, rows = r.table(name)
             tables[name] = pd.DataFrame(rows, columns=cols)
+    # both maps' final predictions on the candidate lattice (empty before the run has a map)
+    from aeni_console.finalmaps import FINAL_MAP_COLUMNS, final_maps
+
+    maps = final_maps(path)
+    tables["predictions"] = (
+        pd.DataFrame(maps.columns()) if maps is not None else pd.DataFrame(columns=list(FINAL_MAP_COLUMNS))
+    )
     written = []
     for name, df in tables.items():
         target = out / f"{name}.{fmt}"

@@ -8,7 +8,7 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.commands.common import dumps, ledger_table, positive_float, seed_arg
+from aeni_console.commands.common import dumps, ledger_table, map_weights_arg, positive_float, seed_arg
 
 if TYPE_CHECKING:
     from core.run.events import Sink
@@ -41,6 +41,7 @@ def run_simulation(
     sample_file: str | None = None,
     failure_rate: float | None = None,
     sinks: Sequence[Sink] = (),
+    map_weights: dict[str, float] | None = None,
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract).
 
@@ -52,6 +53,7 @@ def run_simulation(
     from core.run.headless import RunTally, run_auto
     from core.runconfig import make_campaign_config
     from core.sample import load_sample
+    from core.settings import settings_to_dict
     from drivers.registry import sim_scenario
     from drivers.sim.emulator import field_extrema
 
@@ -64,7 +66,7 @@ def run_simulation(
         seed=seed,
         profile=profile,
         lattice_n=lattice_n,
-        settings={"budget_s": budget_s},
+        settings={"budget_s": budget_s, "map_weights": map_weights},
         failure_rate=failure_rate,
     )
     sample = load_sample(sample_file) if sample_file is not None else None
@@ -84,7 +86,22 @@ def run_simulation(
                 mape = self.trajectory[-1][1] if self.trajectory else None
                 _progress(event.t_s, budget, self.blocks, mape, start)
 
-    result = run_auto(campaign, driver, evaluator, sinks=[*sinks, *([Progress()] if progress else [])])
+    modulus: list[tuple[float, float]] = []
+
+    class ModulusScore(RunTally):
+        """The modulus map's MAPE after every refit, where the planner keeps that map fitted (map_weights);
+        a hardness-only run scores its modulus map once, at the end."""
+
+        def emit(self, event: RunEvent) -> None:
+            if isinstance(event, Observed) and event.fit.fitted:
+                mape = evaluator.score_modulus(campaign)
+                if mape is not None:
+                    modulus.append((event.t_s, mape))
+
+    watch = [ModulusScore()] if campaign.settings.map_weights.maps_modulus else []
+    result = run_auto(
+        campaign, driver, evaluator, sinks=[*sinks, *watch, *([Progress()] if progress else [])]
+    )
     if progress:
         sys.stderr.write("\n")
     score = evaluator.score(campaign)
@@ -100,6 +117,8 @@ def run_simulation(
         "reconfigurations": result.ledger.reconfigurations,
         "ledger": result.ledger.as_dict(),
         "final_mape_pct": score.mape_pct,
+        "final_mape_modulus_pct": evaluator.score_modulus(campaign),
+        "map_weights": settings_to_dict(campaign.settings)["map_weights"],
         "max_found_gpa": score.max_found_gpa,
         # the scoring lattice's cell centres miss the corners, where a field's maximum may sit
         "true_max_gpa": max(float(evaluator.truth_gpa.max()), field_extrema(evaluator.truth)[1]),
@@ -108,6 +127,7 @@ def run_simulation(
         "interlock_refusals": result.refusals,
         "wall_s": time.monotonic() - start,
         "trajectory": [{"t_s": t, "mape_pct": m} for t, m in result.trajectory],
+        "trajectory_modulus": [{"t_s": t, "mape_pct": m} for t, m in modulus],
         "_ledger_obj": result.ledger,
     }
 
@@ -126,6 +146,7 @@ def _handler(args: argparse.Namespace) -> int:
         sample_file=args.sample,
         failure_rate=args.failure_rate,
         progress=not args.json and sys.stderr.isatty(),
+        map_weights=args.map_weights,
     )
     ledger = out.pop("_ledger_obj")
     if args.json:
@@ -140,6 +161,8 @@ def _handler(args: argparse.Namespace) -> int:
     print(f"{out['indents']} indents in {out['blocks']} blocks, {out['reconfigurations']} reconfigurations")
     mape = out["final_mape_pct"]
     print(f"final MAPE {mape:.2f} %" if mape is not None else "final MAPE: no model")
+    mape_e = out["final_mape_modulus_pct"]
+    print(f"final modulus MAPE {mape_e:.2f} %" if mape_e is not None else "final modulus MAPE: no model")
     print(f"max hardness found {out['max_found_gpa']:.3f} GPa (true max {out['true_max_gpa']:.3f} GPa)")
     print(ledger_table(ledger))
     return 0
@@ -178,6 +201,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="share of indents the simulated instrument fails (invalid values; a quarter of it of the "
         "blocks find no surface or are aborted); default 0",
+    )
+    p.add_argument(
+        "--map-weights",
+        type=map_weights_arg,
+        default=None,
+        metavar="hardness=W,modulus=W",
+        help="how much each map's relative error counts in the planner's aim (default hardness=1,modulus=0)",
     )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_handler)

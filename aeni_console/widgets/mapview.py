@@ -21,8 +21,8 @@ from textual.widget import Widget
 from textual.widgets import Static
 
 from aeni_console.heatmap import (
-    FIELD_KEYS,
     FIELD_LABELS,
+    FIELD_UNITS,
     LEGEND,
     MARK_EARLIER,
     MARK_EXCLUDED,
@@ -32,6 +32,7 @@ from aeni_console.heatmap import (
     STATUS_MARKS,
     HeatmapImage,
     MapMarks,
+    field_keys_of,
     marks_for,
     render_heatmap,
 )
@@ -124,7 +125,8 @@ class MapPanel(Vertical):
 
     @property
     def field_key(self) -> str:
-        return FIELD_KEYS[self.field_index]
+        keys = field_keys_of(self.fields)
+        return keys[self.field_index % len(keys)]
 
     def _legend(self) -> Text:
         """One entry per meaning drawn on this map (it wraps to a second line on a narrow panel)."""
@@ -162,12 +164,12 @@ class MapPanel(Vertical):
         self._titles()
 
     def _titles(self) -> None:
-        self.border_title = f"Map · {FIELD_LABELS[self.field_key]} (GPa)"
+        self.border_title = f"Map · {FIELD_LABELS[self.field_key]} ({FIELD_UNITS[self.field_key]})"
         sid = self.fields.snapshot_id if self.fields is not None else None
         self.border_subtitle = f"fit {sid}" if sid is not None else "no fit yet"
 
     def cycle(self) -> str:
-        self.field_index = (self.field_index + 1) % len(FIELD_KEYS)
+        self.field_index = (self.field_index + 1) % len(field_keys_of(self.fields))
         self._titles()
         self.request()
         return self.field_key

@@ -71,16 +71,18 @@ def decision_from_dict(d: dict[str, Any]) -> Decision:
 def map_fields_to_bytes(fields: MapFields) -> bytes:
     buf = io.BytesIO()
     nxt = np.asarray(fields.next_candidate_um if fields.next_candidate_um is not None else [], dtype=float)
-    np.savez_compressed(
-        buf,
-        x_um=fields.x_um,
-        y_um=fields.y_um,
-        mean_gpa=fields.mean_gpa,
-        epistemic_sd_gpa=fields.epistemic_sd_gpa,
-        noise_sd_gpa=fields.noise_sd_gpa,
-        total_sd_gpa=fields.total_sd_gpa,
-        next_candidate_um=nxt,
-    )
+    arrays: dict[str, np.ndarray] = {
+        "x_um": fields.x_um,
+        "y_um": fields.y_um,
+        "mean_gpa": fields.mean_gpa,
+        "epistemic_sd_gpa": fields.epistemic_sd_gpa,
+        "noise_sd_gpa": fields.noise_sd_gpa,
+        "total_sd_gpa": fields.total_sd_gpa,
+        "next_candidate_um": nxt,
+    }
+    if fields.modulus_mean_gpa is not None and fields.modulus_sd_gpa is not None:
+        arrays |= {"modulus_mean_gpa": fields.modulus_mean_gpa, "modulus_sd_gpa": fields.modulus_sd_gpa}
+    np.savez_compressed(buf, allow_pickle=False, **arrays)
     return buf.getvalue()
 
 
@@ -96,6 +98,8 @@ def map_fields_from_bytes(snapshot_id: int, blob: bytes) -> MapFields:
             noise_sd_gpa=z["noise_sd_gpa"],
             total_sd_gpa=z["total_sd_gpa"],
             next_candidate_um=(float(nxt[0]), float(nxt[1])) if nxt.size == 2 else None,
+            modulus_mean_gpa=z["modulus_mean_gpa"] if "modulus_mean_gpa" in z.files else None,
+            modulus_sd_gpa=z["modulus_sd_gpa"] if "modulus_sd_gpa" in z.files else None,
         )
 
 

@@ -37,6 +37,18 @@ class GPSummary:
 
 
 @dataclass(frozen=True)
+class ModulusView:
+    """The modulus map as the planner may weigh it beside the hardness (``map_weights``, issue 27)."""
+
+    prediction: Prediction  # on lattice.uv
+    gp: GPSummary
+    tested_xy_um: np.ndarray  # (k, 2) centres with a modulus
+    tested_noise_var_gpa2: np.ndarray  # (k,) noise variance of each centre's value, per the modulus model
+    weight_hardness: float
+    weight_modulus: float
+
+
+@dataclass(frozen=True)
 class PlanContext:
     """Everything a policy may look at, frozen at the moment of the decision."""
 
@@ -77,6 +89,7 @@ class PlanContext:
         None  # (n²,) lattice centres the sample allows (edge band, exclusions)
     )
     sample: Sample | None = None  # for planners whose blocks are not on the lattice (the grid baseline)
+    modulus: ModulusView | None = None  # the modulus map, when map_weights asks for it (else hardness only)
 
     @property
     def fixed_hold_s(self) -> float:

@@ -32,8 +32,10 @@ from dataclasses import replace
 import numpy as np
 
 from core.cost import block_costs_for
+from core.model import Prediction
 from core.plan import Alternative, Block, BlockKind, Decision, IndentSpec
 from core.policies.base import (
+    GPSummary,
     PlanContext,
     alternatives,
     base_mask,
@@ -341,7 +343,9 @@ class _Maximin(_Value):
 
 class _Ivr(_Value):
     """Integrated variance reduction of the relative map error under the fitted kernel (y-free but for
-    the weights, which the fitted mean sets)."""
+    the weights, which the fitted mean sets). With a modulus view (``map_weights``) the gain is the weighted
+    sum of both maps' reductions of their mean relative error variance, each under its own GP; a weight of 0
+    drops that map. One map alone keeps its gain as before (a constant factor never changes a ranking)."""
 
     def __init__(self, ctx: PlanContext, cand: np.ndarray, structure_weight: float) -> None:
         pred, gp = ctx.prediction, ctx.gp
@@ -351,29 +355,77 @@ class _Ivr(_Value):
         step = max(1, n // REFERENCE_N)
         rows = np.arange(step // 2, n, step)
         ref_idx = (rows[:, None] * n + rows[None, :]).ravel()
-        mu = np.maximum(np.abs(pred.mean[ref_idx]), 1e-6)
-        w = 1.0 / mu**2  # relative error: what MAPE counts
-        if structure_weight > 0:
-            # relative slope of the fitted mean per unit of (u, v): 0 on a flat map, ≥ 1 where it bends hard
-            grad_v, grad_u = np.gradient(pred.mean.reshape(n, n), lat.pitch_uv[0])
-            rel = np.hypot(grad_u, grad_v).ravel()[ref_idx] / mu
-            w = w * (1.0 + structure_weight * np.minimum(rel / FULL_WEIGHT_REL_SLOPE, 1.0))
-        u, v = ctx.calibration.to_uv(ctx.tested_xy_um[:, 0], ctx.tested_xy_um[:, 1])
-        self.model = PosteriorCov.build(
-            gp, np.column_stack([u, v]), ctx.tested_noise_var_gpa2, lat.uv[cand], lat.uv[ref_idx], w
-        )
-        self.noise_var = pred.noise_sd[cand] ** 2 + gp.site_var_gpa2  # one indent: no estimator loss
+        # (weight × relative scale, model, one indent's noise variance at each candidate) per map
+        self.parts: list[tuple[float, PosteriorCov, np.ndarray]] = []
+        mod = ctx.modulus
+        maps = [
+            (
+                1.0 if mod is None else mod.weight_hardness,
+                pred,
+                gp,
+                ctx.tested_xy_um,
+                ctx.tested_noise_var_gpa2,
+            )
+        ]
+        if mod is not None:
+            maps.append(
+                (mod.weight_modulus, mod.prediction, mod.gp, mod.tested_xy_um, mod.tested_noise_var_gpa2)
+            )
+        maps = [m for m in maps if m[0] > 0]
+        for weight, p, g, xy, nv in maps:
+            model, noise_var, rel_scale = _ivr_part(ctx, p, g, xy, nv, cand, ref_idx, structure_weight)
+            self.parts.append((weight * (rel_scale if len(maps) > 1 else 1.0), model, noise_var))
+
+    def _gain(self) -> np.ndarray:
+        if len(self.parts) == 1:
+            w, model, noise_var = self.parts[0]
+            gain = model.gain(noise_var)
+            return gain if w == 1.0 else w * gain
+        return np.asarray(sum(w * model.gain(noise_var) for w, model, noise_var in self.parts), dtype=float)
 
     def best(self, mask: np.ndarray) -> int | None:
         if not mask.any():
             return None
-        gain = self.model.gain(self.noise_var)
+        gain = self._gain()
         return int(np.flatnonzero(mask)[np.argmax(gain[mask])])
 
     def gains(self) -> np.ndarray:
-        return self.model.gain(self.noise_var)
+        return self._gain()
 
     def take(self, j: int) -> float:
-        gain = float(self.model.gain(self.noise_var)[j])
-        self.model = self.model.condition_on(j, float(self.noise_var[j]))
+        gain = float(self._gain()[j])
+        self.parts = [(w, model.condition_on(j, float(nv[j])), nv) for w, model, nv in self.parts]
         return gain
+
+
+def _ivr_part(
+    ctx: PlanContext,
+    pred: Prediction,
+    gp: GPSummary,
+    tested_xy_um: np.ndarray,
+    tested_noise_var: np.ndarray,
+    cand: np.ndarray,
+    ref_idx: np.ndarray,
+    structure_weight: float,
+) -> tuple[PosteriorCov, np.ndarray, float]:
+    """One map's posterior covariance over the candidates and the reference points, weighted by 1/μ² (and
+    its structure); the noise variance of one indent at each candidate; and the mean weight, which turns the
+    gain (in GPa², the weights normalised) into a reduction of the mean relative error variance."""
+    lat = ctx.lattice
+    n = lat.n
+    mu = np.maximum(np.abs(pred.mean[ref_idx]), 1e-6)
+    w = 1.0 / mu**2  # relative error: what MAPE counts
+    if structure_weight > 0:
+        # relative slope of the fitted mean per unit of (u, v): 0 on a flat map, ≥ 1 where it bends hard
+        grad_v, grad_u = np.gradient(pred.mean.reshape(n, n), lat.pitch_uv[0])
+        rel = np.hypot(grad_u, grad_v).ravel()[ref_idx] / mu
+        w = w * (1.0 + structure_weight * np.minimum(rel / FULL_WEIGHT_REL_SLOPE, 1.0))
+    u, v = ctx.calibration.to_uv(tested_xy_um[:, 0], tested_xy_um[:, 1])
+    model = PosteriorCov.build(
+        gp, np.column_stack([u, v]), tested_noise_var, lat.uv[cand], lat.uv[ref_idx], w
+    )
+    return (
+        model,
+        pred.noise_sd[cand] ** 2 + gp.site_var_gpa2,
+        float(np.mean(w)),
+    )  # one indent: no estimator loss

@@ -14,14 +14,20 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.drift import area_error_pct
 from core.errors import InputError
-from core.plausible import MAX_STAGE_UM, check_hardness_gpa, check_noise_sd_gpa, check_stage_um
+from core.plausible import (
+    MAX_STAGE_UM,
+    check_hardness_gpa,
+    check_modulus_gpa,
+    check_noise_sd_gpa,
+    check_stage_um,
+)
 from core.profile import InstrumentProfile
 
 __all__ = [
@@ -32,6 +38,7 @@ __all__ = [
     "EdgeSpotField",
     "Emulator",
     "Measurement",
+    "ModulusTruth",
     "NoiseOverride",
     "PhaseBoundaryField",
     "QuaternaryFilm",
@@ -41,6 +48,9 @@ __all__ = [
     "TruthField",
     "area_error_pct",
     "field_extrema",
+    "modulus_on_lattice",
+    "truth_modulus_gpa",
+    "truth_modulus_noise_sd_gpa",
     "truth_on_lattice",
 ]
 
@@ -61,6 +71,34 @@ class TruthField(Protocol):
     def hardness_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray: ...
 
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray: ...
+
+
+@runtime_checkable
+class ModulusTruth(Protocol):
+    """A truth field that also knows the film's reduced modulus and its per-indent scatter (GPa).
+
+    A field without one gets ``modulus_from_hardness_gpa`` with a 1 % scatter (``truth_modulus_gpa``)."""
+
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray: ...
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray: ...
+
+
+DEFAULT_MODULUS_REL_SD = 0.01  # a field without its own modulus: scatter of 1 % of E beyond the area error
+
+
+def truth_modulus_gpa(truth: TruthField, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+    """The field's modulus at stage points, or E(H) where the field has none of its own."""
+    if isinstance(truth, ModulusTruth):
+        return np.asarray(truth.modulus_gpa(x_um, y_um), dtype=float)
+    return modulus_from_hardness_gpa(truth.hardness_gpa(x_um, y_um))
+
+
+def truth_modulus_noise_sd_gpa(truth: TruthField, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+    """Per-indent modulus scatter of the field's own (beyond the contact-area error it shares with H)."""
+    if isinstance(truth, ModulusTruth):
+        return np.asarray(truth.modulus_noise_sd_gpa(x_um, y_um), dtype=float)
+    return DEFAULT_MODULUS_REL_SD * truth_modulus_gpa(truth, x_um, y_um)
 
 
 def _xy(x_um: ArrayLike, y_um: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -133,9 +171,24 @@ class NoiseOverride:
         self._scale, self._const = _noise_transform(
             base.hardness_gpa, base.noise_sd_gpa, base.bounds_um, self.mode
         )
+        self._e_scale, self._e_const = _noise_transform(
+            lambda x, y: truth_modulus_gpa(base, x, y),
+            lambda x, y: truth_modulus_noise_sd_gpa(base, x, y),
+            base.bounds_um,
+            self.mode,
+        )
 
     def hardness_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return self.base.hardness_gpa(x_um, y_um)
+
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return truth_modulus_gpa(self.base, x_um, y_um)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        if self._e_const is not None:
+            x, _ = _xy(x_um, y_um)
+            return np.full(x.shape, self._e_const)
+        return self._e_scale * truth_modulus_noise_sd_gpa(self.base, x_um, y_um)
 
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         if self._const is not None:
@@ -148,7 +201,13 @@ class NoiseOverride:
 
 
 class TernaryField:
-    """The paper's emulated ternary library (SPEC §4): maximum 7.0 GPa in the bottom-left corner."""
+    """The paper's emulated ternary library (SPEC §4): maximum 7.0 GPa in the bottom-left corner.
+
+    Modulus: a rule of mixtures (A 110, B 190, C 140 GPa) with mixing terms shaped like the hardness's, so
+    the composition drives both; but C, the hardest corner, is compliant (H/E ≈ 0.05 against ≈ 0.026 at B),
+    and a stiff bump near (A, B) = (0.3, 0.5) that the hardness does not have gives E a structure of its own.
+    Its scatter has its own shape too (largest towards C, where the hardness's is smallest).
+    """
 
     def __init__(
         self, side_um: float = 1000.0, noise: str = "hetero", origin_um: tuple[float, float] = (0.0, 0.0)
@@ -163,6 +222,9 @@ class TernaryField:
         self.bounds_um: Bounds = (x0, x0 + self.side_um, y0, y0 + self.side_um)
         self._scale, self._const = _noise_transform(
             self._hardness, self._hetero_sd, self.bounds_um, self.noise
+        )
+        self._e_scale, self._e_const = _noise_transform(
+            self.modulus_gpa, self._hetero_modulus_sd, self.bounds_um, self.noise
         )
 
     def composition(self, x_um: ArrayLike, y_um: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -191,6 +253,21 @@ class TernaryField:
             return np.full(x.shape, self._const)
         return self._scale * self._hetero_sd(x_um, y_um)
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        a, b, c = self.composition(x_um, y_um)
+        bump = 25.0 * np.exp(-((a - 0.3) ** 2 + (b - 0.5) ** 2) / (2.0 * 0.12**2))
+        return np.asarray(110 * a + 190 * b + 140 * c - 60 * a * b - 45 * b * c - 30 * c * a + bump, float)
+
+    def _hetero_modulus_sd(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        a, b, c = self.composition(x_um, y_um)
+        return 0.5 + 0.5 * a + 1.0 * b + 3.0 * c
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        if self._e_const is not None:
+            x, _ = _xy(x_um, y_um)
+            return np.full(x.shape, self._e_const)
+        return self._e_scale * self._hetero_modulus_sd(x_um, y_um)
+
 
 class QuaternaryFilm:
     """A Ta–Ti–Hf–Zr-like co-sputtered film on a millimetre-sized stage area away from the stage origin.
@@ -209,6 +286,10 @@ class QuaternaryFilm:
     Noise: smooth and shaped like the hardness itself, slightly raised within ~250 µm of the edges (as the
     paper's Fig. 8c), scaled so that its maximum is ``noise_max_frac`` (10 %) of the maximum hardness.
     """
+
+    # nominal film moduli (GPa): Hf is stiffer than its hardness ranks it, Ta–Hf mixing softens E while it
+    # hardens H (a hard but compliant region between them)
+    _MODULUS_GPA: ClassVar[dict[str, float]] = {"Ta": 185.0, "Ti": 120.0, "Hf": 150.0, "Zr": 95.0}
 
     _GUNS: tuple[tuple[str, float, float, float, float, float], ...] = (
         # element, gun x, gun y (mm from the area's bottom-left corner), weight, footprint D (mm), film H (GPa)
@@ -259,6 +340,18 @@ class QuaternaryFilm:
         h = sum(c[element] * h_el for element, *_, h_el in self._GUNS)
         return np.asarray(h + 2.0 * c["Ta"] * c["Hf"] + 1.5 * c["Ti"] * c["Zr"], dtype=float)
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        c = self.composition(x_um, y_um)
+        e = sum(c[element] * self._MODULUS_GPA[element] for element in self.ELEMENTS)
+        return np.asarray(e - 60.0 * c["Ta"] * c["Hf"] + 20.0 * c["Ti"] * c["Zr"], dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """2 % of E, raised by half near the edges (as the hardness's), but not shaped like the hardness."""
+        x, y = _xy(x_um, y_um)
+        x_min, x_max, y_min, y_max = self.bounds_um
+        edge = np.minimum.reduce([x - x_min, x_max - x, y - y_min, y_max - y])
+        return 0.02 * self.modulus_gpa(x, y) * (1.0 + 0.5 * np.exp(-np.maximum(edge, 0.0) / 250.0))
+
     def _noise_shape(self, x: FloatArray, y: FloatArray) -> FloatArray:
         h = self.hardness_gpa(x, y)
         x_min, x_max, y_min, y_max = self.bounds_um
@@ -303,6 +396,19 @@ class PhaseBoundaryField:
         d = self.signed_distance_um(x_um, y_um)
         return 0.01 + 0.012 * h + 0.08 * np.exp(-((d / 15.0) ** 2))
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """The hard phase is compliant: E drops by ~20 GPa across the boundary where H rises by 2."""
+        x, y = _xy(x_um, y_um)
+        u, v = x / self.side_um, y / self.side_um
+        soft = 150.0 + 20.0 * u - 10.0 * v
+        hard = 130.0 + 10.0 * u + 15.0 * v
+        frac = 0.5 * (1.0 + np.tanh(self.signed_distance_um(x, y) / self._w))
+        return np.asarray(soft + (hard - soft) * frac, dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        d = self.signed_distance_um(x_um, y_um)
+        return np.asarray(0.01 * self.modulus_gpa(x_um, y_um) + 4.0 * np.exp(-((d / 15.0) ** 2)), float)
+
 
 class EdgeSpotField:
     """The ternary field plus a small hard spot close to one edge, where an edge penalty may hide it."""
@@ -333,6 +439,13 @@ class EdgeSpotField:
 
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return self._ternary.noise_sd_gpa(x_um, y_um)
+
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """The spot is hard but barely stiffer: +50 % H, about +5 % E."""
+        return self._ternary.modulus_gpa(x_um, y_um) + 4.0 * self.spot_gpa(x_um, y_um)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return self._ternary.modulus_noise_sd_gpa(x_um, y_um)
 
 
 class RotatedQuaternaryField:
@@ -368,6 +481,16 @@ class RotatedQuaternaryField:
         c1, c2, c3, c4 = self.composition(x_um, y_um)
         return 0.02 + 0.1 * c2 + 0.06 * c3 + 0.03 * c4 + 0.01 * c1
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """Corners 150, 120, 140, 200 GPa: the hardest corner (1) is not the stiffest (4)."""
+        c1, c2, c3, c4 = self.composition(x_um, y_um)
+        e = 150.0 * c1 + 120.0 * c2 + 140.0 * c3 + 200.0 * c4
+        return np.asarray(e + 40.0 * c1 * c3 - 20.0 * c2 * c4 + 50.0 * c2 * c3, dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        c1, c2, c3, c4 = self.composition(x_um, y_um)
+        return np.asarray(1.0 + 1.0 * c1 + 1.5 * c2 + 0.5 * c3 + 3.0 * c4, dtype=float)
+
 
 class RoughField:
     """A real-looking rough map: a smooth trend plus multi-scale correlated roughness, fixed by its seed.
@@ -396,6 +519,13 @@ class RoughField:
             amp.append(np.full(self._MODES, a * math.sqrt(2.0 / self._MODES)))
         self._kx, self._ky = np.concatenate(kx), np.concatenate(ky)
         self._phase, self._amp = np.concatenate(phase), np.concatenate(amp)
+        # the modulus shares the roughness (×15 GPa per GPa) and adds its own, from a stream of its own
+        rng_e = np.random.default_rng([_check_seed(seed), 0x4D4F44554C])
+        direction = rng_e.uniform(0.0, 2.0 * math.pi, self._MODES)
+        k = 2.0 * math.pi / (200.0 * rng_e.uniform(0.8, 1.25, self._MODES))
+        self._e_kx, self._e_ky = k * np.cos(direction), k * np.sin(direction)
+        self._e_phase = rng_e.uniform(0.0, 2.0 * math.pi, self._MODES)
+        self._e_amp = 4.0 * math.sqrt(2.0 / self._MODES)
 
     def trend_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         x, y = _xy(x_um, y_um)
@@ -412,6 +542,17 @@ class RoughField:
 
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return 0.01 + 0.012 * self.trend_gpa(x_um, y_um)
+
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        x, y = _xy(x_um, y_um)
+        u, v = x / self.side_um - 0.5, y / self.side_um - 0.5
+        trend = 140.0 + 15.0 * u + 20.0 * v - 10.0 * u * v
+        own = np.cos(x[..., None] * self._e_kx + y[..., None] * self._e_ky + self._e_phase).sum(-1)
+        return np.asarray(trend + 15.0 * self.roughness_gpa(x, y) + self._e_amp * own, dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        x, _ = _xy(x_um, y_um)
+        return np.full(x.shape, 1.5)
 
 
 class SiteTexture:
@@ -447,7 +588,8 @@ class SiteTexture:
 # --------------------------------------------------------------------------------------------- truth from a file
 
 _CSV_REQUIRED = ("x_um", "y_um", "hardness_gpa")
-_CSV_OPTIONAL = ("noise_sd_gpa",)
+_CSV_OPTIONAL = ("noise_sd_gpa", "modulus_gpa", "modulus_noise_sd_gpa")
+CSV_DEFAULT_MODULUS_REL_SD = 0.015  # a truth file with a modulus but no modulus scatter: 1.5 % of its max E
 
 
 class CsvTruth:
@@ -464,6 +606,8 @@ class CsvTruth:
         hardness_gpa: ArrayLike,
         noise_sd_gpa: ArrayLike | None = None,
         name: str = "csv",
+        modulus_gpa: ArrayLike | None = None,
+        modulus_noise_sd_gpa: ArrayLike | None = None,
     ) -> None:
         x = np.asarray(x_um, dtype=float).ravel()
         y = np.asarray(y_um, dtype=float).ravel()
@@ -478,44 +622,58 @@ class CsvTruth:
             if noise_sd_gpa is None
             else np.asarray(noise_sd_gpa, float)
         )
+        # no modulus in the file: E(H) as for any field without one, 1 % scatter
+        self.has_modulus = modulus_gpa is not None
+        e = (
+            modulus_from_hardness_gpa(h)
+            if modulus_gpa is None
+            else np.asarray(modulus_gpa, dtype=float).ravel()
+        )
+        if modulus_noise_sd_gpa is not None:
+            e_sd = np.asarray(modulus_noise_sd_gpa, dtype=float).ravel()
+        elif modulus_gpa is None:
+            e_sd = DEFAULT_MODULUS_REL_SD * e
+        else:
+            e_sd = np.full(e.shape, CSV_DEFAULT_MODULUS_REL_SD * float(e.max()))
+        columns = {"h": h, "sd": sd, "e": e, "e_sd": e_sd}
         xs, ys = np.unique(x), np.unique(y)
         self.is_lattice = xs.size >= 2 and ys.size >= 2 and xs.size * ys.size == x.size
+        self._lat: dict[str, Callable[[FloatArray], FloatArray]] = {}
+        self._lin: dict[str, Callable[[FloatArray, FloatArray], FloatArray]] = {}
+        self._near: dict[str, Callable[[FloatArray, FloatArray], FloatArray]] = {}
         if self.is_lattice:
             from scipy.interpolate import RegularGridInterpolator
 
             ix, iy = np.searchsorted(xs, x), np.searchsorted(ys, y)
-            grid_h = np.full((xs.size, ys.size), np.nan)
-            grid_sd = np.full((xs.size, ys.size), np.nan)
-            grid_h[ix, iy], grid_sd[ix, iy] = h, sd
-            self._h_lat = RegularGridInterpolator((xs, ys), grid_h)
-            self._sd_lat = RegularGridInterpolator((xs, ys), grid_sd)
+            for key, values in columns.items():
+                grid = np.full((xs.size, ys.size), np.nan)
+                grid[ix, iy] = values
+                self._lat[key] = RegularGridInterpolator((xs, ys), grid)
         else:
             from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
             from scipy.spatial import QhullError
 
             pts = np.column_stack([x, y])
             try:
-                self._h_lin = LinearNDInterpolator(pts, h)
-                self._sd_lin = LinearNDInterpolator(pts, sd)
+                for key, values in columns.items():
+                    self._lin[key] = LinearNDInterpolator(pts, values)
             except QhullError:
                 raise InputError(
                     name, "the points are (nearly) collinear: cannot interpolate a map"
                 ) from None
-            self._h_near = NearestNDInterpolator(pts, h)
-            self._sd_near = NearestNDInterpolator(pts, sd)
+            for key, values in columns.items():
+                self._near[key] = NearestNDInterpolator(pts, values)
 
     def _interp(self, x_um: ArrayLike, y_um: ArrayLike, which: str) -> FloatArray:
         x, y = _xy(x_um, y_um)
         if self.is_lattice:
             x_min, x_max, y_min, y_max = self.bounds_um
             pts = np.stack([np.clip(x, x_min, x_max), np.clip(y, y_min, y_max)], axis=-1)
-            lat = self._h_lat if which == "h" else self._sd_lat
-            return np.asarray(lat(pts), dtype=float).reshape(x.shape)
-        lin, near = (self._h_lin, self._h_near) if which == "h" else (self._sd_lin, self._sd_near)
-        out = np.asarray(lin(x, y), dtype=float)
+            return np.asarray(self._lat[which](pts), dtype=float).reshape(x.shape)
+        out = np.asarray(self._lin[which](x, y), dtype=float)
         missing = np.isnan(out)
         if missing.any():
-            out[missing] = near(x[missing], y[missing])
+            out[missing] = self._near[which](x[missing], y[missing])
         return out
 
     def hardness_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
@@ -524,9 +682,16 @@ class CsvTruth:
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return self._interp(x_um, y_um, "sd")
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return self._interp(x_um, y_um, "e")
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return self._interp(x_um, y_um, "e_sd")
+
     @classmethod
     def from_file(cls, path: str | Path) -> CsvTruth:
-        """Read ``x_um, y_um, hardness_gpa[, noise_sd_gpa]``; any problem is one InputError naming the file."""
+        """Read ``x_um, y_um, hardness_gpa[, noise_sd_gpa, modulus_gpa, modulus_noise_sd_gpa]``; any problem is
+        one InputError naming the file."""
         source = str(path)
         p = Path(path)
         if p.is_dir():
@@ -582,14 +747,20 @@ class CsvTruth:
                     raise InputError(source, f"line {line}: {col} is {cell.strip()}, must be finite")
                 if col == "hardness_gpa" and value <= 0:
                     raise InputError(source, f"line {line}: hardness_gpa must be > 0, got {value:g}")
-                if col == "noise_sd_gpa" and value < 0:
-                    raise InputError(source, f"line {line}: noise_sd_gpa must be ≥ 0, got {value:g}")
+                if col in ("noise_sd_gpa", "modulus_noise_sd_gpa") and value < 0:
+                    raise InputError(source, f"line {line}: {col} must be ≥ 0, got {value:g}")
                 values.append(value)
             row = dict(zip(header, values, strict=True))
             # values no real sample has: a unit slip (MPa under hardness_gpa, nm under x_um) is named
             hardness = check_hardness_gpa(source, row["hardness_gpa"], f"line {line}: hardness_gpa")
             if "noise_sd_gpa" in row:
                 check_noise_sd_gpa(source, row["noise_sd_gpa"], hardness, f"line {line}: noise_sd_gpa")
+            if "modulus_gpa" in row:
+                modulus = check_modulus_gpa(source, row["modulus_gpa"], f"line {line}: modulus_gpa")
+                if "modulus_noise_sd_gpa" in row:
+                    check_noise_sd_gpa(
+                        source, row["modulus_noise_sd_gpa"], modulus, f"line {line}: modulus_noise_sd_gpa"
+                    )
             for axis in ("x_um", "y_um"):
                 check_stage_um(source, f"line {line}: {axis}", row[axis], -MAX_STAGE_UM, MAX_STAGE_UM)
             rows.append(values)
@@ -605,6 +776,8 @@ class CsvTruth:
                 raise InputError(
                     source, f"line {line}: duplicate point ({xv:g}, {yv:g}), already on line {first}"
                 )
+        if "modulus_noise_sd_gpa" in columns and "modulus_gpa" not in columns:
+            raise InputError(source, "has modulus_noise_sd_gpa but no modulus_gpa column")
         centred = np.column_stack([columns["x_um"], columns["y_um"]])
         centred = centred - centred.mean(axis=0)
         sv = np.linalg.svd(centred, compute_uv=False)
@@ -616,6 +789,8 @@ class CsvTruth:
             columns["hardness_gpa"],
             columns.get("noise_sd_gpa"),
             name=f"csv:{p.name}",
+            modulus_gpa=columns.get("modulus_gpa"),
+            modulus_noise_sd_gpa=columns.get("modulus_noise_sd_gpa"),
         )
 
 
@@ -750,6 +925,12 @@ class Emulator:
     def depth_bias_nm(self, t_s: float, hold_s: float) -> float:
         return float(self.drift.rate_nm_s(t_s)) * self.t_measure_s * self.residual_fraction(hold_s)
 
+    def true_modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """The modulus truth at stage points, clamped to the field's area as the hardness."""
+        x_min, x_max, y_min, y_max = self.truth.bounds_um
+        x, y = _xy(x_um, y_um)
+        return truth_modulus_gpa(self.truth, np.clip(x, x_min, x_max), np.clip(y, y_min, y_max))
+
     def true_hardness_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         """Truth at stage points, clamped to the field's area (an indent that lands off it sees the edge)."""
         x_min, x_max, y_min, y_max = self.truth.bounds_um
@@ -782,9 +963,11 @@ class Emulator:
         depth = self.nominal_depth_nm
         # true / measured depth; a drift displacement of the whole depth would leave no indent to read
         shrink = max(depth - self.depth_bias_nm(t_s, hold_s), 0.01 * depth) / depth
-        # the same contact-area error drives both: H ∝ 1/A, E ∝ 1/√A, so E carries half of H's relative error
-        e_true = float(modulus_from_hardness_gpa(h_true))
-        rel = 0.5 * (h_noisy - h_true) / h_true + 0.01 * float(
+        # the same contact-area error drives both: H ∝ 1/A, E ∝ 1/√A, so E carries half of H's relative error,
+        # and the film's own modulus scatter on top (its own stream: the hardness draws never change)
+        e_true = float(truth_modulus_gpa(self.truth, cx, cy))
+        e_sd = float(truth_modulus_noise_sd_gpa(self.truth, cx, cy))
+        rel = 0.5 * (h_noisy - h_true) / h_true + e_sd / e_true * float(
             self._rng(block_id, indent_index, _K_MODULUS).standard_normal()
         )
         rate = float(self.drift.rate_nm_s(t_s))
@@ -808,3 +991,12 @@ def truth_on_lattice(truth: TruthField, n: int = 100) -> tuple[FloatArray, Float
     x, y = _centred_lattice(truth.bounds_um, n)
     gx, gy = np.meshgrid(x, y)
     return x, y, np.asarray(truth.hardness_gpa(gx, gy), dtype=float)
+
+
+def modulus_on_lattice(truth: TruthField, n: int = 100) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(x, y, E (n, n)) on the same lattice as ``truth_on_lattice``."""
+    if n < 1:
+        raise InputError("lattice_n", f"must be ≥ 1, got {n}")
+    x, y = _centred_lattice(truth.bounds_um, n)
+    gx, gy = np.meshgrid(x, y)
+    return x, y, truth_modulus_gpa(truth, gx, gy)

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.geometry import Calibration
-from core.metrics import MapScore, ScoredMap, mape_pct
-from drivers.sim.emulator import FloatArray, TruthField, truth_on_lattice
+from core.metrics import MapScore, ScoredMap, ScoredModulusMap, mape_pct
+from drivers.sim.emulator import FloatArray, TruthField, truth_modulus_gpa, truth_on_lattice
 
 
 @dataclass
@@ -22,6 +22,7 @@ class TruthEvaluator:
     truth: TruthField
     xy_um: FloatArray  # (N, 2) where the map is scored
     truth_gpa: FloatArray  # (N,) the truth there
+    modulus_truth_gpa: FloatArray | None = None  # (N,) the modulus truth there (None: computed when asked)
     _max_found: float | None = field(default=None, repr=False)
     _seen: int = field(default=0, repr=False)
 
@@ -50,6 +51,21 @@ class TruthEvaluator:
         w = np.cumsum(1.0 / t[order])
         c = float(t[order][np.searchsorted(w, 0.5 * w[-1])])
         return mape_pct(np.full_like(t, c), t)
+
+    def modulus_truth(self) -> FloatArray:
+        """The modulus truth on the scoring lattice (computed once)."""
+        if self.modulus_truth_gpa is None:
+            self.modulus_truth_gpa = truth_modulus_gpa(self.truth, self.xy_um[:, 0], self.xy_um[:, 1])
+        return self.modulus_truth_gpa
+
+    def score_modulus(self, campaign: ScoredModulusMap) -> float | None:
+        """MAPE (%) of the modulus map's mean on the same lattice; None while there is no modulus map.
+
+        Asking fits the modulus map if the planner did not keep it fitted (a hardness-only run)."""
+        if not campaign.has_modulus_map():
+            return None
+        pred = campaign.predict_modulus_mean_stage(self.xy_um[:, 0], self.xy_um[:, 1])
+        return mape_pct(pred, self.modulus_truth())
 
     def score(self, campaign: ScoredMap) -> MapScore:
         indents = campaign.indented_xy_um()

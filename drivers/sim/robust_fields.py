@@ -10,6 +10,10 @@ ternary library's stage, profile and (no) drift, so the only thing that changes 
 - ``phase-noise``: two smooth phases where one scatters eight times more than the other;
 - ``outliers``: the ternary library where 5 % of the surface is pores: an indent there reads 50 % low.
 
+Each field has a modulus truth too (``modulus_gpa``, ``modulus_noise_sd_gpa``): the grains, step and
+phase-noise change both maps together, but their hardest phase is not their stiffest; the stripe's stiff
+stripe runs elsewhere than its hard one.
+
 The sharp curved phase boundary, the hot spot near an edge and the rotated quaternary spread are the
 emulator's own ``phase-boundary``, ``edge-spot`` and ``rotated-quaternary`` scenarios.
 """
@@ -46,6 +50,7 @@ class GrainField:
     """Voronoi grains (seeded, ~40 µm mean size) in three phases over a gentle trend."""
 
     _PHASE_GPA = (4.5, 5.5, 7.0)
+    _PHASE_MODULUS_GPA = (150.0, 200.0, 160.0)  # the hardest phase is not the stiffest
 
     def __init__(self, seed: int = 0, mean_grain_um: float = 40.0) -> None:
         self.name = "grains"
@@ -67,6 +72,15 @@ class GrainField:
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return 0.02 * self.hardness_gpa(x_um, y_um)
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        x, y = _xy(x_um, y_um)
+        _, idx = self._tree.query(np.column_stack([x.ravel(), y.ravel()]))
+        e = np.asarray(self._PHASE_MODULUS_GPA)[self._phase[idx]].reshape(x.shape)
+        return np.asarray(e - 10.0 * y / SIDE_UM, dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return 0.02 * self.modulus_gpa(x_um, y_um)
+
 
 class StepField:
     """A smooth trend with a sharp step (+1.5 GPa over ~2 µm) along a straight line 20° off the y axis."""
@@ -87,6 +101,16 @@ class StepField:
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return 0.015 * self.hardness_gpa(x_um, y_um)
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """The same step (+12 GPa, the composition changes both), over a trend of its own."""
+        x, y = _xy(x_um, y_um)
+        d = x * self._n[0] + y * self._n[1] - self._offset
+        trend = 150.0 - 10.0 * y / SIDE_UM + 15.0 * x / SIDE_UM
+        return np.asarray(trend + 12.0 * 0.5 * (1.0 + np.tanh(d / 1.0)), dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return 0.015 * self.modulus_gpa(x_um, y_um)
+
 
 class StripeField:
     """Nearly flat (6 GPa with a ±2 % trend) but for one narrow hard stripe along a diagonal."""
@@ -105,6 +129,17 @@ class StripeField:
 
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return 0.015 * self.hardness_gpa(x_um, y_um)
+
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """Flat too, but its stiff stripe runs along the other diagonal: the hard stripe is not stiff."""
+        x, y = _xy(x_um, y_um)
+        u, v = x / SIDE_UM, y / SIDE_UM
+        flat = 170.0 + 3.0 * (u - 0.5) + 2.0 * (v - 0.5)
+        d = 0.6 * x + 0.8 * y - 0.7 * SIDE_UM
+        return np.asarray(flat + 15.0 * np.exp(-0.5 * (d / (self.width_um / 2.355)) ** 2), dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return 0.015 * self.modulus_gpa(x_um, y_um)
 
 
 class PhaseNoiseField:
@@ -128,6 +163,18 @@ class PhaseNoiseField:
         x, y = _xy(x_um, y_um)
         f = self._hard_fraction(x, y)
         return np.asarray(self.hardness_gpa(x, y) * (0.01 + 0.07 * f), dtype=float)
+
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        """The hard phase is compliant: 25 GPa below the soft one, which has a cosine ripple of its own."""
+        x, y = _xy(x_um, y_um)
+        f = self._hard_fraction(x, y)
+        soft = 160.0 - 10.0 * x / SIDE_UM + 8.0 * np.cos(2.0 * math.pi * y / SIDE_UM)
+        return np.asarray(soft - 25.0 * f, dtype=float)
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        x, y = _xy(x_um, y_um)
+        f = self._hard_fraction(x, y)
+        return np.asarray(self.modulus_gpa(x, y) * (0.01 + 0.03 * f), dtype=float)
 
 
 class Pores(SiteTexture):

@@ -35,6 +35,8 @@ from drivers.sim.emulator import (
     TruthField,
     _check_noise_mode,
     _check_seed,
+    truth_modulus_gpa,
+    truth_modulus_noise_sd_gpa,
 )
 from drivers.sim.evaluator import TruthEvaluator
 from drivers.sim.failures import FailureModes
@@ -155,6 +157,12 @@ class LaidTruth:
     def noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
         return self.base.noise_sd_gpa(*self._field_xy(x_um, y_um))
 
+    def modulus_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return truth_modulus_gpa(self.base, *self._field_xy(x_um, y_um))
+
+    def modulus_noise_sd_gpa(self, x_um: ArrayLike, y_um: ArrayLike) -> FloatArray:
+        return truth_modulus_noise_sd_gpa(self.base, *self._field_xy(x_um, y_um))
+
 
 SCENARIOS: dict[str, str] = {
     "ternary": "the paper's ternary library, 1000 µm square, heteroskedastic noise (~1.5 % of max H), no drift",
@@ -173,7 +181,10 @@ SCENARIOS: dict[str, str] = {
         "the ternary library spread over a 50 × 50 mm wafer, a 200 × 200 candidate lattice, fast indents"
         " (kla-nanoblitz profile, ~1 s, no hold): a design of thousands of centres"
     ),
-    "csv": "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa])",
+    "csv": (
+        "ground truth read from a CSV file (x_um, y_um, hardness_gpa[, noise_sd_gpa, modulus_gpa,"
+        " modulus_noise_sd_gpa])"
+    ),
 }
 
 # surface tilt (µm of z per µm of stage): gentle on the 1000 µm square, steeper on the film so that a 5 µm

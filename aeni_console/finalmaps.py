@@ -1,0 +1,90 @@
+"""A run's final hardness and modulus maps, rebuilt from its journal (what ``aeni export`` and ``aeni report`` show).
+
+The campaign is rebuilt from the journal as a resume would (the recorded hyperparameters, no refit), so the
+hardness map is the one the run planned with. The modulus map is the run's own where it planned for it
+(``map_weights``); otherwise it is fitted once here from the same indents (failed and not-run indents and
+indents without a reported modulus stay out of both).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FINAL_MAP_COLUMNS: tuple[str, ...] = (
+    "x_um",
+    "y_um",
+    "hardness_mean_gpa",
+    "hardness_epistemic_sd_gpa",
+    "hardness_noise_sd_gpa",
+    "modulus_mean_gpa",
+    "modulus_epistemic_sd_gpa",
+    "modulus_noise_sd_gpa",
+    "h_over_e",
+)
+
+
+@dataclass(frozen=True)
+class FinalMaps:
+    """Both maps' predictions at the candidate lattice's points inside the sample (stage µm, GPa)."""
+
+    x_um: np.ndarray
+    y_um: np.ndarray
+    hardness_mean_gpa: np.ndarray
+    hardness_epistemic_sd_gpa: np.ndarray
+    hardness_noise_sd_gpa: np.ndarray
+    modulus_mean_gpa: np.ndarray  # NaN where the run has no modulus map (fewer than 2 centres with one)
+    modulus_epistemic_sd_gpa: np.ndarray
+    modulus_noise_sd_gpa: np.ndarray
+    modulus_planned: bool  # the planner aimed at the modulus (map_weights), not only fitted afterwards
+
+    @property
+    def h_over_e(self) -> np.ndarray:
+        e = self.modulus_mean_gpa
+        return np.asarray(self.hardness_mean_gpa / np.where(e > 0, e, np.nan), dtype=float)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The export's predictions table, in FINAL_MAP_COLUMNS order."""
+        return {name: np.asarray(getattr(self, name), dtype=float) for name in FINAL_MAP_COLUMNS}
+
+
+def final_maps(path: str | Path) -> FinalMaps | None:
+    """Both maps of the run at ``path``, or None when it has no hardness map yet (fewer than 2 centres)."""
+    from core.campaign import Campaign, campaign_config_from_dict
+    from core.journal import JournalReader
+
+    with JournalReader(path) as r:
+        config = campaign_config_from_dict(dict(r.meta["config"]))
+        latest = r.q.latest_campaign_state()
+        observed = r.q.observed_blocks()
+    if latest is None or config.sample is None:
+        return None  # nothing observed yet, or a journal that holds no sample (a test's scripted campaign)
+    campaign = Campaign(config)
+    campaign.restore(latest[0], observed)
+    if campaign.prediction is None:
+        return None
+    inside = (
+        campaign.placement_mask
+        if campaign.placement_mask.any()
+        else np.ones(len(campaign.lattice.xy_um), bool)
+    )
+    xy = campaign.lattice.xy_um[inside]
+    h = campaign.predict_stage(xy[:, 0], xy[:, 1])
+    nan = np.full(len(xy), np.nan)
+    e_mean, e_epi, e_noise = nan, nan, nan
+    if campaign.has_modulus_map():
+        e = campaign.predict_modulus_stage(xy[:, 0], xy[:, 1])
+        e_mean, e_epi, e_noise = e.mean, e.epistemic_sd, e.noise_sd
+    return FinalMaps(
+        x_um=xy[:, 0],
+        y_um=xy[:, 1],
+        hardness_mean_gpa=h.mean,
+        hardness_epistemic_sd_gpa=h.epistemic_sd,
+        hardness_noise_sd_gpa=h.noise_sd,
+        modulus_mean_gpa=e_mean,
+        modulus_epistemic_sd_gpa=e_epi,
+        modulus_noise_sd_gpa=e_noise,
+        modulus_planned=campaign.settings.map_weights.maps_modulus,
+    )

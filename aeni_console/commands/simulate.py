@@ -8,10 +8,18 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.commands.common import dumps, ledger_table, positive_float, seed_arg
+from aeni_console.commands.common import (
+    add_operator_args,
+    dumps,
+    ledger_table,
+    operator_calendar,
+    positive_float,
+    seed_arg,
+)
 
 if TYPE_CHECKING:
     from core.run.events import Sink
+    from core.visits import OperatorCalendar
 
 NOISE_CHOICES = ("hetero", "homo", "10pct")
 
@@ -41,11 +49,13 @@ def run_simulation(
     sample_file: str | None = None,
     failure_rate: float | None = None,
     sinks: Sequence[Sink] = (),
+    calendar: OperatorCalendar | None = None,
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract).
 
     The simulated instrument lays the scenario's truth onto the sample (its built-in one by default) and
     its evaluator scores the map; the campaign sees only the sample. ``sinks`` see the run's events.
+    With a ``calendar`` a simulated operator loads the blocks, and the run reports its wall clock and visits.
     """
     from core.campaign import Campaign
     from core.run.events import Observed, RunEvent
@@ -84,10 +94,30 @@ def run_simulation(
                 mape = self.trajectory[-1][1] if self.trajectory else None
                 _progress(event.t_s, budget, self.blocks, mape, start)
 
-    result = run_auto(campaign, driver, evaluator, sinks=[*sinks, *([Progress()] if progress else [])])
+    operator = calendar.operator() if calendar is not None else None
+    if operator is not None:
+        campaign.unattended_s = operator.unattended_s
+    result = run_auto(
+        campaign,
+        driver,
+        evaluator,
+        sinks=[*([operator] if operator is not None else []), *sinks, *([Progress()] if progress else [])],
+    )
     if progress:
         sys.stderr.write("\n")
     score = evaluator.score(campaign)
+    trajectory: list[dict[str, Any]] = [{"t_s": t, "mape_pct": m} for t, m in result.trajectory]
+    calendar_keys: dict[str, Any] = {}
+    if operator is not None:
+        for point in trajectory:
+            wall = operator.wall_at(point["t_s"])
+            point["wall_clock_h"] = None if wall is None else wall / 3600.0
+            point["operator_visits"] = operator.visits_at(point["t_s"])
+        calendar_keys = {
+            "start": calendar.start.isoformat(timespec="minutes") if calendar is not None else None,
+            "wall_clock_h": operator.wall_s(result.instrument_s) / 3600.0,
+            "operator_visits": operator.visits,
+        }
     return {
         "policy": policy,
         "scenario": config.driver_options["scenario"],
@@ -107,14 +137,16 @@ def run_simulation(
         "stop_reason": result.stop_reason,
         "interlock_refusals": result.refusals,
         "wall_s": time.monotonic() - start,
-        "trajectory": [{"t_s": t, "mape_pct": m} for t, m in result.trajectory],
+        **calendar_keys,
+        "trajectory": trajectory,
         "_ledger_obj": result.ledger,
     }
 
 
 def _handler(args: argparse.Namespace) -> int:
+    stretch = {"absences": "+stretch", "visits": "+stretch-visits", None: ""}[args.stretches]
     out = run_simulation(
-        policy=args.policy,
+        policy=args.policy + stretch,
         seed=args.seed,
         scenario=args.scenario,
         truth=args.truth,
@@ -126,6 +158,7 @@ def _handler(args: argparse.Namespace) -> int:
         sample_file=args.sample,
         failure_rate=args.failure_rate,
         progress=not args.json and sys.stderr.isatty(),
+        calendar=operator_calendar(args),
     )
     ledger = out.pop("_ledger_obj")
     if args.json:
@@ -138,6 +171,10 @@ def _handler(args: argparse.Namespace) -> int:
         f"grid baseline {out['grid_baseline_s']:,.0f} s"
     )
     print(f"{out['indents']} indents in {out['blocks']} blocks, {out['reconfigurations']} reconfigurations")
+    if "wall_clock_h" in out:
+        print(
+            f"wall clock {out['wall_clock_h']:.1f} h from {out['start']}, {out['operator_visits']} operator visits"
+        )
     mape = out["final_mape_pct"]
     print(f"final MAPE {mape:.2f} %" if mape is not None else "final MAPE: no model")
     print(f"max hardness found {out['max_found_gpa']:.3f} GPa (true max {out['true_max_gpa']:.3f} GPa)")
@@ -178,6 +215,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="share of indents the simulated instrument fails (invalid values; a quarter of it of the "
         "blocks find no surface or are aborted); default 0",
+    )
+    add_operator_args(p)
+    p.add_argument(
+        "--stretches",
+        choices=("absences", "visits"),
+        default=None,
+        help="plan a stretch of arrays before every absence of the operator (absences: > 3 h unattended), "
+        "or at every load until the next visit (visits); default: none, blocks stay adaptive",
     )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_handler)

@@ -77,6 +77,8 @@ class PlanContext:
         None  # (n²,) lattice centres the sample allows (edge band, exclusions)
     )
     sample: Sample | None = None  # for planners whose blocks are not on the lattice (the grid baseline)
+    # how long the next load runs before anyone comes again (core.visits); None: attended, as always before
+    unattended_s: float | None = None
 
     @property
     def fixed_hold_s(self) -> float:

@@ -40,6 +40,9 @@ class ScatteredSingles:
     # sees the program's overhead but not what a refit learns, so early on big blocks run on a model fitted
     # to few points (48 singles at a slow hold after the 64-indent start delayed the ternary's first maps)
     max_block_fraction: float = 0.25
+    # stretches (core.policies.stretch): when the next load will run unattended for longer than this, the
+    # planner fills the absence with one stretch of arrays; None: never (blocks stay adaptive, as today)
+    stretch_min_s: float | None = None
 
     def block_sizes(self, available: int, fitted_on: int | None = None) -> tuple[int, ...]:
         """Block sizes the planner prices against each other (gain per second): from the fewest to the most

@@ -149,6 +149,15 @@ class ScatteredPlanner:
             area_error_pct=err,
         )
 
+    def propose_stretch(self, ctx: PlanContext) -> list[Decision] | None:
+        """Before an absence: the arrays of one stretch that fills it (core.policies.stretch); None when no
+        stretch is due (the next block is planned adaptively)."""
+        from core.policies.stretch import plan_stretch, stretch_due
+
+        if not stretch_due(self, ctx):
+            return None
+        return plan_stretch(self, ctx) or None
+
     def _program_at(
         self, ctx: PlanContext, value: _Value, xy: np.ndarray, cand: np.ndarray, first: int, box: float
     ) -> tuple[list[int], list[float]]:

@@ -173,7 +173,7 @@ class Campaign:
         self.refit_every = 1  # the bench's grid: refit only after every so many blocks
         # how long the next load runs before anyone comes again (a simulated operator, core.visits); None:
         # the run is planned as if someone were always there
-        self.unattended_s: Callable[[float], float] | None = None
+        self.unattended_s: Callable[[float], float | None] | None = None
         self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
 
     # -- static facts ----------------------------------------------------------------------------

@@ -26,6 +26,25 @@ from core.run.events import BlockStarted, Decided, Observed, RunEvent
 LOADED_ONCE_PHASES: frozenset[str] = frozenset({"grid"})
 
 
+def unattended_after(availability: OperatorAvailability, now: datetime) -> float:
+    """How long a block loaded in answer to a request made at ``now`` runs before the operator comes by
+    again: the next routine visit during hours (``visit_every_s`` after the load), or, when they leave (or
+    are away) before it, until they answer again after the absence (inf: nobody ever comes). An operator who
+    has said they are away until a time (``away_until``) loads this block as they leave."""
+    if availability.away_until is not None and now < availability.away_until:
+        back = availability.answers_at(now)
+        return math.inf if back is None else (back - now).total_seconds()
+    loaded = availability.answers_at(now)
+    if loaded is None:
+        return math.inf
+    routine = loaded + timedelta(seconds=availability.visit_every_s)
+    leave = availability.hours.next_departure(loaded)
+    if leave is None or routine <= leave:
+        return availability.visit_every_s
+    back = availability.answers_at(leave)
+    return math.inf if back is None else (back - loaded).total_seconds()
+
+
 @dataclass(frozen=True)
 class CalendarPoint:
     """After a block: instrument time, wall clock since the start, and operator visits so far."""
@@ -72,21 +91,10 @@ class SimulatedOperator:
         self.waited_s = math.inf if answer is None else self.waited_s + (answer - now).total_seconds()
 
     def unattended_s(self, t_s: float) -> float:
-        """How long a block loaded in answer to a request made at instrument time ``t_s`` runs before the
-        operator comes by again: the next routine visit during hours (``visit_every_s`` after the load),
-        or, when they leave before it, until they answer again after the absence (inf: nobody ever comes)."""
+        """:func:`unattended_after` a request made at instrument time ``t_s``."""
         if math.isinf(self.waited_s):
             return math.inf
-        now = self.now(t_s)
-        loaded = self.availability.answers_at(now)
-        if loaded is None:
-            return math.inf
-        routine = loaded + timedelta(seconds=self.availability.visit_every_s)
-        leave = self.availability.hours.next_departure(loaded)
-        if leave is None or routine <= leave:
-            return self.availability.visit_every_s
-        back = self.availability.answers_at(leave)
-        return math.inf if back is None else (back - loaded).total_seconds()
+        return unattended_after(self.availability, self.now(t_s))
 
     def emit(self, event: RunEvent) -> None:
         if isinstance(event, Decided):

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from datetime import datetime
+from pathlib import Path
+from typing import Any
 
 import pytest
 
 from core.errors import InputError
+from core.journal import JournalReader
 from core.operator import OperatorAvailability, OperatorHours, parse_start
 from core.runconfig import parse_run_config
+from core.runview import CommandKind, EngineState
 from core.visits import OperatorCalendar, SimulatedOperator
 
 WEEKDAYS = OperatorHours.parse("Mon-Fri 08:30-18:00")
@@ -101,3 +106,99 @@ def test_the_grid_is_loaded_once() -> None:
     out = _simulate("grid", "Mon 17:00", 4000.0)
     assert out["operator_visits"] == 1
     assert out["wall_clock_h"] == pytest.approx(out["instrument_s"] / 3600 + 10 / 60)
+
+
+def test_away_until_makes_the_engine_plan_for_nobody_until_then(tmp_path: Path) -> None:
+    """`away-until` is an engine command (allowed in every live state): journaled, and from then on the
+    campaign is told how long the next load runs unattended."""
+    from tests.test_engine import FakeCampaign, cmd, run_engine, when
+
+    seen: list[float | None] = []
+
+    class Listening(FakeCampaign):
+        unattended_s: Callable[[float], float | None] | None = None
+
+        def propose(self, clock_s: float, *a: Any) -> Any:
+            seen.append(None if self.unattended_s is None else self.unattended_s(clock_s))
+            return super().propose(clock_s, *a)
+
+    now = datetime(2024, 1, 1, 17, 0)  # a Monday, 17:00
+    until = datetime(2024, 1, 2, 9, 0)
+    eng, path = run_engine(
+        tmp_path,
+        Listening(n_blocks=4),
+        "step",
+        [
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.AWAY_UNTIL, until=until.isoformat())),
+            *[when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)) for _ in range(4)],
+        ],
+        local_now=lambda: now,
+    )
+    assert eng.completed
+    assert seen[0] is None  # no [operator] section: planned as if always attended
+    # away until 09:00, then (always there) answered within the 10 min response: 16 h 10 min from 17:00
+    assert seen[-1] == pytest.approx(16 * 3600 + 600)
+    with JournalReader(path) as r:
+        texts = [e.text for e in r.events()]
+    assert any("away until Tue 2024-01-02 09:00" in t for t in texts)
+
+
+def test_away_until_with_a_bad_time_is_rejected_by_the_engine(tmp_path: Path) -> None:
+    from tests.test_engine import FakeCampaign, cmd, run_engine, when
+
+    _, path = run_engine(
+        tmp_path,
+        FakeCampaign(n_blocks=2),
+        "step",
+        [
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.AWAY_UNTIL, until="tomorrow")),
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
+        ],
+    )
+    with JournalReader(path) as r:
+        texts = [e.text for e in r.events()]
+    assert any("away-until rejected" in t and "not an ISO" in t for t in texts)
+
+
+def test_a_stretch_fills_the_evening_with_arrays_loaded_in_one_visit() -> None:
+    """Started on a Monday afternoon: once the space-filling start is in, the load before 18:00 runs unattended
+    until Tuesday 08:40, so the planner plans one stretch of arrays (each one program at one hold), loaded
+    in one visit; every array still passes the interlock (no refusals)."""
+    from aeni_console.commands.simulate import run_simulation
+    from core.run.events import Decided, RunEvent
+
+    decided: list[Decided] = []
+
+    class Decisions:
+        def emit(self, event: RunEvent) -> None:
+            if isinstance(event, Decided):
+                decided.append(event)
+
+    cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start("Mon 15:00"))
+    out = run_simulation(
+        "aeni+stretch", 0, lattice_n=24, budget_s=3.5 * 3600, calendar=cal, sinks=[Decisions()]
+    )
+    phases = [d.decision.phase for d in decided]
+    assert "stretch" in phases, phases
+    first = phases.index("stretch")
+    arrays = [d.decision for d in decided[first:] if d.decision.phase.startswith("stretch")]
+    assert len(arrays) >= 2 and all(p == "stretch-continues" for p in phases[first + 1 :])
+    assert all(a.block.kind == "global" and len({i.hold_s for i in a.block.indents}) == 1 for a in arrays)
+    assert "stretch array 1 of" in arrays[0].reason and "unattended" in arrays[0].reason
+    assert out["interlock_refusals"] == 0
+    # every block before the stretch was a visit, and the stretch one more
+    assert out["operator_visits"] == first + 1
+    assert out["blocks"] > out["operator_visits"]
+
+
+def test_program_life_and_stretch_modifiers_are_options_not_the_default() -> None:
+    from core.policies.blocks import ScatteredSingles
+    from core.policies.registry import policy_parts
+
+    default = policy_parts("aeni").blocks
+    assert isinstance(default, ScatteredSingles)
+    assert default.stretch_min_s is None and not default.program_life
+    tuned = policy_parts("aeni+stretch+program-life").blocks
+    assert isinstance(tuned, ScatteredSingles)
+    assert tuned.stretch_min_s == 3 * 3600 and tuned.program_life

@@ -23,11 +23,14 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from core.errors import InputError
+
+if TYPE_CHECKING:
+    from core.visits import OperatorCalendar
 
 MAX_CENTRES = 2000
 GRID_REFIT_EVERY = 9  # the grid baseline never looks at the model: fit it once per row of blocks
@@ -161,6 +164,9 @@ class BenchConfig:
     max_centres: int = MAX_CENTRES
     scenarios: tuple[BenchScenario, ...] = FULL_SCENARIOS
     failure_rate: float = 0.0  # the simulated instrument's failures (drivers.sim.failures); 0: none
+    calendar: OperatorCalendar | None = (
+        None  # a simulated operator loads the blocks (core.visits); None: none
+    )
 
     @classmethod
     def make(
@@ -233,6 +239,7 @@ class RunSpec:
     max_centres: int = MAX_CENTRES
     keep_maps: bool = False
     failure_rate: float = 0.0
+    calendar: OperatorCalendar | None = None
 
 
 @dataclass
@@ -263,6 +270,10 @@ class RunRecord:
     maps: dict[str, Any] | None = None  # seed-0 final maps for the report (not stored in results.json)
     interlock_refusals: int = 0  # blocks the interlock refused (the engine vetoed them and asked again)
     approvals: int = 0  # blocks that waited for an approval (none in the bench's auto supervision)
+    # with a calendar (--operator-hours ...): wall clock from the start to the target (the grid: its own final
+    # MAPE) and the operator's visits by then; None: no calendar, or the target was never reached
+    wall_clock_h: float | None = None
+    operator_visits: int | None = None
 
 
 # -- one run -------------------------------------------------------------------------------------------
@@ -399,7 +410,11 @@ def run_one(spec: RunSpec) -> RunRecord:
             return f"centre cap ({spec.max_centres} tested centres)"
         return None
 
-    result = run_auto(campaign, driver, evaluator, sinks=[BlockWatch()], stop_when=stop_when)
+    operator = spec.calendar.operator() if spec.calendar is not None else None
+    if operator is not None:
+        campaign.unattended_s = operator.unattended_s
+    sinks: list[Any] = [BlockWatch()] if operator is None else [operator, BlockWatch()]
+    result = run_auto(campaign, driver, evaluator, sinks=sinks, stop_when=stop_when)
     trajectory = list(result.trajectory)
     if (
         is_grid
@@ -414,6 +429,12 @@ def run_one(spec: RunSpec) -> RunRecord:
     t_hit: float | None = hit[0] if hit else None
     if is_grid and final is not None:
         t_hit = next(t for t, m in trajectory if m <= final)
+    wall_h: float | None = None
+    visits: int | None = None
+    if operator is not None and t_hit is not None:
+        wall = operator.wall_at(t_hit)
+        wall_h = None if wall is None else wall / 3600.0
+        visits = operator.visits_at(t_hit)
     h = evaluator.truth_gpa
     maps = _maps(campaign) if spec.keep_maps and campaign.prediction is not None else None
     return RunRecord(
@@ -443,6 +464,8 @@ def run_one(spec: RunSpec) -> RunRecord:
         local_blocks=local,
         peak_mape_after_hit_pct=max(peak_after) if peak_after else None,
         maps=maps,
+        wall_clock_h=wall_h,
+        operator_visits=visits,
     )
 
 
@@ -592,6 +615,7 @@ def run_bench(
             max_centres=config.max_centres,
             keep_maps=seed == 0 and policy in sc.maps_for,
             failure_rate=config.failure_rate,
+            calendar=config.calendar,
             **kw,
         )
 
@@ -977,6 +1001,16 @@ def worst_rise(trajectory: Sequence[tuple[float, float]]) -> float | None:
     return worst
 
 
+def _calendar_json(calendar: OperatorCalendar) -> dict[str, Any]:
+    a = calendar.availability
+    return {
+        "operator_hours": a.hours.text,
+        "response_min": a.response_s / 60.0,
+        "visit_every_min": a.visit_every_s / 60.0,
+        "start": calendar.start.isoformat(timespec="minutes"),
+    }
+
+
 def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: float) -> dict[str, Any]:
     """results.json: the protocol, every run (without maps) and the summaries."""
 
@@ -993,6 +1027,9 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
     for r in records:
         d = asdict(replace(r, maps=None))
         d.pop("maps")
+        for key in ("wall_clock_h", "operator_visits"):
+            if d[key] is None:
+                d.pop(key)  # a bench without a calendar writes the file it always wrote
         # MAPE to 1e-6 %: a report rendered again from this file finds the same looser-target times
         d["trajectory"] = [[round(t, 3), round(m, 6)] for t, m in _thin(r.trajectory, r.t_hit_s)]
         steps = [p for i, p in enumerate(r.max_found) if i == 0 or p[1] != r.max_found[i - 1][1]]
@@ -1013,6 +1050,7 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
                     for s in config.scenarios
                 ],
                 "wall_s": wall_s,
+                **({"calendar": _calendar_json(config.calendar)} if config.calendar is not None else {}),
             },
             "summaries": [asdict(s) for s in summarise(records)],
             "runs": runs,

@@ -30,6 +30,13 @@ def _handler(args: argparse.Namespace) -> int:
 
         FailureModes.at_rate(args.failure_rate, 0)  # refuse a bad rate before anything runs
         config = replace(config, failure_rate=args.failure_rate)
+    from aeni_console.commands.common import operator_calendar
+
+    calendar = operator_calendar(args)
+    if calendar is not None:
+        from dataclasses import replace
+
+        config = replace(config, calendar=calendar)
     n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()
     done = 0
@@ -140,6 +147,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="share of indents the simulated instrument fails (invalid values; a quarter of it of the blocks "
         "find no surface or are aborted); default 0",
     )
+    from aeni_console.commands.common import add_operator_args
+
+    add_operator_args(p)
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument(

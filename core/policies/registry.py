@@ -122,6 +122,10 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
         "every load is a stretch that fills the time to the operator's next visit (block design)",
         lambda p: _singles(p, stretch_min_s=0.0),
     ),
+    "program-life": (
+        "a new program's overhead priced over the indents it will serve, not its first block (block design)",
+        lambda p: _singles(p, program_life=True),
+    ),
     "even": (
         "no weighting to the map's structure: pure variance reduction (block design)",
         lambda p: _singles(p, structure_weight=0.0),

@@ -35,18 +35,12 @@ MAX_ARRAYS = 60  # a weekend is not filled with more (the run's budget stops it 
 def stretch_due(planner: ScatteredPlanner, ctx: PlanContext) -> bool:
     """A stretch is planned when the next load runs unattended for longer than the design's threshold."""
     d = planner.design
-    return (
-        d.stretch_min_s is not None
-        and ctx.unattended_s is not None
-        and ctx.unattended_s > d.stretch_min_s
-        and ctx.gp is not None
-        and len(ctx.indents_xy_um) >= d.space_filling_indents
-    )
+    return d.stretch_min_s is not None and ctx.unattended_s is not None and ctx.unattended_s > d.stretch_min_s
 
 
 def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
     """The stretch's arrays, in the order they run (empty when nothing can be placed)."""
-    from core.policies.scattered import BOX_FRACTION, MAX_CANDIDATES, _in_box, _Ivr
+    from core.policies.scattered import BOX_FRACTION, MAX_CANDIDATES, _in_box, _Ivr, _Maximin, _Value
 
     assert ctx.unattended_s is not None
     fill_s = ctx.unattended_s
@@ -58,7 +52,11 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
     if len(cand) > MAX_CANDIDATES:
         cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
     hold, _, hold_mode = planner.parts.hold.choose(ctx, None, planner.parts.noise.drift_correction)
-    value = _Ivr(ctx, cand, d.structure_weight)
+    # in the space-filling start (no model yet) the stretch is the start itself: its maximin design, which
+    # asks nothing of the data, loaded in one visit, and no more of it than the start has left
+    exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
+    value: _Value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
+    indents_left = max(d.space_filling_indents - len(ctx.indents_xy_um), 1) if exploring else None
     xy = ctx.lattice.xy_um[cand]
     box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
     spacing = max(d.min_spacing_um, ctx.r_excl_um)
@@ -66,7 +64,7 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
     pos, program_open = ctx.position_um, ctx.program_open
     planned: list[tuple[Block, float, float]] = []  # block, cost, gain
     total_s = 0.0
-    while total_s < fill_s and len(planned) < MAX_ARRAYS and free.any():
+    while total_s < fill_s and len(planned) < MAX_ARRAYS and free.any() and indents_left != 0:
         first = value.best(free)
         if first is None:
             break
@@ -76,6 +74,9 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
         band[first] = True
         # the stretch's value is conditioned on every pick: later arrays see the earlier ones' sites
         picks, gains = planner._batch(value, xy, band, first, ctx)
+        if indents_left is not None:
+            picks, gains = picks[:indents_left], gains[:indents_left]
+            indents_left -= len(picks)
         block = planner._block(ctx, "global", xy[picks], hold, anchor)
         cost = block_costs_for(ctx.profile, block, pos, program_open)
         if planned and total_s + cost > fill_s:
@@ -107,7 +108,7 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
                 score=gain / cost if cost > 0 else 0.0,
                 predicted_cost_s=cost,
                 reason=(
-                    f"stretch array {k + 1} of {n}: {block.n_indents} singles, IVR over the whole stretch; "
+                    f"stretch array {k + 1} of {n}: {block.n_indents} singles, {'maximin spacing' if exploring else 'IVR'} over the whole stretch; "
                     f"the stretch runs ~{total_s / 3600:.1f} h unattended (nobody for {fill_s / 3600:.1f} h)"
                 ),
                 phase=STRETCH_PHASE if k == 0 else STRETCH_CONTINUES,

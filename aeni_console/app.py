@@ -48,6 +48,7 @@ ACTION_COMMANDS: dict[str, CommandKind] = {
     "step": CommandKind.STEP,
     "stop_after_block": CommandKind.STOP_AFTER_BLOCK,
     "abort": CommandKind.ABORT,
+    "away_until": CommandKind.AWAY_UNTIL,
 }
 LIVE_ACTIONS = frozenset(ACTION_COMMANDS)
 # the operator's word on the instrument while a block waits for it (the KLA driver)
@@ -64,6 +65,7 @@ PALETTE: tuple[tuple[str, str, str], ...] = (
     ("step", "Step one block", "Switch to step mode and run one block, then wait (s)"),
     ("stop_after_block", "Stop after this block", "Finish the running block, then stop the run (b)"),
     ("abort", "Abort the run", "Stop now, after confirmation (x)"),
+    ("away_until", "Away until …", "Nobody answers before this local time: plan for nobody until then (w)"),
     ("confirm_start", "Instrument: array started", "Confirm with the ticket's token (c)"),
     ("report_aborted", "Instrument: array aborted", "The exported rows are kept, the rest not run (a)"),
     ("report_no_surface", "Instrument: surface not found", "The block ends, every site not run (f)"),
@@ -127,6 +129,7 @@ class ConsoleApp(App[None]):
         Binding("s", "step", "Step"),
         Binding("b", "stop_after_block", "Stop"),
         Binding("x", "abort", "Abort"),
+        Binding("w", "away_until", "Away", show=False),
         Binding("left", "replay_prev", "Prev block"),
         Binding("comma", "replay_prev", "Prev block", show=False),
         Binding("right", "replay_next", "Next block"),
@@ -516,6 +519,24 @@ class ConsoleApp(App[None]):
             f"Block {self._block_now()}: which site did you take out of the array (1-based, as in the sites file)?",
             "site number",
             lambda site: self.send_command(CommandKind.SKIP, {"site": site}),
+        )
+
+    def action_away_until(self) -> None:
+        from datetime import datetime
+
+        from core.errors import InputError
+        from core.operator import parse_when
+
+        def send(text: str) -> None:
+            try:
+                until = parse_when(text, datetime.now(), "away-until")
+            except InputError as exc:
+                self.log_panel.note(str(exc))
+                return
+            self.send_command(CommandKind.AWAY_UNTIL, {"until": until.isoformat(timespec="minutes")})
+
+        self._ask_instrument(
+            "Away until when (local time)? Until then the run plans for nobody.", "08:00", send
         )
 
     def action_cycle_map(self) -> None:

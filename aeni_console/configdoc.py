@@ -76,6 +76,10 @@ MEANINGS: dict[str, str] = {
     "run.approval_timeout_s": "an approval nobody answers times out after this (default: waits for the operator)",
     "run.on_timeout": "what a timed-out approval does; a collapse alarm or a refused block is vetoed, never approved",
     "sample.file": "the sample file the run indents (default: the simulated scenario's built-in sample)",
+    "operator.hours": "when someone is at or near the instrument, local time: 'Mon-Fri 08:30-18:00', shifts "
+    "separated by ';', 'always' or 'never'; outside them the run plans for nobody",
+    "operator.response_min": "during the hours, how soon the operator answers a request (a block to load)",
+    "operator.visit_every_min": "during the hours, how often the operator comes by the instrument unasked",
 }
 
 # What the sample template's comments do not say (dotted name: one line).

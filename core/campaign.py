@@ -177,6 +177,10 @@ class Campaign:
         self.wall_s_per_instrument_s = 1.0
         self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
         self.refit_every = 1  # the bench's grid: refit only after every so many blocks
+        # how long the next load runs before anyone comes again (a simulated operator, core.visits); None:
+        # the run is planned as if someone were always there
+        self.unattended_s: Callable[[float], float | None] | None = None
+        self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
@@ -345,6 +349,7 @@ class Campaign:
             placement_mask=self.placement_mask,
             sample=self.sample,
             modulus=self._modulus_view(),
+            unattended_s=self.unattended_s(clock_s) if self.unattended_s is not None else None,
         )
 
     def propose(
@@ -353,10 +358,21 @@ class Campaign:
         self.last_stop_reason = self.stop_reason(clock_s)
         if self.last_stop_reason is not None:
             return None
+        if self._stretch:  # the next array of a loaded stretch
+            from core.policies.stretch import renumbered
+
+            return self._fit_budgets(
+                renumbered(self._stretch.pop(0), block_id), clock_s, position_um, program_open
+            )
         ctx = self.context(clock_s, position_um, program_open, block_id)
         if self._prefer is not None:  # one proposal after a veto: the alternative listed first
             ctx = dataclasses.replace(ctx, prefer_xy_um=self._prefer)
             self._prefer = None
+        stretch = getattr(self.policy, "propose_stretch", None)
+        arrays = stretch(ctx) if stretch is not None and ctx.prefer_xy_um is None else None
+        if arrays:
+            self._stretch = list(arrays[1:])
+            return self._fit_budgets(arrays[0], clock_s, position_um, program_open)
         decision = self.policy.propose(ctx)
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
@@ -438,6 +454,7 @@ class Campaign:
         """Avoid the vetoed centre for a while, and make the next proposal the best alternative the vetoed
         one listed (the panel's "next best") that no veto now avoids."""
         b = decision.block
+        self._stretch = []  # a refused array ends its stretch: the planner plans again
         self.vetoes.append(_Veto(b.center_x_um, b.center_y_um, len(self.blocks) + hold_blocks))
         avoided = [(v.x_um, v.y_um) for v in self.vetoes if v.until_blocks_done > len(self.blocks)]
         avoided += list(self.settings.avoid_centers_um)

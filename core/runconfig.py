@@ -7,6 +7,7 @@ Layout (every section and field is optional)::
     [campaign]   # policy, seed, profile, lattice_n; scenario, noise, drift, truth_csv for the sim driver
     [planner]    # the PlannerSettings knobs: target_sem_gpa, beta, hold_policy, budgets ...
     [run]        # driver, supervision, journal, speed, runs_dir; max_refusals, approval_timeout_s, on_timeout
+    [operator]   # hours ("Mon-Fri 08:30-18:00", local time), response_min, visit_every_min
 
 Command-line flags override the file through the same validation, so a bad flag and a bad field
 get the same one-line message naming the field, the value and what is allowed.
@@ -40,6 +41,7 @@ from core.settings import (
 
 if TYPE_CHECKING:
     from core.campaign import CampaignConfig
+    from core.operator import OperatorAvailability
 
 __all__ = [
     "SUPERVISION_MODES",
@@ -144,6 +146,32 @@ class NotifySection(_Strict):
     repeat_s: float = Field(default=DEFAULT_REPEAT_S, ge=0)
 
 
+class OperatorSection(_Strict):
+    """When someone comes to the instrument (core.operator); outside the hours the run plans for nobody."""
+
+    hours: str = "always"
+    response_min: float = Field(default=10.0, ge=0, le=24 * 60)
+    visit_every_min: float = Field(default=120.0, gt=0, le=7 * 24 * 60)
+
+    @field_validator("hours")
+    @classmethod
+    def _hours(cls, v: str) -> str:
+        from core.operator import OperatorHours
+
+        try:
+            OperatorHours.parse(v)
+        except InputError as exc:
+            raise ValueError(exc.problem) from None
+        return v
+
+    def availability(self) -> OperatorAvailability:
+        from core.operator import OperatorAvailability, OperatorHours
+
+        return OperatorAvailability(
+            OperatorHours.parse(self.hours), self.response_min * 60.0, self.visit_every_min * 60.0
+        )
+
+
 class RunFile(_Strict):
     name: str = Field(default="run", min_length=1, max_length=80)
     sample: SampleSection = Field(default_factory=SampleSection)
@@ -151,6 +179,7 @@ class RunFile(_Strict):
     planner: PlannerSection = Field(default_factory=PlannerSection)
     run: RunSection = Field(default_factory=RunSection)
     notify: NotifySection = Field(default_factory=NotifySection)
+    operator: OperatorSection = Field(default_factory=OperatorSection)
 
 
 @dataclass(frozen=True)
@@ -167,6 +196,8 @@ class RunOptions:
     max_refusals: int = 5  # consecutive refused blocks (interlock, or a vetoed block again) that stop the run
     approval_timeout_s: float | None = None  # None: an approval waits for the operator however long it takes
     on_timeout: str = "approve"  # approve | veto | pause | stop (a collapse alarm or a refusal: veto instead)
+    # who answers, and when (the [operator] section); None: no section, the run plans as if always attended
+    operator: OperatorAvailability | None = None
 
 
 @dataclass(frozen=True)
@@ -297,6 +328,7 @@ def parse_run_config(
         max_refusals=r.max_refusals,
         approval_timeout_s=r.approval_timeout_s,
         on_timeout=r.on_timeout,
+        operator=rf.operator.availability() if "operator" in rf.model_fields_set else None,
     )
     n = rf.notify
     notify = make_notify_config(n.urls, n.urls_file, n.instrument_silence_s, n.repeat_s, base_dir)

@@ -23,6 +23,7 @@ from core.sample import Sample
 
 if TYPE_CHECKING:
     from core.campaign import Campaign, CampaignConfig
+    from core.operator import OperatorAvailability
     from core.run.events import RunRecord, Sink
 
 DRIVER_KINDS: tuple[str, ...] = ("sim", "kla")
@@ -153,6 +154,7 @@ def compose_engine(
     on_timeout: str = "approve",
     progress: Callable[[str], None] | None = None,
     sinks: Sequence[Sink] = (),
+    operator: dict[str, Any] | None = None,
 ) -> Engine:
     """A run put together: the campaign's driver, its interlock and (where a truth is known) the evaluator,
     driven by an Engine into ``record`` (the journal) and ``sinks``."""
@@ -172,4 +174,18 @@ def compose_engine(
         approval_timeout_s=approval_timeout_s,
         on_timeout=on_timeout,
         sinks=sinks,
+        operator=_availability(operator),
+    )
+
+
+def _availability(operator: dict[str, Any] | None) -> OperatorAvailability | None:
+    """The run's [operator] section as kept in its journal's engine rules (None: no section)."""
+    if operator is None:
+        return None
+    from core.operator import OperatorAvailability, OperatorHours
+
+    return OperatorAvailability(
+        OperatorHours.parse(str(operator["hours"])),
+        float(operator["response_min"]) * 60.0,
+        float(operator["visit_every_min"]) * 60.0,
     )

@@ -94,3 +94,15 @@ def test_no_verdict_in_time_says_so(tmp_path: Path, capsys: pytest.CaptureFixtur
         os.close(fd)
     assert code == SEND_NO_VERDICT == 3
     assert "no verdict within 0.3 s" in out
+
+
+def test_away_until_is_sent_as_a_local_time_and_accepted(
+    waiting_engine: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    j = str(waiting_engine)
+    code, out, _ = _run(capsys, "send", j, "away-until", "08:00")
+    assert code == 0 and "(away-until) accepted: away until" in out and "08:00" in out
+    code, _, err = _run(capsys, "send", j, "away-until", "25:00")
+    assert code == 2 and "away-until" in err and "not a time of day" in err
+    code, _, err = _run(capsys, "send", j, "away-until")
+    assert code == 2 and "expected `aeni send RUN away-until HH:MM`" in err

@@ -142,7 +142,8 @@ def test_unknown_fields_and_sections_list_what_is_allowed(tmp_path: Path) -> Non
     with pytest.raises(InputError, match=r"unknown field planner\.betta \(allowed: target_sem_gpa, beta"):
         load_run_config(write(tmp_path, "[planner]\nbetta = 1"))
     with pytest.raises(
-        InputError, match=r"unknown field engine \(allowed: name, sample, campaign, planner, run, notify\)"
+        InputError,
+        match=r"unknown field engine \(allowed: name, sample, campaign, planner, run, notify, operator\)",
     ):
         load_run_config(write(tmp_path, "[engine]\nx = 1"))
 

@@ -23,12 +23,15 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from core.errors import InputError
 from drivers.sim.failures import REALISTIC_FAILURE_RATE
+
+if TYPE_CHECKING:
+    from core.visits import OperatorCalendar
 
 MAX_CENTRES = 2000
 GRID_REFIT_EVERY = 9  # the grid baseline never looks at the model: fit it once per row of blocks
@@ -165,6 +168,9 @@ class BenchConfig:
     failure_rate: float = REALISTIC_FAILURE_RATE
     # the planner's [planner] map_weights (issue 27); None: hardness only, and no modulus is scored
     map_weights: dict[str, float] | None = None
+    calendar: OperatorCalendar | None = (
+        None  # a simulated operator loads the blocks (core.visits); None: none
+    )
 
     @classmethod
     def make(
@@ -239,6 +245,7 @@ class RunSpec:
     failure_rate: float = 0.0
     map_weights: dict[str, float] | None = None  # None: hardness only, no modulus scored
     target_mape_modulus_pct: float | None = None  # None: the grid run that defines it (or no modulus)
+    calendar: OperatorCalendar | None = None
 
 
 @dataclass
@@ -282,6 +289,11 @@ class RunRecord:
         if self.t_hit_s is None or self.t_hit_modulus_s is None:
             return None
         return max(self.t_hit_s, self.t_hit_modulus_s)
+
+    # with a calendar (--operator-hours ...): wall clock from the start to the target (the grid: its own final
+    # MAPE) and the operator's visits by then; None: no calendar, or the target was never reached
+    wall_clock_h: float | None = None
+    operator_visits: int | None = None
 
 
 # -- one run -------------------------------------------------------------------------------------------
@@ -435,8 +447,12 @@ def run_one(spec: RunSpec) -> RunRecord:
             return f"centre cap ({spec.max_centres} tested centres)"
         return None
 
+    operator = spec.calendar.operator() if spec.calendar is not None else None
+    if operator is not None:
+        campaign.unattended_s = operator.unattended_s
     watch = BlockWatch()
-    result = run_auto(campaign, driver, evaluator, sinks=[watch], stop_when=stop_when)
+    sinks: list[Any] = [watch] if operator is None else [operator, watch]
+    result = run_auto(campaign, driver, evaluator, sinks=sinks, stop_when=stop_when)
     trajectory = list(result.trajectory)
     if (
         is_grid
@@ -468,6 +484,12 @@ def run_one(spec: RunSpec) -> RunRecord:
         final_e = modulus[-1][1] if modulus else None
         if is_grid and final_e is not None:
             t_hit_e = next(t for t, m in modulus if m <= final_e)
+    wall_h: float | None = None
+    visits: int | None = None
+    if operator is not None and t_hit is not None:
+        wall = operator.wall_at(t_hit)
+        wall_h = None if wall is None else wall / 3600.0
+        visits = operator.visits_at(t_hit)
     h = evaluator.truth_gpa
     maps = _maps(campaign) if spec.keep_maps and campaign.prediction is not None else None
     return RunRecord(
@@ -502,6 +524,8 @@ def run_one(spec: RunSpec) -> RunRecord:
         final_mape_modulus_pct=final_e,
         t_hit_modulus_s=t_hit_e,
         trajectory_modulus=modulus,
+        wall_clock_h=wall_h,
+        operator_visits=visits,
     )
 
 
@@ -652,6 +676,7 @@ def run_bench(
             keep_maps=seed == 0 and policy in sc.maps_for,
             failure_rate=config.failure_rate,
             map_weights=config.map_weights,
+            calendar=config.calendar,
             **kw,
         )
 
@@ -1044,6 +1069,16 @@ def worst_rise(trajectory: Sequence[tuple[float, float]]) -> float | None:
     return worst
 
 
+def _calendar_json(calendar: OperatorCalendar) -> dict[str, Any]:
+    a = calendar.availability
+    return {
+        "operator_hours": a.hours.text,
+        "response_min": a.response_s / 60.0,
+        "visit_every_min": a.visit_every_s / 60.0,
+        "start": calendar.start.isoformat(timespec="minutes"),
+    }
+
+
 def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: float) -> dict[str, Any]:
     """results.json: the protocol, every run (without maps) and the summaries."""
 
@@ -1060,6 +1095,9 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
     for r in records:
         d = asdict(replace(r, maps=None))
         d.pop("maps")
+        for key in ("wall_clock_h", "operator_visits"):
+            if d[key] is None:
+                d.pop(key)  # a bench without a calendar writes the file it always wrote
         # MAPE to 1e-6 %: a report rendered again from this file finds the same looser-target times
         d["trajectory"] = [[round(t, 3), round(m, 6)] for t, m in _thin(r.trajectory, r.t_hit_s)]
         steps = [p for i, p in enumerate(r.max_found) if i == 0 or p[1] != r.max_found[i - 1][1]]
@@ -1093,6 +1131,7 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
                     for s in config.scenarios
                 ],
                 "wall_s": wall_s,
+                **({"calendar": _calendar_json(config.calendar)} if config.calendar is not None else {}),
             },
             "summaries": [asdict(s) for s in summarise(records)],
             "runs": runs,

@@ -473,6 +473,41 @@ def two_maps_table(records: Sequence[RunRecord]) -> list[str]:
     ]
 
 
+def calendar_table(records: Sequence[RunRecord], config: BenchConfig) -> list[str]:
+    """With a simulated operator (``--operator-hours``): the wall clock and the visits to the grid's final MAPE."""
+    cal = config.calendar
+    if cal is None or not any(r.wall_clock_h is not None for r in records):
+        return []
+    a = cal.availability
+    lines = [
+        "## The calendar",
+        "",
+        f"A simulated operator ({a.hours.text}, answers within {a.response_s / 60:g} min, comes by every"
+        f" {a.visit_every_s / 60:g} min) loads every block from a start at"
+        f" {cal.start.strftime('%a %H:%M')}; the grid is loaded once. Wall clock (h) and operator visits from the"
+        " start to the grid's final MAPE: median, worst seed in brackets (a run that never reached it: ∞).",
+        "",
+        "| field | policy | wall clock h | visits | instrument h | seeds |",
+        "|---|---|---|---|---|---|",
+    ]
+    groups: dict[tuple[str, str], list[RunRecord]] = {}
+    for r in records:
+        groups.setdefault((r.scenario, r.policy), []).append(r)
+    for (scen, policy), runs in groups.items():
+        wall = [r.wall_clock_h if r.wall_clock_h is not None else math.inf for r in runs]
+        visits = [float(r.operator_visits) if r.operator_visits is not None else math.inf for r in runs]
+        inst = [r.t_hit_s / 3600.0 if r.t_hit_s is not None else math.inf for r in runs]
+
+        def cell(v: list[float], digits: int = 1) -> str:
+            med, worst = float(np.median(v)), max(v)
+            return f"{med:.{digits}f} ({worst:.{digits}f})".replace("inf", "∞")
+
+        lines.append(
+            f"| {scen} | `{policy}` | {cell(wall)} | {cell(visits, 0)} | {cell(inst)} | {len(runs)} |"
+        )
+    return [*lines, ""]
+
+
 def level_table(records: Sequence[RunRecord]) -> list[str]:
     """Each idea against its reference at the grid's final MAPE and at looser multiples of it."""
     rows = []
@@ -595,6 +630,7 @@ def results_markdown(
         lines += ["", why_text(summaries, records), ""]
         lines += resolution_table(summaries, config, flat)
     lines += suite_tables(summaries, config)
+    lines += calendar_table(records, config)
     lines += level_table(records)
     lines += two_maps_table(records)
     for group, title in (

@@ -38,6 +38,13 @@ def _handler(args: argparse.Namespace) -> int:
 
         settings_from_dict({"map_weights": args.map_weights})  # refuse bad weights before anything runs
         config = replace(config, map_weights=args.map_weights)
+    from aeni_console.commands.common import operator_calendar
+
+    calendar = operator_calendar(args)
+    if calendar is not None:
+        from dataclasses import replace
+
+        config = replace(config, calendar=calendar)
     n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()
     done = 0
@@ -156,6 +163,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the planner's map_weights, and score the modulus map too: each policy's time to both grids' "
         "final MAPEs (default: hardness only, no modulus scored)",
     )
+    from aeni_console.commands.common import add_operator_args
+
+    add_operator_args(p)
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument(

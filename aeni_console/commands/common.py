@@ -207,3 +207,44 @@ def map_weights_arg(text: str) -> dict[str, float]:
         if not sep:
             raise argparse.ArgumentTypeError(f"expected hardness=W,modulus=W, got {text!r}")
     return out
+
+
+def add_operator_args(p: argparse.ArgumentParser) -> None:
+    """The simulated operator's calendar (``aeni simulate``, ``aeni bench``); none given: no calendar."""
+    g = p.add_argument_group("the simulated operator (wall clock and visits; default: none)")
+    g.add_argument(
+        "--operator-hours",
+        default=None,
+        metavar="HOURS",
+        help="when someone is at the instrument, e.g. 'Mon-Fri 08:30-18:00' (default 'always')",
+    )
+    g.add_argument(
+        "--response-min", type=float, default=None, help="minutes to answer a request during hours (10)"
+    )
+    g.add_argument(
+        "--visit-every-min",
+        type=float,
+        default=None,
+        help="minutes between the operator's routine visits during hours (120)",
+    )
+    g.add_argument("--start", default=None, metavar="WHEN", help="the run's start: 'Mon 09:00' (default)")
+
+
+def operator_calendar(args: argparse.Namespace) -> Any:
+    """A core.visits.OperatorCalendar from the flags, checked as the run file's [operator] section; None when
+    no flag was given (the run is not put on a calendar)."""
+    from core.operator import parse_start
+    from core.runconfig import load_run_config
+    from core.visits import OperatorCalendar
+
+    flags = {
+        "operator.hours": args.operator_hours,
+        "operator.response_min": args.response_min,
+        "operator.visit_every_min": args.visit_every_min,
+    }
+    if all(v is None for v in flags.values()) and args.start is None:
+        return None
+    flags["operator.hours"] = args.operator_hours or "always"
+    availability = load_run_config(None, flags).options.operator
+    assert availability is not None
+    return OperatorCalendar(availability, parse_start(args.start or "Mon 09:00", "--start"))

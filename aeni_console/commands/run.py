@@ -195,11 +195,19 @@ def create_run_journal(
 
 def engine_rules(options: Any) -> dict[str, Any]:
     """The engine's no-wait-without-an-answer rules of a run's options (core.runconfig.RunOptions)."""
-    return {
+    rules = {
         "max_refusals": options.max_refusals,
         "approval_timeout_s": options.approval_timeout_s,
         "on_timeout": options.on_timeout,
     }
+    op = getattr(options, "operator", None)
+    if op is not None:  # the run file's [operator], kept for a resume
+        rules["operator"] = {
+            "hours": op.hours.text,
+            "response_min": op.response_s / 60.0,
+            "visit_every_min": op.visit_every_s / 60.0,
+        }
+    return rules
 
 
 def run_engine(
@@ -764,6 +772,16 @@ def _cmd_send(args: argparse.Namespace) -> int:
             raise InputError(args.kind, f"expected `aeni send RUN {args.kind} {usage}`")
         payload = dict(zip(names, args.fields, strict=True))
         args.fields = []
+    if args.kind == "away-until":  # away-until 08:00 | "Mon 09:00" | ISO: the next such local time
+        from datetime import datetime
+
+        from core.operator import parse_when
+
+        if len(args.fields) != 1:
+            raise InputError(args.kind, "expected `aeni send RUN away-until HH:MM` (or 'Mon 09:00', or ISO)")
+        until = parse_when(args.fields[0], datetime.now(), "away-until")
+        payload = {"until": until.isoformat(timespec="minutes")}
+        args.fields = []
     for item in args.fields:
         key, sep, value = item.partition("=")
         if not sep or not key:
@@ -780,7 +798,7 @@ def _cmd_send(args: argparse.Namespace) -> int:
             check_hold_in_force(reader.snapshot().policy, payload, "adjust")
     # the other commands' fields, by the same rules the engine applies: nothing the engine must reject is queued
     allowed = {"veto": ("hold_blocks", "decision_id"), "approve": ("decision_id",), "step": ("decision_id",)}
-    if args.kind != "adjust" and args.kind not in _INSTRUMENT_REPORTS:
+    if args.kind not in ("adjust", "away-until") and args.kind not in _INSTRUMENT_REPORTS:
         extra = [k for k in payload if k not in allowed.get(args.kind, ())]
         if extra:
             takes = ", ".join(allowed.get(args.kind, ())) or "no fields"
@@ -898,7 +916,7 @@ def register(subparsers: Any) -> None:
         choices=[k.value for k in _command_kinds()],
         metavar="COMMAND",
         help="pause | resume | approve | veto | step | adjust | stop-after-block | abort | "
-        "confirm TOKEN | report aborted|surface-not-found TOKEN | skip SITE",
+        "confirm TOKEN | report aborted|surface-not-found TOKEN | skip SITE | away-until HH:MM",
     )
     send.add_argument(
         "fields",

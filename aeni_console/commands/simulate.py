@@ -8,10 +8,19 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.commands.common import dumps, ledger_table, map_weights_arg, positive_float, seed_arg
+from aeni_console.commands.common import (
+    add_operator_args,
+    dumps,
+    ledger_table,
+    map_weights_arg,
+    operator_calendar,
+    positive_float,
+    seed_arg,
+)
 
 if TYPE_CHECKING:
     from core.run.events import Sink
+    from core.visits import OperatorCalendar
 
 NOISE_CHOICES = ("hetero", "homo", "10pct")
 
@@ -42,11 +51,13 @@ def run_simulation(
     failure_rate: float | None = None,
     sinks: Sequence[Sink] = (),
     map_weights: dict[str, float] | None = None,
+    calendar: OperatorCalendar | None = None,
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract).
 
     The simulated instrument lays the scenario's truth onto the sample (its built-in one by default) and
     its evaluator scores the map; the campaign sees only the sample. ``sinks`` see the run's events.
+    With a ``calendar`` a simulated operator loads the blocks, and the run reports its wall clock and visits.
     """
     from core.campaign import Campaign
     from core.run.events import Observed, RunEvent
@@ -99,12 +110,35 @@ def run_simulation(
                     modulus.append((event.t_s, mape))
 
     watch = [ModulusScore()] if campaign.settings.map_weights.maps_modulus else []
+    operator = calendar.operator() if calendar is not None else None
+    if operator is not None:
+        campaign.unattended_s = operator.unattended_s
     result = run_auto(
-        campaign, driver, evaluator, sinks=[*sinks, *watch, *([Progress()] if progress else [])]
+        campaign,
+        driver,
+        evaluator,
+        sinks=[
+            *([operator] if operator is not None else []),
+            *sinks,
+            *watch,
+            *([Progress()] if progress else []),
+        ],
     )
     if progress:
         sys.stderr.write("\n")
     score = evaluator.score(campaign)
+    trajectory: list[dict[str, Any]] = [{"t_s": t, "mape_pct": m} for t, m in result.trajectory]
+    calendar_keys: dict[str, Any] = {}
+    if operator is not None:
+        for point in trajectory:
+            wall = operator.wall_at(point["t_s"])
+            point["wall_clock_h"] = None if wall is None else wall / 3600.0
+            point["operator_visits"] = operator.visits_at(point["t_s"])
+        calendar_keys = {
+            "start": calendar.start.isoformat(timespec="minutes") if calendar is not None else None,
+            "wall_clock_h": operator.wall_s(result.instrument_s) / 3600.0,
+            "operator_visits": operator.visits,
+        }
     return {
         "policy": policy,
         "scenario": config.driver_options["scenario"],
@@ -126,15 +160,17 @@ def run_simulation(
         "stop_reason": result.stop_reason,
         "interlock_refusals": result.refusals,
         "wall_s": time.monotonic() - start,
-        "trajectory": [{"t_s": t, "mape_pct": m} for t, m in result.trajectory],
+        **calendar_keys,
+        "trajectory": trajectory,
         "trajectory_modulus": [{"t_s": t, "mape_pct": m} for t, m in modulus],
         "_ledger_obj": result.ledger,
     }
 
 
 def _handler(args: argparse.Namespace) -> int:
+    stretch = {"absences": "+stretch", "visits": "+stretch-visits", None: ""}[args.stretches]
     out = run_simulation(
-        policy=args.policy,
+        policy=args.policy + stretch,
         seed=args.seed,
         scenario=args.scenario,
         truth=args.truth,
@@ -147,6 +183,7 @@ def _handler(args: argparse.Namespace) -> int:
         failure_rate=args.failure_rate,
         progress=not args.json and sys.stderr.isatty(),
         map_weights=args.map_weights,
+        calendar=operator_calendar(args),
     )
     ledger = out.pop("_ledger_obj")
     if args.json:
@@ -159,6 +196,10 @@ def _handler(args: argparse.Namespace) -> int:
         f"grid baseline {out['grid_baseline_s']:,.0f} s"
     )
     print(f"{out['indents']} indents in {out['blocks']} blocks, {out['reconfigurations']} reconfigurations")
+    if "wall_clock_h" in out:
+        print(
+            f"wall clock {out['wall_clock_h']:.1f} h from {out['start']}, {out['operator_visits']} operator visits"
+        )
     mape = out["final_mape_pct"]
     print(f"final MAPE {mape:.2f} %" if mape is not None else "final MAPE: no model")
     mape_e = out["final_mape_modulus_pct"]
@@ -208,6 +249,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="hardness=W,modulus=W",
         help="how much each map's relative error counts in the planner's aim (default hardness=1,modulus=0)",
+    )
+    add_operator_args(p)
+    p.add_argument(
+        "--stretches",
+        choices=("absences", "visits"),
+        default=None,
+        help="plan a stretch of arrays before every absence of the operator (absences: > 3 h unattended), "
+        "or at every load until the next visit (visits); default: none, blocks stay adaptive",
     )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_handler)

@@ -90,6 +90,8 @@ class PlanContext:
     )
     sample: Sample | None = None  # for planners whose blocks are not on the lattice (the grid baseline)
     modulus: ModulusView | None = None  # the modulus map, when map_weights asks for it (else hardness only)
+    # how long the next load runs before anyone comes again (core.visits); None: attended, as always before
+    unattended_s: float | None = None
 
     @property
     def fixed_hold_s(self) -> float:

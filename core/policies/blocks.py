@@ -40,6 +40,13 @@ class ScatteredSingles:
     # sees the program's overhead but not what a refit learns, so early on big blocks run on a model fitted
     # to few points (48 singles at a slow hold after the 64-indent start delayed the ternary's first maps)
     max_block_fraction: float = 0.25
+    # stretches (core.policies.stretch): when the next load will run unattended for longer than this, the
+    # planner fills the absence with one stretch of arrays; None: never (blocks stay adaptive, as today)
+    stretch_min_s: float | None = None
+    # price a new program over its life: its fixed overhead is charged to a block in the share of the indents
+    # it will serve that the block takes (programs so far served this many on average), not to the first
+    # block alone; False: the first block pays all of it (as before)
+    program_life: bool = False
 
     def block_sizes(self, available: int, fitted_on: int | None = None) -> tuple[int, ...]:
         """Block sizes the planner prices against each other (gain per second): from the fewest to the most

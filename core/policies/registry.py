@@ -114,6 +114,18 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
         "keep-last-good even where a cold search on 1.5× more data confirms the drop (collapse guard)",
         lambda p: replace(p, guard=replace(p.guard, yield_to_confirmed=False)),
     ),
+    "stretch": (
+        "before an absence (the next load runs unattended > 3 h) one stretch of arrays fills it (block design)",
+        lambda p: _singles(p, stretch_min_s=3 * 3600.0),
+    ),
+    "stretch-visits": (
+        "every load is a stretch that fills the time to the operator's next visit (block design)",
+        lambda p: _singles(p, stretch_min_s=0.0),
+    ),
+    "program-life": (
+        "a new program's overhead priced over the indents it will serve, not its first block (block design)",
+        lambda p: _singles(p, program_life=True),
+    ),
     "even": (
         "no weighting to the map's structure: pure variance reduction (block design)",
         lambda p: _singles(p, structure_weight=0.0),

@@ -151,6 +151,15 @@ class ScatteredPlanner:
             area_error_pct=err,
         )
 
+    def propose_stretch(self, ctx: PlanContext) -> list[Decision] | None:
+        """Before an absence: the arrays of one stretch that fills it (core.policies.stretch); None when no
+        stretch is due (the next block is planned adaptively)."""
+        from core.policies.stretch import plan_stretch, stretch_due
+
+        if not stretch_due(self, ctx):
+            return None
+        return plan_stretch(self, ctx) or None
+
     def _program_at(
         self, ctx: PlanContext, value: _Value, xy: np.ndarray, cand: np.ndarray, first: int, box: float
     ) -> tuple[list[int], list[float]]:
@@ -172,11 +181,17 @@ class ScatteredPlanner:
     ) -> tuple[float, Block, float, float]:
         """(gain per second, block, cost, gain) of the block size the design allows that pays best."""
         best: tuple[float, Block, float, float] | None = None
+        life = program_life_indents(ctx) if self.design.program_life and kind == "global" else None
         for n in self.design.block_sizes(len(idx), len(ctx.indents_xy_um)):
             block = self._block(ctx, kind, xy[idx[:n]], hold_s, anchor)
             cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
             gain = float(sum(gains[:n]))
-            rate = gain / cost if cost > 0 else 0.0
+            charged = cost
+            if life is not None:
+                # the program's overhead, shared with the blocks that will stay in it
+                overhead = min(ctx.profile.global_overhead_s, cost)
+                charged = cost - overhead * (1.0 - n / max(life, float(n)))
+            rate = gain / charged if charged > 0 else 0.0
             if best is None or rate > best[0]:
                 best = (rate, block, cost, gain)
         assert best is not None
@@ -260,6 +275,11 @@ class ScatteredPlanner:
             hold_s=hold_s,
             indents=tuple(IndentSpec(float(x), float(y), hold_s) for x, y in p),
         )
+
+
+def program_life_indents(ctx: PlanContext) -> float:
+    """How many indents a program has served on average in this run (its life), for pricing a new one."""
+    return len(ctx.indents_xy_um) / max(1, ctx.globals_done)
 
 
 def _in_box(xy: np.ndarray, at: tuple[float, float], half_um: float) -> np.ndarray:

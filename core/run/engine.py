@@ -69,7 +69,10 @@ from core.runview import CommandKind, EngineState, MapFields
 from core.settings import ON_TIMEOUT, check_veto, coerce_supervision
 
 if TYPE_CHECKING:
+    from datetime import datetime
+
     from core.model import FitReport  # the refit's report (torch stays out of the engine's import)
+    from core.operator import OperatorAvailability
 
 
 class StageFrame(Protocol):
@@ -155,6 +158,8 @@ class Engine:
         on_timeout: str = "approve",
         wall_clock: Callable[[], float] = time.monotonic,
         sinks: Sequence[Sink] = (),
+        operator: OperatorAvailability | None = None,
+        local_now: Callable[[], datetime] | None = None,
     ) -> None:
         coerce_supervision(supervision)
         if not 0 < poll_s <= 5:
@@ -217,6 +222,23 @@ class Engine:
         self._external_abort = threading.Event()
         self._watcher: threading.Thread | None = None
         self._watch_stop = threading.Event()
+        # who answers, and when (the run file's [operator], an away-until): the planner plans for nobody
+        # while nobody will come (core.visits.unattended_after); None: planned as if always attended
+        self.operator = operator
+        self._local_now = local_now
+        if operator is not None:
+            self._plan_for_operator()
+
+    def _plan_for_operator(self) -> None:
+        from datetime import datetime
+
+        from core.visits import unattended_after
+
+        now = self._local_now or datetime.now
+        if hasattr(self.campaign, "unattended_s"):
+            self.campaign.unattended_s = lambda _clock_s: (
+                unattended_after(self.operator, now()) if self.operator is not None else None
+            )
 
     # -- small helpers -----------------------------------------------------------------------------
     def _clock(self) -> float:
@@ -650,6 +672,25 @@ class Engine:
     def _skip(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
         return self._instrument_report("skip", str(payload.get("site", "")), author)
 
+    def _away_until(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
+        """The operator is away until a local time: nobody answers before it, so the planner plans for nobody."""
+        from dataclasses import replace
+        from datetime import datetime
+
+        from core.operator import OperatorAvailability, OperatorHours
+
+        text = str(payload.get("until", ""))
+        try:
+            until = datetime.fromisoformat(text)
+        except ValueError:
+            return "rejected", f"until {text!r} is not an ISO local date-time"
+        base = self.operator or OperatorAvailability(OperatorHours.parse("always"))
+        self.operator = replace(base, away_until=until)
+        self._plan_for_operator()
+        when = until.strftime("%a %Y-%m-%d %H:%M")
+        self._log("info", f"{author} is away until {when}: blocks are planned for nobody until then")
+        return "accepted", f"away until {when}"
+
     def _instrument_report(self, what: str, value: str, author: str) -> tuple[str, str]:
         """The operator's word on the instrument (started with the token, aborted, surface, skip a site)."""
         if self._operator is None:
@@ -1002,4 +1043,5 @@ Engine._handlers = {
     CommandKind.CONFIRM: Engine._confirm,
     CommandKind.REPORT: Engine._report,
     CommandKind.SKIP: Engine._skip,
+    CommandKind.AWAY_UNTIL: Engine._away_until,
 }

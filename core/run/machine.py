@@ -39,6 +39,7 @@ class CommandKind(StrEnum):
     CONFIRM = "confirm"  # the array started: payload token
     REPORT = "report"  # payload kind (aborted | surface-not-found), token
     SKIP = "skip"  # payload site (1-based, as in the sites file)
+    AWAY_UNTIL = "away-until"  # payload until (ISO local time): nobody answers before it
 
 
 class Trigger(StrEnum):
@@ -90,7 +91,7 @@ TRANSITIONS: Mapping[EngineState, Mapping[Trigger, EngineState | str]] = {
 }
 
 C = CommandKind
-_EVERYWHERE_LIVE = frozenset({C.ADJUST, C.ABORT})
+_EVERYWHERE_LIVE = frozenset({C.ADJUST, C.ABORT, C.AWAY_UNTIL})
 _INSTRUMENT = frozenset({C.CONFIRM, C.REPORT, C.SKIP})
 # which operator commands each state takes (the engine rejects the rest, the console hides their keys)
 ALLOWED: Mapping[EngineState, frozenset[CommandKind]] = {

@@ -1,0 +1,126 @@
+"""A stretch: the arrays an operator loads in one visit before an absence, planned together to fill it.
+
+With nobody there, the model cannot be asked again between arrays, so the stretch is planned as one batch
+under the current model: each array is one program (one method, so one hold), opened at the candidate
+that adds most to the map's integrated relative variance given every site the stretch has chosen so far
+(the posterior conditioned on the stretch's earlier sites, y-free, as a block's own picks are), filled
+with the singles its safe band reaches, ordered for travel and priced by the cost model from where the
+previous array ends (its lift, engage and drift settle: one reconfiguration each). Arrays are added until
+their instrument time fills the absence.
+
+Each array still passes the interlock as its own block when the engine offers it; the ones after the
+first carry ``phase = "stretch-continues"`` (loaded with the first: no visit of their own).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from core.cost import block_costs_for
+from core.plan import Block, Decision
+from core.policies.base import PlanContext, base_mask, reachable_mask
+
+if TYPE_CHECKING:
+    from core.policies.scattered import ScatteredPlanner
+
+STRETCH_PHASE = "stretch"  # core.visits counts these as a visit ...
+STRETCH_CONTINUES = "stretch-continues"  # ... and these as loaded with it
+MAX_ARRAYS = 60  # a weekend is not filled with more (the run's budget stops it earlier anyway)
+
+
+def stretch_due(planner: ScatteredPlanner, ctx: PlanContext) -> bool:
+    """A stretch is planned when the next load runs unattended for longer than the design's threshold."""
+    d = planner.design
+    return d.stretch_min_s is not None and ctx.unattended_s is not None and ctx.unattended_s > d.stretch_min_s
+
+
+def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
+    """The stretch's arrays, in the order they run (empty when nothing can be placed)."""
+    from core.policies.scattered import BOX_FRACTION, MAX_CANDIDATES, _in_box, _Ivr, _Maximin, _Value
+
+    assert ctx.unattended_s is not None
+    fill_s = ctx.unattended_s
+    d = planner.design
+    allowed = base_mask(ctx, 0.0)
+    if not allowed.any():
+        return []
+    cand = np.flatnonzero(allowed)
+    if len(cand) > MAX_CANDIDATES:
+        cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
+    hold, _, hold_mode = planner.parts.hold.choose(ctx, None, planner.parts.noise.drift_correction)
+    # in the space-filling start (no model yet) the stretch is the start itself: its maximin design, which
+    # asks nothing of the data, loaded in one visit, and no more of it than the start has left
+    exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
+    value: _Value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
+    indents_left = max(d.space_filling_indents - len(ctx.indents_xy_um), 1) if exploring else None
+    xy = ctx.lattice.xy_um[cand]
+    box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
+    spacing = max(d.min_spacing_um, ctx.r_excl_um)
+    free = np.ones(len(cand), dtype=bool)
+    pos, program_open = ctx.position_um, ctx.program_open
+    planned: list[tuple[Block, float, float]] = []  # block, cost, gain
+    total_s = 0.0
+    while total_s < fill_s and len(planned) < MAX_ARRAYS and free.any() and indents_left != 0:
+        first = value.best(free)
+        if first is None:
+            break
+        anchor = (float(xy[first, 0]), float(xy[first, 1]))
+        band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
+        band &= free
+        band[first] = True
+        # the stretch's value is conditioned on every pick: later arrays see the earlier ones' sites
+        picks, gains = planner._batch(value, xy, band, first, ctx)
+        if indents_left is not None:
+            picks, gains = picks[:indents_left], gains[:indents_left]
+            indents_left -= len(picks)
+        block = planner._block(ctx, "global", xy[picks], hold, anchor)
+        cost = block_costs_for(ctx.profile, block, pos, program_open)
+        if planned and total_s + cost > fill_s:
+            # the last array keeps the singles that fit the absence (at least one program's worth of them)
+            keep = len(picks)
+            while keep > d.indents_per_block:
+                keep -= 1
+                trimmed = planner._block(ctx, "global", xy[picks[:keep]], hold, anchor)
+                if total_s + block_costs_for(ctx.profile, trimmed, pos, program_open) <= fill_s:
+                    break
+            if keep < len(picks):
+                picks, gains = picks[:keep], gains[:keep]
+                block = planner._block(ctx, "global", xy[picks], hold, anchor)
+                cost = block_costs_for(ctx.profile, block, pos, program_open)
+        for j in picks:
+            free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
+        planned.append((block, cost, float(sum(gains))))
+        total_s += cost
+        last = block.indents[-1]
+        pos, program_open = (last.x_um, last.y_um), True
+    n = len(planned)
+    out: list[Decision] = []
+    for k, (block, cost, gain) in enumerate(planned):
+        out.append(
+            Decision(
+                block=block,
+                policy=planner.name,
+                acquisition=gain,
+                score=gain / cost if cost > 0 else 0.0,
+                predicted_cost_s=cost,
+                reason=(
+                    f"stretch array {k + 1} of {n}: {block.n_indents} singles, {'maximin spacing' if exploring else 'IVR'} over the whole stretch; "
+                    f"the stretch runs ~{total_s / 3600:.1f} h unattended (nobody for {fill_s / 3600:.1f} h)"
+                ),
+                phase=STRETCH_PHASE if k == 0 else STRETCH_CONTINUES,
+                hold_mode=hold_mode,
+            )
+        )
+    return out
+
+
+def renumbered(decision: Decision, block_id: int) -> Decision:
+    """A queued array of a stretch, as the block the engine runs next."""
+    return replace(decision, block=replace(decision.block, block_id=block_id))
+
+
+__all__ = ["STRETCH_CONTINUES", "STRETCH_PHASE", "plan_stretch", "renumbered", "stretch_due"]

@@ -1,0 +1,128 @@
+"""The simulated operator: when each block is loaded on the wall clock, and how many visits that takes.
+
+A headless run's clock counts instrument time only; a lab judges a run by the calendar and by how often
+someone must come to the instrument. This sink follows a run's events: every block that needs a person
+(an array to load) is a request, answered when :class:`core.operator.OperatorAvailability` says (within
+the response time during hours, not at all outside them); the instrument idles until then. A plan that is
+known in full before the run (the grid baseline) is loaded once, and the later arrays of a stretch were
+loaded with its first.
+
+The planner asks :meth:`SimulatedOperator.unattended_s` how long the next load will run before anyone
+comes again, to plan a stretch that fills it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+
+from core.operator import OperatorAvailability
+from core.plan import Decision
+from core.policies.stretch import STRETCH_CONTINUES
+from core.run.events import BlockStarted, Decided, Observed, RunEvent
+
+# a plan fixed before the run is one array list, loaded once (the grid baseline)
+LOADED_ONCE_PHASES: frozenset[str] = frozenset({"grid"})
+
+
+def unattended_after(availability: OperatorAvailability, now: datetime) -> float:
+    """How long a block loaded in answer to a request made at ``now`` runs before the operator comes by
+    again: the next routine visit during hours (``visit_every_s`` after the load), or, when they leave (or
+    are away) before it, until they answer again after the absence (inf: nobody ever comes). An operator who
+    has said they are away until a time (``away_until``) loads this block as they leave."""
+    if availability.away_until is not None and now < availability.away_until:
+        back = availability.answers_at(now)
+        return math.inf if back is None else (back - now).total_seconds()
+    loaded = availability.answers_at(now)
+    if loaded is None:
+        return math.inf
+    routine = loaded + timedelta(seconds=availability.visit_every_s)
+    leave = availability.hours.next_departure(loaded)
+    if leave is None or routine <= leave:
+        return availability.visit_every_s
+    back = availability.answers_at(leave)
+    return math.inf if back is None else (back - loaded).total_seconds()
+
+
+@dataclass(frozen=True)
+class CalendarPoint:
+    """After a block: instrument time, wall clock since the start, and operator visits so far."""
+
+    t_s: float
+    wall_s: float
+    visits: int
+
+
+@dataclass
+class SimulatedOperator:
+    """A sink that puts a run on the calendar (see the module docstring)."""
+
+    availability: OperatorAvailability
+    start: datetime
+    waited_s: float = 0.0  # wall seconds the instrument stood waiting for the operator
+    visits: int = 0
+    points: list[CalendarPoint] = field(default_factory=list)
+    _waiting: dict[int, Decision] = field(default_factory=dict, repr=False)
+
+    def now(self, t_s: float) -> datetime:
+        return self.start + timedelta(seconds=t_s + self.waited_s)
+
+    def wall_s(self, t_s: float) -> float:
+        return t_s + self.waited_s
+
+    def wall_at(self, t_s: float) -> float | None:
+        """Wall seconds at instrument time ``t_s`` of a block already observed (None: none yet)."""
+        before = [p for p in self.points if p.t_s <= t_s + 1e-6]
+        if not before:
+            return None
+        return t_s + (before[-1].wall_s - before[-1].t_s)
+
+    def visits_at(self, t_s: float) -> int:
+        return max((p.visits for p in self.points if p.t_s <= t_s + 1e-6), default=0)
+
+    def load(self, t_s: float) -> None:
+        """A block needs a person at instrument time ``t_s``: the instrument waits for the answer."""
+        self.visits += 1
+        if math.isinf(self.waited_s):
+            return
+        now = self.now(t_s)
+        answer = self.availability.answers_at(now)
+        self.waited_s = math.inf if answer is None else self.waited_s + (answer - now).total_seconds()
+
+    def unattended_s(self, t_s: float) -> float:
+        """:func:`unattended_after` a request made at instrument time ``t_s``."""
+        if math.isinf(self.waited_s):
+            return math.inf
+        return unattended_after(self.availability, self.now(t_s))
+
+    def emit(self, event: RunEvent) -> None:
+        if isinstance(event, Decided):
+            if event.plan is not None:
+                self._starts(event.decision, event.t_s)
+            else:
+                self._waiting[event.decision_id] = event.decision
+        elif isinstance(event, BlockStarted):
+            decision = self._waiting.pop(event.decision_id, None)
+            if decision is not None:
+                self._starts(decision, event.t_s)
+        elif isinstance(event, Observed):
+            self.points.append(CalendarPoint(event.t_s, self.wall_s(event.t_s), self.visits))
+
+    def _starts(self, decision: Decision, t_s: float) -> None:
+        if decision.phase == STRETCH_CONTINUES and self.visits:
+            return
+        if decision.phase in LOADED_ONCE_PHASES and self.visits:
+            return
+        self.load(t_s)
+
+
+@dataclass(frozen=True)
+class OperatorCalendar:
+    """A simulated run's calendar: who answers when, and the wall-clock moment the run starts."""
+
+    availability: OperatorAvailability
+    start: datetime
+
+    def operator(self) -> SimulatedOperator:
+        return SimulatedOperator(self.availability, self.start)

@@ -1,0 +1,204 @@
+"""The simulated operator's calendar (core.visits), the run file's [operator] section, and stretches."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from core.errors import InputError
+from core.journal import JournalReader
+from core.operator import OperatorAvailability, OperatorHours, parse_start
+from core.runconfig import parse_run_config
+from core.runview import CommandKind, EngineState
+from core.visits import OperatorCalendar, SimulatedOperator
+
+WEEKDAYS = OperatorHours.parse("Mon-Fri 08:30-18:00")
+
+
+def _operator(start: str = "Mon 09:00") -> SimulatedOperator:
+    return SimulatedOperator(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start(start))
+
+
+def test_a_request_during_hours_is_answered_within_the_response() -> None:
+    op = _operator()
+    op.load(0.0)
+    assert (op.visits, op.waited_s) == (1, 600.0)
+    assert op.wall_s(3600.0) == 4200.0
+
+
+def test_a_request_just_before_they_leave_waits_for_the_next_morning() -> None:
+    op = _operator("Mon 17:55")
+    op.load(0.0)
+    # 17:55 + 10 min is after 18:00: Tuesday 08:30 + 10 min
+    assert op.now(0.0) == datetime(2024, 1, 2, 8, 40)
+    assert op.waited_s == pytest.approx((14 * 60 + 45) * 60)
+
+
+def test_a_friday_evening_request_waits_for_monday() -> None:
+    op = _operator("Fri 19:00")
+    op.load(0.0)
+    assert op.now(0.0) == datetime(2024, 1, 8, 8, 40)
+
+
+def test_unattended_is_the_routine_visit_during_hours_and_the_whole_absence_before_it() -> None:
+    op = _operator("Mon 10:00")
+    assert op.unattended_s(0.0) == 7200.0  # loaded 10:10, next visit 12:10, before they leave
+    # a load at 17:10 runs until they answer again on Tuesday at 08:40
+    assert op.unattended_s(7 * 3600.0) == pytest.approx(15.5 * 3600)
+
+
+def test_nobody_ever_comes_is_infinite_never_a_number() -> None:
+    op = SimulatedOperator(OperatorAvailability(OperatorHours.parse("never")), parse_start("Mon 09:00"))
+    assert math.isinf(op.unattended_s(0.0))
+    op.load(0.0)
+    assert math.isinf(op.wall_s(10.0)) and op.visits == 1
+
+
+def test_run_file_operator_section() -> None:
+    cfg = parse_run_config(
+        {"operator": {"hours": "Mon-Fri 08:30-18:00", "response_min": 15, "visit_every_min": 90}}
+    )
+    op = cfg.options.operator
+    assert op is not None
+    assert (op.hours.text, op.response_s, op.visit_every_s) == ("Mon-Fri 08:30-18:00", 900.0, 5400.0)
+    assert parse_run_config({}).options.operator is None  # no section: planned as if always attended
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "says"),
+    [
+        ("hours", "Mon-Fri 8-18", "operator.hours"),
+        ("response_min", -1, "operator.response_min"),
+        ("visit_every_min", 0, "operator.visit_every_min"),
+        ("when", "x", "unknown field operator.when"),
+    ],
+)
+def test_run_file_operator_section_refuses_bad_values(field: str, value: object, says: str) -> None:
+    with pytest.raises(InputError, match=says.replace(".", r"\.")):
+        parse_run_config({"operator": {field: value}}, "run.toml")
+
+
+def _simulate(policy: str, start: str, budget_s: float) -> dict[str, object]:
+    from aeni_console.commands.simulate import run_simulation
+
+    cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start(start))
+    return run_simulation(policy, 0, lattice_n=24, budget_s=budget_s, calendar=cal)
+
+
+def test_simulate_puts_every_trajectory_point_on_the_calendar() -> None:
+    out = _simulate("aeni", "Mon 09:00", 3000.0)
+    traj = out["trajectory"]
+    assert isinstance(traj, list) and traj
+    visits = [p["operator_visits"] for p in traj]
+    assert visits == sorted(visits) and visits[-1] <= out["operator_visits"]
+    for p in traj:
+        # each block waited 10 min for the operator: wall = instrument time + 10 min per visit so far
+        assert p["wall_clock_h"] == pytest.approx(p["t_s"] / 3600 + p["operator_visits"] * 600 / 3600)
+    assert out["operator_visits"] == out["blocks"]  # adaptive blocks: one visit each
+
+
+def test_the_grid_is_loaded_once() -> None:
+    out = _simulate("grid", "Mon 17:00", 4000.0)
+    assert out["operator_visits"] == 1
+    assert out["wall_clock_h"] == pytest.approx(out["instrument_s"] / 3600 + 10 / 60)
+
+
+def test_away_until_makes_the_engine_plan_for_nobody_until_then(tmp_path: Path) -> None:
+    """`away-until` is an engine command (allowed in every live state): journaled, and from then on the
+    campaign is told how long the next load runs unattended."""
+    from tests.test_engine import FakeCampaign, cmd, run_engine, when
+
+    seen: list[float | None] = []
+
+    class Listening(FakeCampaign):
+        unattended_s: Callable[[float], float | None] | None = None
+
+        def propose(self, clock_s: float, *a: Any) -> Any:
+            seen.append(None if self.unattended_s is None else self.unattended_s(clock_s))
+            return super().propose(clock_s, *a)
+
+    now = datetime(2024, 1, 1, 17, 0)  # a Monday, 17:00
+    until = datetime(2024, 1, 2, 9, 0)
+    eng, path = run_engine(
+        tmp_path,
+        Listening(n_blocks=4),
+        "step",
+        [
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.AWAY_UNTIL, until=until.isoformat())),
+            *[when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)) for _ in range(4)],
+        ],
+        local_now=lambda: now,
+    )
+    assert eng.completed
+    assert seen[0] is None  # no [operator] section: planned as if always attended
+    # away until 09:00, then (always there) answered within the 10 min response: 16 h 10 min from 17:00
+    assert seen[-1] == pytest.approx(16 * 3600 + 600)
+    with JournalReader(path) as r:
+        texts = [e.text for e in r.events()]
+    assert any("away until Tue 2024-01-02 09:00" in t for t in texts)
+
+
+def test_away_until_with_a_bad_time_is_rejected_by_the_engine(tmp_path: Path) -> None:
+    from tests.test_engine import FakeCampaign, cmd, run_engine, when
+
+    _, path = run_engine(
+        tmp_path,
+        FakeCampaign(n_blocks=2),
+        "step",
+        [
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.AWAY_UNTIL, until="tomorrow")),
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
+            when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
+        ],
+    )
+    with JournalReader(path) as r:
+        texts = [e.text for e in r.events()]
+    assert any("away-until rejected" in t and "not an ISO" in t for t in texts)
+
+
+def test_a_stretch_fills_the_evening_with_arrays_loaded_in_one_visit() -> None:
+    """Started on a Monday at 17:00: the first load runs unattended until Tuesday 08:40, so the planner
+    plans one stretch of arrays (each one program at one hold; here the space-filling start, which needs
+    no model), loaded in one visit; every array still passes the interlock (no refusals)."""
+    from aeni_console.commands.simulate import run_simulation
+    from core.run.events import Decided, RunEvent
+
+    decided: list[Decided] = []
+
+    class Decisions:
+        def emit(self, event: RunEvent) -> None:
+            if isinstance(event, Decided):
+                decided.append(event)
+
+    cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start("Mon 17:00"))
+    out = run_simulation(
+        "aeni+stretch", 0, lattice_n=24, budget_s=2.5 * 3600, calendar=cal, sinks=[Decisions()]
+    )
+    phases = [d.decision.phase for d in decided]
+    assert phases[:2] == ["stretch", "stretch-continues"], phases
+    arrays = [d.decision for d in decided if d.decision.phase.startswith("stretch")]
+    assert all(a.block.kind == "global" and len({i.hold_s for i in a.block.indents}) == 1 for a in arrays)
+    assert "stretch array 1 of" in arrays[0].reason and "unattended" in arrays[0].reason
+    assert sum(a.block.n_indents for a in arrays[:2]) == 64  # the space-filling start, no more
+    assert out["interlock_refusals"] == 0
+    # every decision is a visit but a stretch's later arrays
+    assert out["operator_visits"] == sum(p != "stretch-continues" for p in phases)
+    # the stretch was loaded at 17:10: the instrument waited 10 min for it and for every later visit
+    assert out["wall_clock_h"] >= out["instrument_s"] / 3600 + 10 / 60 - 1e-9
+
+
+def test_program_life_and_stretch_modifiers_are_options_not_the_default() -> None:
+    from core.policies.blocks import ScatteredSingles
+    from core.policies.registry import policy_parts
+
+    default = policy_parts("aeni").blocks
+    assert isinstance(default, ScatteredSingles)
+    assert default.stretch_min_s is None and not default.program_life
+    tuned = policy_parts("aeni+stretch+program-life").blocks
+    assert isinstance(tuned, ScatteredSingles)
+    assert tuned.stretch_min_s == 3 * 3600 and tuned.program_life

@@ -80,15 +80,25 @@ def test_quick_bench_writes_the_report(quick: tuple[Path, dict[str, object]]) ->
     assert "## Targets" in md and "≥ 10×" in md and "## Every policy on every field" in md
     # every campaign ran through the engine and its interlock: the product's planners are never refused
     lines = md.splitlines()
-    heads = [i for i, line in enumerate(lines) if line.endswith("| interlock refusals | approvals |")]
+    heads = [
+        i
+        for i, line in enumerate(lines)
+        if line.endswith("| interlock refusals | approvals | failed indents |")
+    ]
     assert heads
+    failed = 0
     for i in heads:
         rows = []
         for line in lines[i + 2 :]:
             if not line.startswith("|"):
                 break
             rows.append(line)
-        assert rows and all(line.endswith("| 0 | 0 |") for line in rows)
+        cells = [[c.strip() for c in line.strip("|").split("|")] for line in rows]
+        assert rows and all(c[-3:-1] == ["0", "0"] for c in cells)
+        failed += sum(int(c[-1]) for c in cells)
+    # the simulated instrument fails like a real one by default (1.5 % of indents): the quick bench meets it
+    assert failed > 0
+    assert "1.5 % of indents come back invalid" in md
     for name in ("curves_ternary.png", "maps_ternary.png", "costs.png"):
         png = out / "figures" / name
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

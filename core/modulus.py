@@ -88,16 +88,7 @@ class ModulusMap:
         return np.array([(c.x_um, c.y_um) for c in self.centres], dtype=float).reshape(-1, 2)
 
     def observations(self, to_uv: Any) -> Observations:
-        xy = self.xy_um()
-        u, v = to_uv(xy[:, 0], xy[:, 1])
-        return Observations(
-            uv=np.column_stack([u, v]),
-            median_gpa=np.array([c.value_gpa for c in self.centres]),
-            spread_var_gpa2=np.array([c.spread_var_gpa2 for c in self.centres]),
-            n_indents=np.array([c.n_indents for c in self.centres]),
-            efficiency=np.array([c.efficiency for c in self.centres], dtype=float)
-            * np.array(self.noise_inflation),
-        )
+        return Observations.of_centres(self.centres, self.noise_inflation, to_uv)
 
     @property
     def stale(self) -> bool:

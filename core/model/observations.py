@@ -8,7 +8,9 @@ values (SPEC §5).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.special import digamma, polygamma
@@ -30,6 +32,26 @@ class Observations:
     spread_dof: np.ndarray | None = None  # (n,) degrees of freedom of each spread; None: n_indents − 1
     # (n,) var(centre value)·n/σ²: how much the robust value wastes; None: the median's (SPEC §5)
     efficiency: np.ndarray | None = None
+
+    @classmethod
+    def of_centres(
+        cls,
+        centres: Sequence[Any],
+        noise_inflation: Sequence[float],
+        to_uv: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    ) -> Observations:
+        """The rows of tested centres (anything with ``x_um``, ``y_um``, ``value_gpa``, ``spread_var_gpa2``,
+        ``n_indents`` and ``efficiency``), each centre's noise inflated by its factor: one home for the
+        hardness map and the modulus map alike."""
+        xy = np.array([(c.x_um, c.y_um) for c in centres], dtype=float).reshape(-1, 2)
+        u, v = to_uv(xy[:, 0], xy[:, 1])
+        return cls(
+            uv=np.column_stack([u, v]),
+            median_gpa=np.array([c.value_gpa for c in centres]),
+            spread_var_gpa2=np.array([c.spread_var_gpa2 for c in centres]),
+            n_indents=np.array([c.n_indents for c in centres]),
+            efficiency=np.array([c.efficiency for c in centres], dtype=float) * np.array(noise_inflation),
+        )
 
     def __post_init__(self) -> None:
         uv = np.asarray(self.uv, dtype=float)

@@ -258,6 +258,31 @@ def test_driver_kla_needs_an_exchange_folder(tmp_path: Path, capsys: pytest.Capt
     assert not journal.exists()  # nothing half-made: the same command can be run again
 
 
+def test_a_folder_that_vanishes_after_the_journal_is_made_leaves_no_journal(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The folder is checked before the journal is made, but a share can drop between the two."""
+    import shutil
+
+    from aeni_console.commands import run as run_cmd
+
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    made = run_cmd.create_run_journal
+
+    def made_then_folder_gone(*args: object, **kwargs: object) -> object:
+        journal = made(*args, **kwargs)  # type: ignore[arg-type]
+        shutil.rmtree(exchange)
+        return journal
+
+    monkeypatch.setattr(run_cmd, "create_run_journal", made_then_folder_gone)
+    journal = tmp_path / "j.sqlite"
+    code = cli_main(["run", "--driver", "kla", "--exchange", str(exchange), "--journal", str(journal)])
+    err = capsys.readouterr().err
+    assert code == 2 and str(exchange) in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no journal, no -wal/-shm, no notify file
+
+
 @pytest.mark.slow
 def test_every_fault_through_the_engine_is_journaled_as_specified(tmp_path: Path) -> None:
     exchange = tmp_path / "exchange"

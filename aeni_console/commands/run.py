@@ -193,6 +193,16 @@ def create_run_journal(
     )
 
 
+def _discard_new_journal(path: Path) -> None:
+    """Remove a journal (and its side files) that a run created but never started on."""
+    from core.journal import lock_path_for
+    from core.notifyconfig import notify_path_for
+
+    for p in (path, Path(f"{path}-wal"), Path(f"{path}-shm"), notify_path_for(path), lock_path_for(path)):
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
 def engine_rules(options: Any) -> dict[str, Any]:
     """The engine's no-wait-without-an-answer rules of a run's options (core.runconfig.RunOptions)."""
     rules = {
@@ -292,6 +302,8 @@ def run_engine(
         )
     except BaseException:
         journal.close(compact=False)
+        if create is not None:  # nothing measured yet: leave nothing, so the same command can run again
+            _discard_new_journal(path)
         raise
     if not quiet:
         _print(f"journal {path} (engine PID {os.getpid()}, supervision {engine.supervision})")

@@ -17,7 +17,7 @@ from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from textual.pilot import Pilot
 
@@ -25,10 +25,13 @@ from aeni_console.heatmap import marks_for
 from aeni_console.journal_source import JournalReplay, JournalSource
 from aeni_console.widgets.mapview import MapPanel
 from core.driver import DriverEvent
-from core.plan import Block, IndentResult, IndentStatus
+from core.plan import Block, IndentResult, IndentStatus, PlannerSettings
 from core.runview import Command, EngineState, MapFields, RunSnapshot
 from core.sample.model import Sample
 from drivers.sim.driver import SimulatedDriver
+
+if TYPE_CHECKING:
+    from core.campaign import Campaign
 
 FIXED_WALL_UNIX = 1_735_725_600.0  # 2025-01-01 10:00 UTC: where every test run's wall clock starts
 WALL_PER_INSTRUMENT_S = 0.01  # the journal's wall clock runs at a hundredth of the instrument clock
@@ -157,11 +160,16 @@ class LiveRun:
         unmeasured: Mapping[tuple[int, int], IndentStatus] | None = None,
         approval_timeout_s: float | None = None,
         on_timeout: str = "approve",
+        settings: PlannerSettings | None = None,
+        prepare: Callable[[Campaign], None] | None = None,
     ) -> None:
         from core.campaign import CampaignConfig
 
         self.path = Path(directory) / f"{name}.sqlite"
         self.config = CampaignConfig(name=name, policy=policy, seed=seed, lattice_n=lattice_n, sample=sample)
+        if settings is not None:
+            self.config = replace(self.config, settings=settings)
+        self.prepare = prepare  # called with the campaign before the engine starts (e.g. a stricter guard)
         self.unmeasured = unmeasured  # (block, indent) -> failed | not_run: what the instrument reports
         self.supervision = supervision
         self.display_n = display_n
@@ -207,6 +215,8 @@ class LiveRun:
             torch.set_num_threads(1)  # as in the engine process: the same fits on every machine
             scenario = sim_scenario(self.config.driver_options, self.config.seed, self.config.sample)
             campaign = Campaign(self.config, scenario.sample)
+            if self.prepare is not None:
+                self.prepare(campaign)
             journal = create_run_journal(self.path, self.config, campaign, self.supervision)
             sim = scenario.make_driver(campaign.profile)
             self.driver = SteppedDriver(

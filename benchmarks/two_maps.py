@@ -11,6 +11,7 @@ For each seed on a scenario (ternary by default):
 It prints a table per run and the medians and worst seeds, and writes benchmarks/results/two_maps.{md,json}.
 
     nice -n 10 python benchmarks/two_maps.py [--seeds 0 1 2] [--scenario ternary] [--cap-s 60000]
+        [--modes both --reuse earlier.json]
 """
 
 from __future__ import annotations
@@ -121,10 +122,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cap-s", type=float, default=60_000.0, help="instrument-time cap of the aeni runs")
     ap.add_argument("--lattice-n", type=int, default=50, help="candidates per side (the bench's 50)")
     ap.add_argument("--out", type=Path, default=RESULTS / "two_maps")
+    ap.add_argument(
+        "--reuse",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="earlier runs' JSON (same scenario, lattice and cap): their grid runs, and those of the modes "
+        "not in --modes, are taken from them instead of rerun (for a change that touches only some modes)",
+    )
+    ap.add_argument("--modes", nargs="*", choices=list(MODES), default=list(MODES), help="aeni modes to run")
     args = ap.parse_args(argv)
+    earlier = {r["seed"]: r for path in args.reuse for r in json.loads(path.read_text())}
     rows: list[dict[str, Any]] = []
     for seed in args.seeds:
-        grid = one_run(args.scenario, "grid", seed, MODES["hardness"], None, None, args.lattice_n)
+        old = earlier.get(seed, {"runs": {}})
+        grid = old["runs"].get("grid") or one_run(
+            args.scenario, "grid", seed, MODES["hardness"], None, None, args.lattice_n
+        )
         target_h, target_e = grid["final_mape_pct"], grid["final_mape_modulus_pct"]
         t_grid_h = _t(grid["trajectory"], target_h)
         t_grid_e = _t(grid["trajectory_modulus"], target_e)
@@ -137,9 +151,15 @@ def main(argv: list[str] | None = None) -> int:
             "runs": {"grid": grid},
         }
         for mode, weights in MODES.items():
-            run = one_run(
-                args.scenario, "aeni", seed, weights, (target_h, target_e), args.cap_s, args.lattice_n
-            )
+            reused = mode not in args.modes
+            if not reused:
+                run = one_run(
+                    args.scenario, "aeni", seed, weights, (target_h, target_e), args.cap_s, args.lattice_n
+                )
+            elif mode in old["runs"]:
+                run = old["runs"][mode]
+            else:
+                continue  # neither run nor reused: the row has no such mode
             t_h, t_e = _t(run["trajectory"], target_h), _t(run["trajectory_modulus"], target_e)
             row["runs"][mode] = run
             row[f"{mode}_t_h_s"], row[f"{mode}_t_e_s"] = t_h, t_e
@@ -147,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
             row[f"{mode}_speedup_e"] = t_grid_e / t_e if t_e and t_grid_e else None
             print(
                 f"seed {seed} {mode:8s}: H {target_h:.3f} % at {t_h} s (grid {t_grid_h:.0f} s), "
-                f"E {target_e:.3f} % at {t_e} s (grid {t_grid_e:.0f} s), wall {run['wall_s']:.0f} s",
+                f"E {target_e:.3f} % at {t_e} s (grid {t_grid_e:.0f} s), wall {run['wall_s']:.0f} s"
+                + (" (reused)" if reused else ""),
                 flush=True,
             )
         rows.append(row)
@@ -155,12 +176,15 @@ def main(argv: list[str] | None = None) -> int:
             f"seed {seed} grid: H {target_h:.3f} % E {target_e:.3f} %, wall {grid['wall_s']:.0f} s",
             flush=True,
         )
-    lines = _table(rows, args)
-    print("\n".join(lines))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1, default=float))
+        _write(rows, args)  # after every seed: a long run stopped early keeps what it finished
+    print("\n".join(_table(rows, args)))
     return 0
+
+
+def _write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".md").write_text("\n".join(_table(rows, args)) + "\n")
+    args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1, default=float))
 
 
 def _fmt(v: float | None, spec: str = ".1f") -> str:
@@ -169,7 +193,7 @@ def _fmt(v: float | None, spec: str = ".1f") -> str:
 
 def _table(rows: list[dict[str, Any]], args: argparse.Namespace) -> list[str]:
     out = [
-        f"# Hardness and modulus mapped together: {args.scenario}, seeds {', '.join(map(str, args.seeds))}",
+        f"# Hardness and modulus mapped together: {args.scenario}, seeds {', '.join(str(r['seed']) for r in rows)}",
         "",
         f"aeni runs stop once both maps are at the grid's final MAPE (cap {args.cap_s:,.0f} s). "
         "Speed-up: the grid's time to its own final MAPE over the run's time to reach it (per map).",
@@ -178,7 +202,7 @@ def _table(rows: list[dict[str, Any]], args: argparse.Namespace) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        for mode in MODES:
+        for mode in (m for m in MODES if f"{m}_t_h_s" in r):
             t_h, t_e = r[f"{mode}_t_h_s"], r[f"{mode}_t_e_s"]
             both = max(t_h, t_e) if t_h is not None and t_e is not None else None
             out.append(
@@ -189,7 +213,9 @@ def _table(rows: list[dict[str, Any]], args: argparse.Namespace) -> list[str]:
     out += ["", "| summary | median | worst seed |", "|---|---|---|"]
     for mode in MODES:
         for key in ("speedup_h", "speedup_e"):
-            vals = [(r[f"{mode}_{key}"], r["seed"]) for r in rows]
+            vals = [(r[f"{mode}_{key}"], r["seed"]) for r in rows if f"{mode}_{key}" in r]
+            if not vals:
+                continue
             ok = [v for v, _ in vals if v is not None]
             worst = min(vals, key=lambda p: -1.0 if p[0] is None else p[0])
             out.append(
@@ -199,8 +225,8 @@ def _table(rows: list[dict[str, Any]], args: argparse.Namespace) -> list[str]:
     # the cost of aiming at both: time to the hardness target, and to both targets, against hardness only
     extra_h, extra_both = [], []
     for r in rows:
-        base = r["hardness_t_h_s"]
-        if base:
+        base = r.get("hardness_t_h_s")
+        if base and "both_t_h_s" in r:
             if r["both_t_h_s"]:
                 extra_h.append((100.0 * (r["both_t_h_s"] / base - 1.0), r["seed"]))
             t_both = [r["both_t_h_s"], r["both_t_e_s"]]

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from core.campaign import Campaign, CampaignConfig
 from core.plan import IndentResult, MapWeights, PlannerSettings
-from core.policies.scattered import _Ivr
+from core.policies.base import ModulusView
+from core.policies.scattered import REFERENCE_N, _Ivr
+from core.policies.variance import design_rel_error
+from core.runview import Command, CommandKind
 from drivers.sim.scenarios import make_scenario
 
 
@@ -62,37 +66,63 @@ def test_both_maps_learn_from_the_same_indents_and_failed_values_stay_out_of_bot
     assert c.modulus_map.centres[-1].value_gpa == pytest.approx(with_e.modulus_gpa)
 
 
-def test_the_planner_weighs_both_maps_relative_errors() -> None:
-    """With both weights the IVR gain of a candidate is the weighted sum of each map's own gain."""
+def test_the_planner_weighs_each_maps_progress_against_its_own_error() -> None:
+    """With both weights a candidate's gain is Σ weight · log(V / (V − reduction)) over the maps, V each
+    map's mean relative error variance; the V the greedy picks use up is what the design has left."""
     c = _campaign(MapWeights(1.0, 1.0))
     _run_blocks(c, 4)
     ctx = c.context(0.0, c.start_position_um(), False, 5)
-    assert ctx.modulus is not None and ctx.gp is not None
+    assert ctx.modulus is not None and ctx.gp is not None and ctx.prediction is not None
     cand = np.flatnonzero(c.placement_mask)[::7]
 
-    def gains(w_h: float, w_e: float) -> np.ndarray:
-        view = dataclasses.replace(ctx.modulus, weight_hardness=w_h, weight_modulus=w_e)
-        return _Ivr(dataclasses.replace(ctx, modulus=view), cand, 1.0).gains()
+    def ivr(w_h: float, w_e: float, modulus: ModulusView | None = None) -> _Ivr:
+        view = dataclasses.replace(modulus or ctx.modulus, weight_hardness=w_h, weight_modulus=w_e)
+        return _Ivr(dataclasses.replace(ctx, modulus=view), cand, 0.0)
 
-    hardness_only = _Ivr(dataclasses.replace(ctx, modulus=None), cand, 1.0).gains()
-    assert np.array_equal(gains(1.0, 0.0), hardness_only)  # a weight of 0 drops the modulus
-    modulus_only = gains(0.0, 1.0)
-    # together, each map's gain counts as a reduction of its mean relative error variance: GPa² over μ²
-    both = _Ivr(ctx, cand, 1.0)
-    (s_h, _, _), (s_e, _, _) = both.parts
-    assert np.allclose(gains(1.0, 1.0), s_h * hardness_only + s_e * modulus_only)
-    assert np.allclose(gains(2.0, 0.5), 2.0 * s_h * hardness_only + 0.5 * s_e * modulus_only)
-    mu_h, mu_e = np.median(ctx.prediction.mean), np.median(ctx.modulus.prediction.mean)
-    assert s_h == pytest.approx(1.0 / mu_h**2, rel=0.5) and s_e == pytest.approx(1.0 / mu_e**2, rel=0.5)
-    # on the relative scale neither map swamps the other (in GPa² the modulus would, ~1000×)
-    ratio = float(np.max(s_e * modulus_only) / np.max(s_h * hardness_only))
-    assert 0.05 < ratio < 20.0
-    # and conditioning on a pick lowers both maps' gains there
-    value = _Ivr(ctx, cand, 1.0)
-    j = int(np.argmax(value.gains()))
-    before = value.gains()[j]
-    value.take(j)
-    assert value.gains()[j] < 0.5 * before
+    hardness_only = _Ivr(dataclasses.replace(ctx, modulus=None), cand, 0.0).gains()
+    assert np.array_equal(ivr(1.0, 0.0).gains(), hardness_only)  # a weight of 0 drops the modulus
+    modulus_only = ivr(0.0, 1.0).gains()
+    both = ivr(1.0, 1.0)
+    v_h, v_e = both.remaining
+    assert np.allclose(both.gains(), np.log(v_h / (v_h - hardness_only)) + np.log(v_e / (v_e - modulus_only)))
+    assert np.allclose(
+        ivr(2.0, 0.5).gains(),
+        2.0 * np.log(v_h / (v_h - hardness_only)) + 0.5 * np.log(v_e / (v_e - modulus_only)),
+    )
+    # scale-free: a modulus map with twice the error everywhere (noise and prior) is ranked the same
+    m = ctx.modulus
+    noisier = dataclasses.replace(
+        m,
+        prediction=dataclasses.replace(m.prediction, noise_sd=2.0 * m.prediction.noise_sd),
+        gp=dataclasses.replace(
+            m.gp, outputscale_gpa2=4.0 * m.gp.outputscale_gpa2, site_var_gpa2=4.0 * m.gp.site_var_gpa2
+        ),
+        tested_noise_var_gpa2=4.0 * m.tested_noise_var_gpa2,
+    )
+    assert np.allclose(ivr(1.0, 1.0, noisier).gains(), both.gains())
+    # the V a pick leaves is the error variance of the design with that pick added (y-free), per map
+    j = int(np.argmax(both.gains()))
+    before = both.gains()[j]
+    both.take(j)
+    assert both.gains()[j] < 0.5 * before
+    n = c.lattice.n
+    step = max(1, n // REFERENCE_N)
+    rows = np.arange(step // 2, n, step)
+    ref = (rows[:, None] * n + rows[None, :]).ravel()
+    for (gp, pred, xy, nv), left in zip(
+        (
+            (ctx.gp, ctx.prediction, ctx.tested_xy_um, ctx.tested_noise_var_gpa2),
+            (m.gp, m.prediction, m.tested_xy_um, m.tested_noise_var_gpa2),
+        ),
+        both.remaining,
+        strict=True,
+    ):
+        u, v = c.calibration.to_uv(xy[:, 0], xy[:, 1])
+        design = np.vstack([np.column_stack([u, v]), c.lattice.uv[cand[j]]])
+        noise = np.append(nv, pred.noise_sd[cand[j]] ** 2 + gp.site_var_gpa2)
+        mu = np.maximum(np.abs(pred.mean[ref]), 1e-6)
+        rms = design_rel_error(gp, design, noise, c.lattice.uv[ref], mu)
+        assert left == pytest.approx(rms**2 / float(np.mean(1.0 / mu**2)), rel=1e-6)
 
 
 def test_hardness_only_keeps_no_modulus_model_and_decides_as_before() -> None:
@@ -145,3 +175,43 @@ def test_the_console_cycles_through_both_maps_and_the_journal_keeps_them() -> No
     assert plain.modulus_mean_gpa is None and field_keys_of(plain) == HARDNESS_KEYS
     assert map_fields_from_bytes(3, map_fields_to_bytes(plain)).modulus_mean_gpa is None
     assert np.isnan(field_array(plain, "h_over_e")).all()
+
+
+async def test_a_modulus_collapse_alarm_reaches_the_console_and_waits(tmp_path: Path) -> None:
+    """A run aiming at both maps, whose modulus GP's guard trips (its length-scale floor raised above any
+    length-scale it can fit): the engine raises the collapse alarm naming the modulus map, the next block
+    waits for the operator in supervised mode, and the console shows the alarm (the hardness map is healthy)."""
+    from aeni_console.app import ConsoleApp
+    from aeni_console.testing import LiveRun, settle, widget_text
+    from core.model.guard import CollapseRule
+
+    def strict_modulus_guard(c: Campaign) -> None:
+        gp = c.modulus_map.surrogate
+        gp.collapse_rule = CollapseRule(10.0, gp.collapse_rule.drop_ratio, gp.collapse_rule.min_points)
+
+    with LiveRun(
+        tmp_path,
+        supervision="supervised",
+        settings=PlannerSettings(map_weights=MapWeights(1.0, 1.0)),
+        prepare=strict_modulus_guard,
+    ) as run:
+        snap = run.until_awaiting()  # the first (global) block
+        for _ in range(4):  # a map needs two centres: the alarm comes with the first refit
+            if snap.gp.collapse_alarm:
+                break
+            run.send(Command(CommandKind.APPROVE, author="tester"))
+            snap = run.until_awaiting()
+        assert snap.gp.collapse_alarm and snap.gp.collapse_reason.startswith("modulus map: length-scale")
+        assert (
+            snap.pending is not None
+        )  # the proposal after the alarm waits, though it is a local block or not
+        source = run.source()
+        app = ConsoleApp(source, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="tester")
+        try:
+            async with app.run_test(size=(100, 30)) as pilot:
+                await settle(pilot)
+                assert "COLLAPSE" in widget_text(app.query_one("#status"))
+                decision = app.query_one("#decision")
+                assert decision.has_class("-alarm") and "modulus map" in widget_text(decision)
+        finally:
+            source.close()

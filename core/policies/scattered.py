@@ -46,7 +46,7 @@ from core.policies.base import (
 from core.policies.blocks import ScatteredSingles
 from core.policies.parts import PolicyParts
 from core.policies.planner import aim_rel_error
-from core.policies.variance import PosteriorCov
+from core.policies.variance import PosteriorCov, design_rel_error
 
 MAX_CANDIDATES = 2500  # candidates scored per decision (a large lattice is thinned evenly)
 REFERENCE_N = 24  # reference points per side on which the relative map error is integrated
@@ -363,9 +363,15 @@ class _Maximin(_Value):
 
 class _Ivr(_Value):
     """Integrated variance reduction of the relative map error under the fitted kernel (y-free but for
-    the weights, which the fitted mean sets). With a modulus view (``map_weights``) the gain is the weighted
-    sum of both maps' reductions of their mean relative error variance, each under its own GP; a weight of 0
-    drops that map. One map alone keeps its gain as before (a constant factor never changes a ranking)."""
+    the weights, which the fitted mean sets).
+
+    With a modulus view (``map_weights``) each map's reduction counts relative to that map's own remaining
+    error: the gain is Σ weight · log(V_before / V_after), V a map's mean relative error variance under its
+    own GP, so a map whose relative error is already small (the modulus: a few % scatter on 100-200 GPa) is
+    not starved by one whose error is large in absolute terms, and both progress toward their own targets.
+    The greedy picks update each V, so a map's gain shrinks as the block already covers it. A weight of 0
+    drops that map; one map alone keeps its plain reduction (a monotone transform of it would rank the
+    same, and the default path stays bit for bit)."""
 
     def __init__(self, ctx: PlanContext, cand: np.ndarray, structure_weight: float) -> None:
         pred, gp = ctx.prediction, ctx.gp
@@ -375,7 +381,7 @@ class _Ivr(_Value):
         step = max(1, n // REFERENCE_N)
         rows = np.arange(step // 2, n, step)
         ref_idx = (rows[:, None] * n + rows[None, :]).ravel()
-        # (weight × relative scale, model, one indent's noise variance at each candidate) per map
+        # (weight, model, one indent's noise variance at each candidate) per map
         self.parts: list[tuple[float, PosteriorCov, np.ndarray]] = []
         mod = ctx.modulus
         maps = [
@@ -392,16 +398,28 @@ class _Ivr(_Value):
                 (mod.weight_modulus, mod.prediction, mod.gp, mod.tested_xy_um, mod.tested_noise_var_gpa2)
             )
         maps = [m for m in maps if m[0] > 0]
+        several = len(maps) > 1
+        self.remaining: list[float] = []  # with several maps: each one's V (in its gain's units), as picked
         for weight, p, g, xy, nv in maps:
-            model, noise_var, rel_scale = _ivr_part(ctx, p, g, xy, nv, cand, ref_idx, structure_weight)
-            self.parts.append((weight * (rel_scale if len(maps) > 1 else 1.0), model, noise_var))
+            model, noise_var, remaining = _ivr_part(
+                ctx, p, g, xy, nv, cand, ref_idx, structure_weight, with_remaining=several
+            )
+            self.parts.append((weight, model, noise_var))
+            if several:
+                self.remaining.append(remaining)
 
     def _gain(self) -> np.ndarray:
         if len(self.parts) == 1:
             w, model, noise_var = self.parts[0]
             gain = model.gain(noise_var)
             return gain if w == 1.0 else w * gain
-        return np.asarray(sum(w * model.gain(noise_var) for w, model, noise_var in self.parts), dtype=float)
+        return np.asarray(
+            sum(
+                w * _log_reduction(model.gain(nv), v)
+                for (w, model, nv), v in zip(self.parts, self.remaining, strict=True)
+            ),
+            dtype=float,
+        )
 
     def best(self, mask: np.ndarray) -> int | None:
         if not mask.any():
@@ -414,8 +432,22 @@ class _Ivr(_Value):
 
     def take(self, j: int) -> float:
         gain = float(self._gain()[j])
+        if self.remaining:
+            # what the pick removes from each map's V is its plain reduction there
+            self.remaining = [
+                max(v - float(model.gain(nv)[j]), v * _MIN_LEFT)
+                for (_, model, nv), v in zip(self.parts, self.remaining, strict=True)
+            ]
         self.parts = [(w, model.condition_on(j, float(nv[j])), nv) for w, model, nv in self.parts]
         return gain
+
+
+_MIN_LEFT = 1e-9  # a map's V never reaches 0 (a pick cannot remove more than the variance there is)
+
+
+def _log_reduction(gain: np.ndarray, remaining: float) -> np.ndarray:
+    """log(V / (V − gain)): a map's progress as a fraction of its own remaining error (scale-free)."""
+    return np.asarray(-np.log1p(-np.minimum(gain / max(remaining, 1e-300), 1.0 - _MIN_LEFT)), dtype=float)
 
 
 def _ivr_part(
@@ -427,10 +459,12 @@ def _ivr_part(
     cand: np.ndarray,
     ref_idx: np.ndarray,
     structure_weight: float,
+    with_remaining: bool = False,
 ) -> tuple[PosteriorCov, np.ndarray, float]:
     """One map's posterior covariance over the candidates and the reference points, weighted by 1/μ² (and
-    its structure); the noise variance of one indent at each candidate; and the mean weight, which turns the
-    gain (in GPa², the weights normalised) into a reduction of the mean relative error variance."""
+    its structure); the noise variance of one indent at each candidate; and, if asked (else NaN), the map's
+    current weighted error variance over the reference points in the gain's units (GPa², weights
+    normalised), which its gains use up."""
     lat = ctx.lattice
     n = lat.n
     mu = np.maximum(np.abs(pred.mean[ref_idx]), 1e-6)
@@ -441,11 +475,11 @@ def _ivr_part(
         rel = np.hypot(grad_u, grad_v).ravel()[ref_idx] / mu
         w = w * (1.0 + structure_weight * np.minimum(rel / FULL_WEIGHT_REL_SLOPE, 1.0))
     u, v = ctx.calibration.to_uv(tested_xy_um[:, 0], tested_xy_um[:, 1])
-    model = PosteriorCov.build(
-        gp, np.column_stack([u, v]), tested_noise_var, lat.uv[cand], lat.uv[ref_idx], w
-    )
-    return (
-        model,
-        pred.noise_sd[cand] ** 2 + gp.site_var_gpa2,
-        float(np.mean(w)),
-    )  # one indent: no estimator loss
+    train_uv = np.column_stack([u, v])
+    model = PosteriorCov.build(gp, train_uv, tested_noise_var, lat.uv[cand], lat.uv[ref_idx], w)
+    remaining = math.nan
+    if with_remaining:
+        # mean(var·w) over the reference points (design_rel_error's mean(var/μ²) with μ = 1/√w), normalised
+        rms = design_rel_error(gp, train_uv, tested_noise_var, lat.uv[ref_idx], 1.0 / np.sqrt(w))
+        remaining = rms**2 / float(np.mean(w))
+    return model, pred.noise_sd[cand] ** 2 + gp.site_var_gpa2, remaining  # one indent: no estimator loss

@@ -40,6 +40,7 @@ from core.interlock import Interlock
 from core.journal.codec import DriverState
 from core.journal.schema import user_name
 from core.metrics import MapEvaluator, MapScore
+from core.modulus import ModulusMap
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.run.events import (
     ApprovalAsked,
@@ -85,6 +86,7 @@ class CampaignLike(Protocol):
     """What the engine needs from core.campaign.Campaign (a fake in tests)."""
 
     settings: PlannerSettings
+    modulus_map: ModulusMap  # read only where settings.map_weights aims at the modulus
 
     @property
     def calibration(self) -> StageFrame: ...
@@ -901,9 +903,9 @@ class Engine:
             if report is not None and self.map_display_n is not None
             else None
         )
-        summary = self._fit_summary(report, mape, max_found)
-        if report is not None and report.collapse:
-            self._last_collapse = (sid, report.collapse_reason)
+        summary = self._fit_summary(report, mape, max_found, self._modulus_fit(report))
+        if summary.collapse_alarm:
+            self._last_collapse = (sid, summary.collapse_reason)
         hyper = report.hyper if report is not None else None
         t = self._clock()
         unmeasured = sum(not r.measured for r in results)
@@ -919,11 +921,27 @@ class Engine:
         self._last_snapshot = sid
         self._say(line)
 
+    def _modulus_fit(self, report: FitReport | None) -> FitReport | None:
+        """The modulus GP's fit of this refit, when the planner aims at the modulus (then it is refitted
+        with the hardness map and its guard counts as much: the planner's decisions rest on it)."""
+        if report is None or not self.campaign.settings.map_weights.maps_modulus:
+            return None
+        return self.campaign.modulus_map.last_fit
+
     def _fit_summary(
-        self, report: FitReport | None, mape: float | None, max_found: float | None
+        self,
+        report: FitReport | None,
+        mape: float | None,
+        max_found: float | None,
+        modulus: FitReport | None = None,
     ) -> FitSummary:
         if report is None:
             return FitSummary(mape, max_found)
+        # one alarm for either map (the console, the approval gate and the journal show it as one); the
+        # reason names the map
+        reasons = [report.collapse_reason] if report.collapse else []
+        if modulus is not None and modulus.collapse:
+            reasons.append(f"modulus map: {modulus.collapse_reason}")
         ls_uv = report.lengthscales_uv
         nls_uv = report.noise_lengthscales_uv
         return FitSummary(
@@ -933,8 +951,8 @@ class Engine:
             lengthscales_um=self._uv_to_um(ls_uv),
             noise_lengthscales_um=self._uv_to_um(nls_uv) if nls_uv is not None else (),
             lengthscales_uv=tuple(float(v) for v in ls_uv),
-            collapse_alarm=bool(report.collapse),
-            collapse_reason=str(report.collapse_reason),
+            collapse_alarm=bool(reasons),
+            collapse_reason="; ".join(reasons),
             used_last_good=bool(report.used_last_good),
             refit_s=report.seconds,
             n_points=report.n_points,

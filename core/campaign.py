@@ -23,6 +23,7 @@ from core.cost import indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.geometry import CandidateLattice
+from core.journal.codec import decision_from_dict
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
@@ -371,8 +372,12 @@ class Campaign:
         stretch = getattr(self.policy, "propose_stretch", None)
         arrays = stretch(ctx) if stretch is not None and ctx.prefer_xy_um is None else None
         if arrays:
-            self._stretch = list(arrays[1:])
-            return self._fit_budgets(arrays[0], clock_s, position_um, program_open)
+            from core.policies.stretch import renumbered
+
+            # the arrays run one after another: their block ids are known now, so their tickets can all go
+            # out with the first (the operator loads the stretch in one visit)
+            self._stretch = [renumbered(a, block_id + k) for k, a in enumerate(arrays[1:], start=1)]
+            return self._fit_budgets(renumbered(arrays[0], block_id), clock_s, position_um, program_open)
         decision = self.policy.propose(ctx)
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
@@ -649,6 +654,10 @@ class Campaign:
             **modulus,
         )
 
+    def queued_stretch(self) -> tuple[Block, ...]:
+        """The arrays of the loaded stretch still to run after the current one, in load order."""
+        return tuple(d.block for d in self._stretch)
+
     # -- persistence -----------------------------------------------------------------------------
     def export_state(self) -> dict[str, Any]:
         return {
@@ -658,6 +667,8 @@ class Campaign:
             "blocks_done": len(self.blocks),
             "noise_inflation": list(self.noise_inflation),
             **({} if self.stop_at_epoch_s is None else {"stop_at_epoch_s": self.stop_at_epoch_s}),
+            # a loaded stretch's arrays still to run: a resumed run runs them as planned, re-planning nothing
+            **({"stretch": [dataclasses.asdict(d) for d in self._stretch]} if self._stretch else {}),
             # the modulus GP's record only where the planner uses it (a resumed run then decides the same)
             **(
                 {"modulus": self.modulus_map.export_state()} if self.settings.map_weights.maps_modulus else {}
@@ -674,6 +685,7 @@ class Campaign:
             float(stop_at) if stop_at is not None else self._resolve_stop_at(self.settings.stop_at)
         )
         self.vetoes = [_Veto(float(x), float(y), int(u)) for x, y, u in state.get("vetoes", [])]
+        self._stretch = [decision_from_dict(d) for d in state.get("stretch", [])]
         inflation = state.get("noise_inflation")
         if isinstance(inflation, list) and len(inflation) == len(self.centres):
             self.noise_inflation = [float(v) for v in inflation]

@@ -7,7 +7,7 @@ A capability is a typed protocol a driver class either satisfies or not; the eng
 from __future__ import annotations
 
 import threading
-from collections.abc import Generator, Iterator
+from collections.abc import Generator, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -109,6 +109,15 @@ class WaitsForOperator(Protocol):
     """
 
     def operator_report(self, kind: str, value: str, author: str) -> tuple[bool, str]: ...
+
+
+@runtime_checkable
+class LoadsStretches(Protocol):
+    """Hands the operator every array of a stretch at once (the KLA driver: all their tickets go out with
+    the first), since nobody comes between them. ``arrays`` in load order, the current one first; arrays
+    already handed out stay as they are (a resumed run)."""
+
+    def load_stretch(self, arrays: Sequence[Block]) -> None: ...
 
 
 class InstrumentState:

@@ -29,7 +29,7 @@ LOADED_ONCE_PHASES: frozenset[str] = frozenset({"grid"})
 def unattended_after(availability: OperatorAvailability, now: datetime) -> float:
     """How long a block loaded in answer to a request made at ``now`` runs before the operator comes by
     again: the next routine visit during hours (``visit_every_s`` after the load), or, when they leave (or
-    are away) before it, until they answer again after the absence (inf: nobody ever comes). An operator who
+    are away) before it can be answered, until they answer again after the absence (inf: nobody ever comes). An operator who
     has said they are away until a time (``away_until``) loads this block as they leave."""
     if availability.away_until is not None and now < availability.away_until:
         back = availability.answers_at(now)
@@ -39,7 +39,9 @@ def unattended_after(availability: OperatorAvailability, now: datetime) -> float
         return math.inf
     routine = loaded + timedelta(seconds=availability.visit_every_s)
     leave = availability.hours.next_departure(loaded)
-    if leave is None or routine <= leave:
+    # the routine visit loads the next arrays only if the request it answers is answered before they leave;
+    # a stretch that ends at 17:55 with a 10 min response leaves the night idle, so it fills the night instead
+    if leave is None or routine + timedelta(seconds=availability.response_s) <= leave:
         return availability.visit_every_s
     back = availability.answers_at(leave)
     return math.inf if back is None else (back - loaded).total_seconds()

@@ -50,6 +50,11 @@ def test_unattended_is_the_routine_visit_during_hours_and_the_whole_absence_befo
     assert op.unattended_s(0.0) == 7200.0  # loaded 10:10, next visit 12:10, before they leave
     # a load at 17:10 runs until they answer again on Tuesday at 08:40
     assert op.unattended_s(7 * 3600.0) == pytest.approx(15.5 * 3600)
+    # a load at 15:55: the routine visit at 17:55 could not be answered (10 min) before they leave at 18:00,
+    # so the load runs the night too, until Tuesday at 08:40
+    assert op.unattended_s(5 * 3600.0 + 45 * 60.0) == pytest.approx(16.75 * 3600)  # loaded 15:55
+    # at 15:45 the routine visit (17:45, answered 17:55) still comes before they leave
+    assert op.unattended_s(5 * 3600.0 + 35 * 60.0) == 7200.0
 
 
 def test_nobody_ever_comes_is_infinite_never_a_number() -> None:

@@ -54,9 +54,15 @@ def _handler(args: argparse.Namespace) -> int:
         done += 1
         if not args.quiet:
             hit = "—" if r.t_hit_s is None else f"{r.t_hit_s:,.0f} s"
+            # on the calendar: the wall clock and visits to the target, so a bench cut short still says them
+            cal = (
+                f"  {r.wall_clock_h:6.1f} h wall, {r.operator_visits} visits"
+                if r.wall_clock_h is not None and r.operator_visits is not None
+                else ""
+            )
             sys.stderr.write(
                 f"[{done:4d}/{n_runs}] {r.scenario:<15} {r.policy:<15} seed {r.seed:<3} "
-                f"target at {hit:>12}  final MAPE {r.final_mape_pct or float('nan'):6.3f} %  "
+                f"target at {hit:>12}{cal}  final MAPE {r.final_mape_pct or float('nan'):6.3f} %  "
                 f"{r.blocks:4d} blocks  {r.wall_s:5.1f} s  (elapsed {time.monotonic() - start:6.0f} s)\n"
             )
             sys.stderr.flush()

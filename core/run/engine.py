@@ -30,6 +30,7 @@ from core.driver import (
     Driver,
     DriverAborted,
     InstrumentWait,
+    LoadsStretches,
     PhysicsClock,
     Recoverable,
     Restorable,
@@ -42,6 +43,7 @@ from core.journal.schema import user_name
 from core.metrics import MapEvaluator, MapScore
 from core.modulus import ModulusMap
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
+from core.policies.stretch import STRETCH_PHASE
 from core.run.events import (
     ApprovalAsked,
     BlockEnded,
@@ -108,6 +110,8 @@ class CampaignLike(Protocol):
 
     def export_state(self) -> dict[str, Any]: ...
 
+    def queued_stretch(self) -> tuple[Block, ...]: ...
+
     # scored from outside by a simulated run's evaluator (core.metrics.ScoredMap), told back the verdict
     def has_map(self) -> bool: ...
 
@@ -126,6 +130,8 @@ def _same_block(a: Block, b: Block) -> bool:
     """The same block whatever its id: a re-proposal of a vetoed block counts as another refusal."""
     return dataclasses.replace(a, block_id=0) == dataclasses.replace(b, block_id=0)
 
+
+AWAY_UNTIL_KEY = "away_until"  # the planner state's record of an operator's away-until (engine-level)
 
 _Handler = Callable[["Engine", str, dict[str, Any], int], tuple[str, str]]
 
@@ -185,6 +191,7 @@ class Engine:
         self._physics = driver if isinstance(driver, PhysicsClock) else None
         # a driver that hands blocks to a person (KLA): its reports, and what it waits for now
         self._operator = driver if isinstance(driver, WaitsForOperator) else None
+        self._stretch_loader = driver if isinstance(driver, LoadsStretches) else None
         self._waiting: InstrumentWait | None = None
         self.supervision = supervision
         self.poll_s = poll_s
@@ -276,7 +283,11 @@ class Engine:
         self._emit(Logged(self._clock(), level, text, category, block_id, detail))
 
     def _plan_state(self, block_id: int, point: str) -> PlanState:
-        return PlanState(block_id, point, self.campaign.export_state(), self.campaign.settings)
+        state = self.campaign.export_state()
+        if self.operator is not None and self.operator.away_until is not None:
+            # the operator's word that nobody comes before then: a resumed run still plans for nobody
+            state = {**state, AWAY_UNTIL_KEY: self.operator.away_until.isoformat()}
+        return PlanState(block_id, point, state, self.campaign.settings)
 
     def _say(self, line: str) -> None:
         if self.progress is not None:
@@ -483,6 +494,7 @@ class Engine:
             if why.startswith("safety interlock") or repeated:
                 self._log("warn", why, block_id=decision.block.block_id)
             if not why:
+                self._load_stretch(decision)
                 self._current = (decision.block, 0)
                 self._results = []
                 self._refusals = 0
@@ -595,11 +607,17 @@ class Engine:
     ) -> None:
         plan = self._plan_state(decision.block.block_id, "planned")
         self._emit(BlockStarted(self._clock(), decision.block, decision_id, plan, resolution))
+        self._load_stretch(decision)
         self._current = (decision.block, 0)
         self._results = []
         self._pending = None
         self._refusals = 0
         self._vetoed.clear()
+
+    def _load_stretch(self, decision: Decision) -> None:
+        """The first array of a stretch starts: the driver hands the operator all of its arrays at once."""
+        if self._stretch_loader is not None and decision.phase == STRETCH_PHASE:
+            self._stretch_loader.load_stretch((decision.block, *self.campaign.queued_stretch()))
 
     # -- commands ----------------------------------------------------------------------------------
     def _checkpoint(self) -> None:
@@ -689,6 +707,8 @@ class Engine:
         base = self.operator or OperatorAvailability(OperatorHours.parse("always"))
         self.operator = replace(base, away_until=until)
         self._plan_for_operator()
+        block_id = self._next_block_id if self._current is None else self._current[0].block_id
+        self._emit(PlanChanged(self._clock(), self._plan_state(block_id, "away")))
         when = until.strftime("%a %Y-%m-%d %H:%M")
         self._log("info", f"{author} is away until {when}: blocks are planned for nobody until then")
         return "accepted", f"away until {when}"
@@ -971,6 +991,19 @@ class Engine:
         return tuple(float(v) * s for v, s in zip(ls, (su, sv), strict=False))
 
     # -- resume ------------------------------------------------------------------------------------
+    def _restore_absence(self, away_until: object) -> None:
+        """An ``away-until`` the last engine took holds for the resumed one (the absence is not forgotten)."""
+        if not isinstance(away_until, str):
+            return
+        from dataclasses import replace
+        from datetime import datetime
+
+        from core.operator import OperatorAvailability, OperatorHours
+
+        base = self.operator or OperatorAvailability(OperatorHours.parse("always"))
+        self.operator = replace(base, away_until=datetime.fromisoformat(away_until))
+        self._plan_for_operator()
+
     def _recover(self, history: RunHistory) -> None:
         """Pick the run up where its record says the last engine left it."""
         observed = history.observed
@@ -978,6 +1011,7 @@ class Engine:
             self.interlock.restore(observed)
         if history.plan is not None:
             self.campaign.restore(history.plan[0], observed)
+            self._restore_absence(history.plan[0].get(AWAY_UNTIL_KEY))
         elif observed:
             raise InputError(self.record.name, "journal has observed blocks but no planner state")
         ds = history.driver
@@ -1000,6 +1034,11 @@ class Engine:
                 parts.append(f"block {block.block_id} was finished but not yet folded into the model")
             else:
                 parts.append(f"block {block.block_id} continues at indent {done} of {block.n_indents}")
+            loader = self._stretch_loader
+            queued = self.campaign.queued_stretch() if loader is not None else ()
+            if loader is not None and queued:  # mid-stretch: handed out with its first; nothing planned again
+                loader.load_stretch((block, *queued))
+                parts.append(f"the stretch goes on: {len(queued)} array(s) after this one")
             if pending is not None:
                 self._emit(Resolved(0.0, pending[0], "dropped", "engine"))
         else:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -31,6 +31,7 @@ from drivers.kla.exchange import (
     ReportKind,
     Ticket,
     make_ticket,
+    stretch_line,
     ticket_panel,
     ticket_text,
     write_atomic,
@@ -96,6 +97,7 @@ class KlaDriver(InstrumentState):
         self.speed = speed  # a fake InView's speed-up: deadlines shrink with it
         super().__init__(start_um, clock_s)
         self._array: ArrayRun | None = None
+        self._stretch: tuple[Block, ...] = ()  # a stretch handed to the operator: its arrays in load order
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -125,9 +127,54 @@ class KlaDriver(InstrumentState):
             return False, f"unknown report {kind!r} (expected {', '.join(REPORT_KINDS)} or skip)"
         return array.report(cast(ReportKind, kind), value, author)
 
+    # -- a stretch ---------------------------------------------------------------------------------
+    def load_stretch(self, arrays: Sequence[Block]) -> None:
+        """Nobody comes between a stretch's arrays: the first array's ticket goes out with all the others
+        (each with its own sites file, method and token, its deadline after the arrays before it)."""
+        self._stretch = tuple(arrays)
+
+    def _stretch_tickets(self, start_index: int) -> list[Ticket]:
+        """The tickets of the loaded stretch, in load order (the first from ``start_index``), priced one
+        after another by the cost model from where the instrument is now."""
+        pos, is_open, clock, before = self._pos, self._open, self._clock_s, 0.0
+        tickets = []
+        for k, block in enumerate(self._stretch):
+            first = start_index if k == 0 else 0
+            expected = self._expected_s(block, first, pos, is_open)
+            tickets.append(
+                make_ticket(
+                    self.folder.run,
+                    block,
+                    self.profile.inview,
+                    expected_s=expected,
+                    first_index=first,
+                    now=self.now(),
+                    clock_s=clock,
+                    from_um=pos,
+                    program_open=is_open,
+                    speed=self.speed,
+                    runs_after_s=before,
+                )
+            )
+            before, clock = before + expected, clock + expected
+            pos, is_open = (block.indents[-1].x_um, block.indents[-1].y_um), True
+        lines = tuple(stretch_line(t, k) for k, t in enumerate(tickets, start=1))
+        return [
+            replace(t, stretch_index=k, stretch_arrays=lines, stretch_s=before)
+            for k, t in enumerate(tickets, start=1)
+        ]
+
     # -- a block -----------------------------------------------------------------------------------
+    def _expected_s(self, block: Block, start_index: int, pos: tuple[float, float], is_open: bool) -> float:
+        expected = 0.0
+        for i in range(start_index, block.n_indents):
+            expected += sum(s.seconds for s in indent_steps(self.profile, block, i, pos, is_open))
+            pos, is_open = (block.indents[i].x_um, block.indents[i].y_um), True
+        return expected
+
     def _ticket(self, block: Block, start_index: int) -> Ticket:
-        """This block's ticket: the one already out (a resumed run keeps its token), or a new one."""
+        """This block's ticket: the one already out (a resumed run, a stretch's later array keeps its
+        token), or a new one (the first array of a stretch: with every other array of it)."""
         existing = self.folder.read_ticket(block.block_id)
         wanted = tuple((s.x_um, s.y_um) for s in block.indents[start_index:])
         if existing is not None and existing.first_index == start_index and existing.sites_um == wanted:
@@ -138,15 +185,18 @@ class KlaDriver(InstrumentState):
                 )
                 self.folder.publish(existing)
             return existing
-        pos, is_open, expected = self._pos, self._open, 0.0
-        for i in range(start_index, block.n_indents):
-            expected += sum(s.seconds for s in indent_steps(self.profile, block, i, pos, is_open))
-            pos, is_open = (block.indents[i].x_um, block.indents[i].y_um), True
+        if self._stretch and self._stretch[0].block_id == block.block_id:
+            tickets = self._stretch_tickets(start_index)
+            self.folder.publish(tickets[0])
+            for t in tickets[1:]:  # in load order; one already out (a resumed run) stays as it is
+                if self.folder.read_ticket(t.block_id) is None:
+                    self.folder.publish(t)
+            return tickets[0]
         ticket = make_ticket(
             self.folder.run,
             block,
             self.profile.inview,
-            expected_s=expected,
+            expected_s=self._expected_s(block, start_index, self._pos, self._open),
             first_index=start_index,
             now=self.now(),
             clock_s=self._clock_s,

@@ -159,6 +159,11 @@ class Ticket:
     clock_s: float = 0.0
     from_um: tuple[float, float] = (0.0, 0.0)
     program_open: bool = False
+    # a stretch (arrays loaded in one visit before an absence): this array's place in it (1-based; 0: not
+    # a stretch), one line per array in load order, and the instrument seconds the whole stretch runs
+    stretch_index: int = 0
+    stretch_arrays: tuple[str, ...] = ()
+    stretch_s: float = 0.0
 
     @property
     def n_sites(self) -> int:
@@ -207,6 +212,9 @@ class Ticket:
                 clock_s=float(d.get("clock_s", 0.0)),
                 from_um=(float(d.get("from_um", (0, 0))[0]), float(d.get("from_um", (0, 0))[1])),
                 program_open=bool(d.get("program_open", False)),
+                stretch_index=int(d.get("stretch_index", 0)),
+                stretch_arrays=tuple(str(line) for line in d.get("stretch_arrays", ())),
+                stretch_s=float(d.get("stretch_s", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(source, f"not a valid ticket ({type(exc).__name__}: {exc})") from None
@@ -230,11 +238,13 @@ def make_ticket(
     from_um: tuple[float, float] = (0.0, 0.0),
     program_open: bool = False,
     speed: float | None = None,
+    runs_after_s: float = 0.0,
 ) -> Ticket:
     """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre.
 
     ``speed``: the instrument runs that many times faster than the cost model (a fake InView at ``--speed``),
-    so the deadline is the estimate ÷ speed × factor + margin of wall time.
+    so the deadline is the estimate ÷ speed × factor + margin of wall time. ``runs_after_s``: instrument
+    seconds of the arrays loaded before it that run first (a stretch), counted into the deadline.
     """
     if not _RUN_NAME.match(run):
         raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
@@ -250,7 +260,7 @@ def make_ticket(
         else:
             methods.append(MethodStep(hold, settings.method_for(hold), i, i))
     created = (now or datetime.now(UTC)).replace(microsecond=0)
-    wait_s = deadline_s(settings, expected_s / (speed or 1.0))
+    wait_s = deadline_s(settings, (runs_after_s + expected_s) / (speed or 1.0))
     tag = block_tag(block.block_id)
     return Ticket(
         run=run,
@@ -302,6 +312,33 @@ def _ranges(m: MethodStep) -> str:
     return f"site {m.first_site}" if m.first_site == m.last_site else f"sites {m.first_site}-{m.last_site}"
 
 
+def stretch_line(ticket: Ticket, k: int) -> str:
+    """One array of a stretch in its load order, for every ticket of the stretch."""
+    xmm, ymm = ticket.origin_mm
+    methods = ", ".join(f'"{m.method}" (hold {m.hold_s:g} s, {_ranges(m)})' for m in ticket.methods)
+    return (
+        f"{k}. block {ticket.block_id}: outbox/{ticket.sites_file}, {ticket.n_sites} sites at X {xmm:.4f} mm, "
+        f"Y {ymm:.4f} mm; {methods}; ~{ticket.expected_s / 60:.0f} min; export inbox/{ticket.export_stem}.xlsx"
+    )
+
+
+def _stretch_words(t: Ticket) -> str:
+    if not t.stretch_index:
+        return ""
+    n = len(t.stretch_arrays)
+    loaded = (
+        "load all of them now, in this order"
+        if t.stretch_index == 1
+        else ("loaded with array 1 in one visit: nothing to do for it unless it was not loaded")
+    )
+    return (
+        f"STRETCH: array {t.stretch_index} of {n}, run unattended one after another; the stretch runs "
+        f"~{t.stretch_s / 3600:.1f} h of instrument time ({loaded}):\n"
+        + "".join(f"   {line}\n" for line in t.stretch_arrays)
+        + "\n"
+    )
+
+
 def ticket_text(ticket: Ticket) -> str:
     """The ticket for a person at the instrument PC (also shown in the console's ticket panel)."""
     t = ticket
@@ -330,6 +367,7 @@ def ticket_text(ticket: Ticket) -> str:
         f"AE-NI ticket  run {t.run}  block {t.block_id}{resumed}\n"
         f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
         f"\n"
+        f"{_stretch_words(t)}"
         f"1. Sample: the run's sample, as calibrated (same mounting, same crosshair reference).\n"
         f"{move}\n"
         f"3. Array dialog: import outbox/{t.sites_file}\n"
@@ -349,6 +387,11 @@ def ticket_panel(ticket: Ticket) -> tuple[str, ...]:
     how = "find the surface" if t.kind == "global" else "tip on the surface"
     words = sites_words(t.kind, t.sites_um, t.grid_g, t.pitch_um, None)
     lines = [
+        *(
+            [f"STRETCH array {t.stretch_index} of {len(t.stretch_arrays)}, ~{t.stretch_s / 3600:.1f} h"]
+            if t.stretch_index
+            else []
+        ),
         f"move to X {xmm:.4f} mm  Y {ymm:.4f} mm",
         f"  = ({t.origin_x_um:.1f}, {t.origin_y_um:.1f}) µm; {how}",
         f"{words.program}: {words.layout} {words.extent}".rstrip(),

@@ -43,6 +43,7 @@ from core.policies.base import (
     preferred_index,
     reachable_mask,
 )
+from core.policies.bends import bend_factor, relative_curvature
 from core.policies.blocks import ScatteredSingles
 from core.policies.parts import PolicyParts
 from core.policies.planner import aim_rel_error
@@ -78,7 +79,7 @@ class ScatteredPlanner:
         map_rel_err = aim_rel_error(ctx) if self.parts.hold.bias_aware else None
         hold, err, hold_mode = self.parts.hold.choose(ctx, map_rel_err, self.parts.noise.drift_correction)
         exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
-        value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
+        value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight, d.bend_weight)
         xy = ctx.lattice.xy_um[cand]
         box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
         options: list[tuple[BlockKind, list[int], float, list[float]]] = []  # kind, picks, hold, gains
@@ -367,7 +368,9 @@ class _Ivr(_Value):
     sum of both maps' reductions of their mean relative error variance, each under its own GP; a weight of 0
     drops that map. One map alone keeps its gain as before (a constant factor never changes a ranking)."""
 
-    def __init__(self, ctx: PlanContext, cand: np.ndarray, structure_weight: float) -> None:
+    def __init__(
+        self, ctx: PlanContext, cand: np.ndarray, structure_weight: float, bend_weight: float = 0.0
+    ) -> None:
         pred, gp = ctx.prediction, ctx.gp
         assert pred is not None and gp is not None and ctx.tested_noise_var_gpa2 is not None
         lat = ctx.lattice
@@ -393,7 +396,9 @@ class _Ivr(_Value):
             )
         maps = [m for m in maps if m[0] > 0]
         for weight, p, g, xy, nv in maps:
-            model, noise_var, rel_scale = _ivr_part(ctx, p, g, xy, nv, cand, ref_idx, structure_weight)
+            model, noise_var, rel_scale = _ivr_part(
+                ctx, p, g, xy, nv, cand, ref_idx, structure_weight, bend_weight
+            )
             self.parts.append((weight * (rel_scale if len(maps) > 1 else 1.0), model, noise_var))
 
     def _gain(self) -> np.ndarray:
@@ -427,6 +432,7 @@ def _ivr_part(
     cand: np.ndarray,
     ref_idx: np.ndarray,
     structure_weight: float,
+    bend_weight: float = 0.0,
 ) -> tuple[PosteriorCov, np.ndarray, float]:
     """One map's posterior covariance over the candidates and the reference points, weighted by 1/μ² (and
     its structure); the noise variance of one indent at each candidate; and the mean weight, which turns the
@@ -440,6 +446,9 @@ def _ivr_part(
         grad_v, grad_u = np.gradient(pred.mean.reshape(n, n), lat.pitch_uv[0])
         rel = np.hypot(grad_u, grad_v).ravel()[ref_idx] / mu
         w = w * (1.0 + structure_weight * np.minimum(rel / FULL_WEIGHT_REL_SLOPE, 1.0))
+    if bend_weight > 0:  # where the map bends (core.policies.bends): the stationary GP's bias
+        kappa = relative_curvature(pred.mean.reshape(n, n), lat.pitch_uv).ravel()[ref_idx]
+        w = w * bend_factor(kappa, bend_weight)
     u, v = ctx.calibration.to_uv(tested_xy_um[:, 0], tested_xy_um[:, 1])
     model = PosteriorCov.build(
         gp, np.column_stack([u, v]), tested_noise_var, lat.uv[cand], lat.uv[ref_idx], w

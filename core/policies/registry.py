@@ -40,6 +40,7 @@ POLICY_DESCRIPTIONS: dict[str, str] = {
     "aeni-paper": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
 }
 
+BENDS_WEIGHT = 1.0  # aeni+bends: curvature weight (core.policies.bends), measured in docs/benchmarks.md
 _PAPER_GRID = ReplicateGrid(adaptive_grid=True, local_hop_um=500.0, exploratory_iterations=4)
 
 
@@ -125,6 +126,11 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
     "program-life": (
         "a new program's overhead priced over the indents it will serve, not its first block (block design)",
         lambda p: _singles(p, program_life=True),
+    ),
+    "bends": (
+        "more indents where the fitted map bends (its relative curvature), the bias a stationary GP leaves "
+        "there (block design)",
+        lambda p: _singles(p, bend_weight=BENDS_WEIGHT),
     ),
     "even": (
         "no weighting to the map's structure: pure variance reduction (block design)",

@@ -43,6 +43,7 @@ from core.policies.base import (
     preferred_index,
     reachable_mask,
 )
+from core.policies.bends import bend_factor, relative_curvature
 from core.policies.blocks import ScatteredSingles
 from core.policies.parts import PolicyParts
 from core.policies.planner import aim_rel_error
@@ -78,7 +79,7 @@ class ScatteredPlanner:
         map_rel_err = aim_rel_error(ctx) if self.parts.hold.bias_aware else None
         hold, err, hold_mode = self.parts.hold.choose(ctx, map_rel_err, self.parts.noise.drift_correction)
         exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
-        value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
+        value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight, d.bend_weight)
         xy = ctx.lattice.xy_um[cand]
         box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
         options: list[tuple[BlockKind, list[int], float, list[float]]] = []  # kind, picks, hold, gains
@@ -373,7 +374,9 @@ class _Ivr(_Value):
     drops that map; one map alone keeps its plain reduction (a monotone transform of it would rank the
     same, and the default path stays bit for bit)."""
 
-    def __init__(self, ctx: PlanContext, cand: np.ndarray, structure_weight: float) -> None:
+    def __init__(
+        self, ctx: PlanContext, cand: np.ndarray, structure_weight: float, bend_weight: float = 0.0
+    ) -> None:
         pred, gp = ctx.prediction, ctx.gp
         assert pred is not None and gp is not None and ctx.tested_noise_var_gpa2 is not None
         lat = ctx.lattice
@@ -402,7 +405,16 @@ class _Ivr(_Value):
         self.remaining: list[float] = []  # with several maps: each one's V (in its gain's units), as picked
         for weight, p, g, xy, nv in maps:
             model, noise_var, remaining = _ivr_part(
-                ctx, p, g, xy, nv, cand, ref_idx, structure_weight, with_remaining=several
+                ctx,
+                p,
+                g,
+                xy,
+                nv,
+                cand,
+                ref_idx,
+                structure_weight,
+                with_remaining=several,
+                bend_weight=bend_weight,
             )
             self.parts.append((weight, model, noise_var))
             if several:
@@ -460,6 +472,7 @@ def _ivr_part(
     ref_idx: np.ndarray,
     structure_weight: float,
     with_remaining: bool = False,
+    bend_weight: float = 0.0,
 ) -> tuple[PosteriorCov, np.ndarray, float]:
     """One map's posterior covariance over the candidates and the reference points, weighted by 1/μ² (and
     its structure); the noise variance of one indent at each candidate; and, if asked (else NaN), the map's
@@ -474,6 +487,9 @@ def _ivr_part(
         grad_v, grad_u = np.gradient(pred.mean.reshape(n, n), lat.pitch_uv[0])
         rel = np.hypot(grad_u, grad_v).ravel()[ref_idx] / mu
         w = w * (1.0 + structure_weight * np.minimum(rel / FULL_WEIGHT_REL_SLOPE, 1.0))
+    if bend_weight > 0:  # where the map bends (core.policies.bends): the stationary GP's bias
+        kappa = relative_curvature(pred.mean.reshape(n, n), lat.pitch_uv).ravel()[ref_idx]
+        w = w * bend_factor(kappa, bend_weight)
     u, v = ctx.calibration.to_uv(tested_xy_um[:, 0], tested_xy_um[:, 1])
     train_uv = np.column_stack([u, v])
     model = PosteriorCov.build(gp, train_uv, tested_noise_var, lat.uv[cand], lat.uv[ref_idx], w)

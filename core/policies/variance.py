@@ -51,8 +51,11 @@ class _ExactPosterior:
         self.ls = np.asarray(summary.lengthscales_uv, dtype=float)
         self.os = float(summary.outputscale_gpa2)
         self.uv = uv
-        k = self.kernel(uv, uv)
-        k[np.diag_indices_from(k)] += np.maximum(noise_var, 1e-10 * self.os)
+        self._factor(np.maximum(noise_var, 1e-10 * self.os))
+
+    def _factor(self, noise_var: np.ndarray) -> None:
+        k = self.kernel(self.uv, self.uv)
+        k[np.diag_indices_from(k)] += noise_var
         self._chol = np.linalg.cholesky(k)
 
     def kernel(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -85,22 +88,18 @@ class _GridPosterior(_ExactPosterior):
     one by 1–4 %).
     """
 
-    def __init__(self, summary: GPSummary, uv: np.ndarray, noise_var: np.ndarray) -> None:
+    def _factor(self, noise_var: np.ndarray) -> None:
         from scipy.linalg import solve_triangular
 
         from core.model.ski import JITTER, grid_for
 
-        self.kind = summary.kernel
-        self.ls = np.asarray(summary.lengthscales_uv, dtype=float)
-        self.os = float(summary.outputscale_gpa2)
-        self.uv = uv
         self._grid = grid_for(tuple(self.ls))
         z = self._grid.points().numpy()
         kmm = self.kernel(z, z)
         kmm[np.diag_indices_from(kmm)] += JITTER * self.os
-        w = self._weights(uv)
+        w = self._weights(self.uv)
         lost = self.os - np.asarray(w.multiply(w @ kmm).sum(axis=1)).ravel()  # k(x, x) − wᵀ Kmm w
-        inv_d = 1.0 / (np.maximum(noise_var, 1e-10 * self.os) + np.maximum(lost, 0.0))
+        inv_d = 1.0 / (noise_var + np.maximum(lost, 0.0))
         s = (w.T.multiply(inv_d) @ w).toarray()
         lm = np.linalg.cholesky(kmm)
         lb = np.linalg.cholesky(lm.T @ s @ lm + np.eye(len(kmm)))

@@ -28,7 +28,14 @@ from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
 from core.plan import Block, Decision, IndentResult, PlannerSettings
-from core.policies.base import DEFAULT_PITCH_UM, GPSummary, ModulusView, PlanContext, base_mask
+from core.policies.base import (
+    DEFAULT_PITCH_UM,
+    GPSummary,
+    ModulusView,
+    PlanContext,
+    PlansStretches,
+    base_mask,
+)
 from core.policies.registry import RECOMMENDED, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
@@ -369,8 +376,9 @@ class Campaign:
         if self._prefer is not None:  # one proposal after a veto: the alternative listed first
             ctx = dataclasses.replace(ctx, prefer_xy_um=self._prefer)
             self._prefer = None
-        stretch = getattr(self.policy, "propose_stretch", None)
-        arrays = stretch(ctx) if stretch is not None and ctx.prefer_xy_um is None else None
+        arrays = None
+        if ctx.prefer_xy_um is None and isinstance(self.policy, PlansStretches):
+            arrays = self.policy.propose_stretch(ctx)
         if arrays:
             from core.policies.stretch import renumbered
 

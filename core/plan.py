@@ -154,6 +154,12 @@ class Alternative:
     cost_s: float
 
 
+# the phases of a stretch's arrays (a decision's ``phase``): the first is a visit of the operator's, the
+# others were loaded with it (core.visits counts them so; the engine hands a stretch's tickets out together)
+STRETCH_PHASE = "stretch"
+STRETCH_CONTINUES = "stretch-continues"
+
+
 @dataclass(frozen=True)
 class Decision:
     """A planner proposal with everything the operator and the journal need to judge it."""

@@ -18,8 +18,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 
 from core.operator import OperatorAvailability
-from core.plan import Decision
-from core.policies.stretch import STRETCH_CONTINUES
+from core.plan import STRETCH_CONTINUES, Decision
 from core.run.events import BlockStarted, Decided, Observed, RunEvent
 
 # a plan fixed before the run is one array list, loaded once (the grid baseline)

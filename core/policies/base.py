@@ -8,7 +8,7 @@ resumed run plans exactly what an uninterrupted one would.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -109,6 +109,15 @@ class Policy(Protocol):
 
     def propose(self, ctx: PlanContext) -> Decision | None:
         """The next block, or None when the policy has nothing left to do (e.g. the grid is complete)."""
+        ...
+
+
+@runtime_checkable
+class PlansStretches(Protocol):
+    """A policy that can plan, before an absence, the arrays of one stretch the operator loads at once."""
+
+    def propose_stretch(self, ctx: PlanContext) -> list[Decision] | None:
+        """The stretch's arrays, or None when no stretch is due (the next block is planned adaptively)."""
         ...
 
 

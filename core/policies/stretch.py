@@ -21,14 +21,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from core.cost import block_costs_for
-from core.plan import Block, Decision
+from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, Decision
 from core.policies.base import PlanContext, base_mask, reachable_mask
 
 if TYPE_CHECKING:
     from core.policies.scattered import ScatteredPlanner
 
-STRETCH_PHASE = "stretch"  # core.visits counts these as a visit ...
-STRETCH_CONTINUES = "stretch-continues"  # ... and these as loaded with it
 MAX_ARRAYS = 60  # a weekend is not filled with more (the run's budget stops it earlier anyway)
 
 

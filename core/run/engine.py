@@ -42,8 +42,7 @@ from core.journal.codec import DriverState
 from core.journal.schema import user_name
 from core.metrics import MapEvaluator, MapScore
 from core.modulus import ModulusMap
-from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
-from core.policies.stretch import STRETCH_PHASE
+from core.plan import STRETCH_PHASE, Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.run.events import (
     ApprovalAsked,
     BlockEnded,

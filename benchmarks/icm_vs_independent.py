@@ -39,30 +39,20 @@ import gpytorch  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from core.campaign import Campaign  # noqa: E402
+from benchmarks.two_maps import HARDNESS_ONLY, sim_campaign  # noqa: E402
 from core.metrics import mape_pct  # noqa: E402
 from core.model import Observations  # noqa: E402
 from core.run.headless import run_auto  # noqa: E402
-from core.runconfig import make_campaign_config  # noqa: E402
-from drivers.registry import sim_scenario  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
-HARDNESS_ONLY = {"hardness": 1.0, "modulus": 0.0}
 
 
 def design(scenario: str, policy: str, seed: int, budget_s: float | None, lattice_n: int) -> tuple[Any, Any]:
     """Run a design on the simulated instrument; the campaign (both maps fitted on it) and its evaluator."""
-    config = make_campaign_config(
-        scenario=scenario,
-        policy=policy,
-        seed=seed,
-        lattice_n=lattice_n,
-        settings={"budget_s": budget_s, "map_weights": HARDNESS_ONLY},
+    # the grid fitted once at the end: only the design matters here
+    campaign, scen = sim_campaign(
+        scenario, policy, seed, HARDNESS_ONLY, budget_s, lattice_n, grid_refit_every=10**9
     )
-    scen = sim_scenario(config.driver_options, seed)
-    campaign = Campaign(config, scen.sample)
-    if policy == "grid":
-        campaign.refit_every = 10**9  # fitted once at the end: only the design matters here
     evaluator = scen.evaluator()
     run_auto(campaign, scen.make_driver(campaign.profile), evaluator)
     campaign.surrogate.fit(campaign.observations())

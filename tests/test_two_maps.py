@@ -215,3 +215,13 @@ async def test_a_modulus_collapse_alarm_reaches_the_console_and_waits(tmp_path: 
                 assert decision.has_class("-alarm") and "modulus map" in widget_text(decision)
         finally:
             source.close()
+
+
+def test_two_maps_median_counts_a_seed_that_never_reached_below_the_others() -> None:
+    """A seed that never reaches a map's target within the cap is the slowest, not left out of the median."""
+    from benchmarks.two_maps import _median_missing_low
+
+    assert _median_missing_low([13.1, 8.1, 9.4, None, 7.1, 13.4, 11.5, 5.6, 13.6, 7.3]) == (8.1 + 9.4) / 2
+    assert _median_missing_low([3.0, 1.0, 2.0]) == 2.0
+    assert _median_missing_low([5.0, None, None]) is None  # the median seed never got there
+    assert _median_missing_low([None]) is None

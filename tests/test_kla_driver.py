@@ -13,16 +13,20 @@ import pytest
 
 from core.driver import Driver, DriverAborted, InstrumentWait, WaitsForOperator
 from core.plan import Block, IndentResult, StepRecord, local_grid
-from core.profile import load_profile
+from core.profile import InstrumentProfile, load_profile
 from drivers.kla.driver import KlaDriver, make_kla_driver
 from drivers.kla.fake_inview import FakeInView, parse_fault
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.scenarios import make_scenario
 
 BASE = load_profile("kla-imicro")
+# a deadline that never runs out under a loaded CI machine, where a block is to end by its export or report ...
 PROFILE = replace(
-    BASE, inview=replace(BASE.inview, stable_polls=2, poll_s=0.01, deadline_factor=1.0, deadline_margin_s=2.0)
+    BASE,
+    inview=replace(BASE.inview, stable_polls=2, poll_s=0.01, deadline_factor=1.0, deadline_margin_s=30.0),
 )
+# ... and a short one where a test waits for the deadline itself
+DEADLINE_PROFILE = replace(PROFILE, inview=replace(PROFILE.inview, deadline_margin_s=2.0))
 SEED = 3
 
 
@@ -57,8 +61,8 @@ def running_fake(exchange: Path, *faults: str, rate: float = 0.0) -> Iterator[Fa
         thread.join()
 
 
-def driver(exchange: Path, tmp_path: Path) -> KlaDriver:
-    return KlaDriver(PROFILE, exchange, "r1", tmp_path / "r1.sqlite.exports", speed=1e6)
+def driver(exchange: Path, tmp_path: Path, profile: InstrumentProfile = PROFILE) -> KlaDriver:
+    return KlaDriver(profile, exchange, "r1", tmp_path / "r1.sqlite.exports", speed=1e6)
 
 
 def run_block(d: KlaDriver, b: Block) -> tuple[list[IndentResult], list[StepRecord], list[InstrumentWait]]:
@@ -145,7 +149,7 @@ def test_fault_surface_not_found_runs_nothing(exchange: Path, tmp_path: Path) ->
 def test_fault_missing_export_times_out_to_sites_held_as_taken(exchange: Path, tmp_path: Path) -> None:
     """The array was confirmed started and no export came by the deadline: nothing says which sites the tip
     went down on, so every site is unverified (taken at its planned place, no value), never free."""
-    d = driver(exchange, tmp_path)
+    d = driver(exchange, tmp_path, DEADLINE_PROFILE)
     b = block(0)
     for _ in running_fake(exchange, "missing-export"):
         results, _, waits = run_block(d, b)
@@ -369,14 +373,14 @@ def test_a_refusal_is_kept_so_a_resume_journals_the_refused_rows_as_made(
     journal = tmp_path / "r1.sqlite"
     b = block(0)
     b = replace(b, indents=b.indents[:5])  # five of nine sites: mirrored in Y they lie off the plan
-    d = make_kla_driver(PROFILE, journal, exchange, speed=1e6)
+    d = make_kla_driver(DEADLINE_PROFILE, journal, exchange, speed=1e6)
     gen = d.execute_block(b)
     for _ in running_fake(exchange, "flipped-y"):
         for ev in gen:
             if isinstance(ev, InstrumentWait) and any("refused" in n for n in ev.notes):
                 break  # refused; the array now waits for a corrected export until its deadline
     del gen  # kill -9 before the deadline
-    again = make_kla_driver(PROFILE, journal, None, speed=1e6)
+    again = make_kla_driver(DEADLINE_PROFILE, journal, None, speed=1e6)
     results, steps, _ = run_block(again, b)
     check_invariants(b, results)
     assert {r.status for r in results} == {"unverified"}

@@ -389,7 +389,7 @@ def aborted_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from core.runview import Command, CommandKind
 
     path = tmp_path_factory.mktemp("bad-inputs-aborted") / "aborted.sqlite"
-    cfg = CampaignConfig(name="aborted", settings=PlannerSettings(indent_budget=400))
+    cfg = CampaignConfig(name="aborted", settings=PlannerSettings(indent_budget=60))
     engine = threading.Thread(
         target=run_engine, args=(path,), kwargs={"create": (cfg, RunOptions(speed=2000.0)), "quiet": True}
     )
@@ -414,9 +414,12 @@ def test_resume_continue_resumes_an_aborted_run(aborted_run: Path, tmp_path: Pat
 
     copy = tmp_path / "again.sqlite"
     shutil.copy(aborted_run, copy)
+    with JournalReader(copy) as r:
+        before = len(r.results())
     assert main(["resume", str(copy), "--continue", "--quiet", "--speed", "1e9"]) == 0
     with JournalReader(copy) as r:
         assert r.q.engine_row()["completed"]
+        assert before < len(r.results()) <= 60  # it went on measuring, to the indent budget
 
 
 def _tree(root: Path) -> dict[str, str]:

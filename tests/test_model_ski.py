@@ -166,7 +166,8 @@ def test_collapse_guard_holds_for_the_interpolated_gp() -> None:
     )
     guarded, unguarded = HeteroskedasticGP(ski_above=100), HeteroskedasticGP(ski_above=100, guard="off")
     good = guarded.fit(healthy)
-    unguarded.fit(healthy)
+    # the same fit, not computed twice: the unguarded model resumes from it (exact, as tested above)
+    unguarded.set_hyper(guarded.hyper, healthy)
     bad = guarded.fit(both)
     loose = unguarded.fit(both)
     assert loose.collapse and not loose.used_last_good

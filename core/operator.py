@@ -9,6 +9,7 @@ Times are naive local wall-clock datetimes (the lab's clock), with minute resolu
 
 from __future__ import annotations
 
+import math
 import re
 from bisect import bisect_right
 from dataclasses import dataclass, field
@@ -162,6 +163,25 @@ class OperatorHours:
         if end == MIN_PER_WEEK and self.intervals[0][0] == 0:
             end += self.intervals[0][1]
         return t + timedelta(minutes=end - mow)
+
+
+@dataclass(frozen=True)
+class LoadWindow:
+    """What the calendar asks of one load, in seconds from when it is loaded.
+
+    It should run about ``fill_s`` (until someone comes again). And it must not end between
+    ``last_answer_s``, the last moment a request is still answered before everybody leaves, and
+    ``next_answer_s``, when one is answered after the absence: nobody would load the next arrays, so the
+    instrument would stand idle the whole absence (inf: no such absence ahead).
+    """
+
+    fill_s: float
+    last_answer_s: float = math.inf
+    next_answer_s: float = math.inf
+
+    def idles_after(self, run_s: float) -> bool:
+        """A load that runs ``run_s`` leaves the instrument idle until the next answer."""
+        return self.last_answer_s < run_s < self.next_answer_s
 
 
 @dataclass(frozen=True)

@@ -244,8 +244,8 @@ class Engine:
         from core.visits import unattended_after
 
         now = self._local_now or datetime.now
-        if hasattr(self.campaign, "unattended_s"):
-            self.campaign.unattended_s = lambda _clock_s: (
+        if hasattr(self.campaign, "unattended"):
+            self.campaign.unattended = lambda _clock_s: (
                 unattended_after(self.operator, now()) if self.operator is not None else None
             )
 

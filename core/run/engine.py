@@ -35,6 +35,7 @@ from core.driver import (
     Recoverable,
     Restorable,
     WaitsForOperator,
+    WaitsFromAnswer,
 )
 from core.errors import InputError
 from core.interlock import Interlock
@@ -247,6 +248,12 @@ class Engine:
         if hasattr(self.campaign, "unattended"):
             self.campaign.unattended = lambda _clock_s: (
                 unattended_after(self.operator, now()) if self.operator is not None else None
+            )
+        if isinstance(
+            self.driver, WaitsFromAnswer
+        ):  # a ticket waits for the operator from when they can answer
+            self.driver.wait_from_answer(
+                lambda: self.operator.answer_delay_s(now()) if self.operator is not None else 0.0
             )
 
     # -- small helpers -----------------------------------------------------------------------------

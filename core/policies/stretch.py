@@ -6,7 +6,8 @@ that adds most to the map's integrated relative variance given every site the st
 (the posterior conditioned on the stretch's earlier sites, y-free, as a block's own picks are), filled
 with the singles its safe band reaches, ordered for travel and priced by the cost model from where the
 previous array ends (its lift, engage and drift settle: one reconfiguration each). Arrays are added until
-their instrument time fills the absence.
+their instrument time fills the absence, and a stretch never ends where nobody could load the next one (see
+:func:`plan_stretch`).
 
 Each array still passes the interlock as its own block when the engine offers it; the ones after the
 first carry ``phase = "stretch-continues"`` (loaded with the first: no visit of their own).
@@ -50,10 +51,12 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
     """
     window = ctx.unattended
     assert window is not None
-    end_by_s = window.last_answer_s if window.fill_s <= window.last_answer_s else math.inf
-    planned, exploring, hold_mode = _arrays(planner, ctx, window.fill_s, end_by_s)
+    fill_s = window.fill_s
+    end_by_s = window.last_answer_s if fill_s <= window.last_answer_s else math.inf
+    planned, exploring, hold_mode = _arrays(planner, ctx, fill_s, end_by_s)
     if not planned and math.isfinite(end_by_s):
-        planned, exploring, hold_mode = _arrays(planner, ctx, window.next_answer_s, math.inf)
+        fill_s = window.next_answer_s
+        planned, exploring, hold_mode = _arrays(planner, ctx, fill_s, math.inf)
     total_s = sum(cost for _, cost, _ in planned)
     n = len(planned)
     out: list[Decision] = []
@@ -67,7 +70,7 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
                 predicted_cost_s=cost,
                 reason=(
                     f"stretch array {k + 1} of {n}: {block.n_indents} singles, {'maximin spacing' if exploring else 'IVR'} over the whole stretch; "
-                    f"the stretch runs ~{total_s / 3600:.1f} h unattended (nobody for {window.fill_s / 3600:.1f} h)"
+                    f"the stretch runs ~{total_s / 3600:.1f} h unattended (nobody for {fill_s / 3600:.1f} h)"
                 ),
                 phase=STRETCH_PHASE if k == 0 else STRETCH_CONTINUES,
                 hold_mode=hold_mode,

@@ -179,10 +179,6 @@ class LoadWindow:
     last_answer_s: float = math.inf
     next_answer_s: float = math.inf
 
-    def idles_after(self, run_s: float) -> bool:
-        """A load that runs ``run_s`` leaves the instrument idle until the next answer."""
-        return self.last_answer_s < run_s < self.next_answer_s
-
 
 @dataclass(frozen=True)
 class OperatorAvailability:

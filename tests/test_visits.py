@@ -66,11 +66,15 @@ def test_a_load_must_not_end_between_the_last_answerable_moment_and_the_next_mor
     assert w.fill_s == 7200.0
     assert w.last_answer_s == pytest.approx((2 * 60 + 36) * 60)  # 17:50
     assert w.next_answer_s == pytest.approx((17 * 60 + 26) * 60)  # Wednesday 08:40
-    assert w.idles_after((2 * 60 + 41) * 60)  # ends 17:55: nobody loads the next arrays until morning
-    assert not w.idles_after(2.5 * 3600) and not w.idles_after(18 * 3600)
+    # a load ending at 17:55 falls between the two: nobody loads the next arrays until the morning
+    assert w.last_answer_s < (2 * 60 + 41) * 60 < w.next_answer_s
+    # loaded at 15:55 the routine visit (17:55) comes too late: the load fills the night, same span to avoid
+    late = _operator("Tue 15:45").unattended(0.0)
+    assert late.fill_s == late.next_answer_s == pytest.approx((16 * 60 + 45) * 60)
+    assert late.last_answer_s == pytest.approx(115 * 60)
     # always there: no absence ahead, nothing to avoid
     always = SimulatedOperator(OperatorAvailability(OperatorHours.parse("always")), parse_start("Mon 09:00"))
-    assert not always.unattended(0.0).idles_after(1e9)
+    assert always.unattended(0.0) == LoadWindow(7200.0)
 
 
 def test_nobody_ever_comes_is_infinite_never_a_number() -> None:

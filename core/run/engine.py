@@ -249,9 +249,8 @@ class Engine:
             self.campaign.unattended = lambda _clock_s: (
                 unattended_after(self.operator, now()) if self.operator is not None else None
             )
-        if isinstance(
-            self.driver, WaitsFromAnswer
-        ):  # a ticket waits for the operator from when they can answer
+        # a ticket handed to the operator waits from when they can answer it (at night: from the morning)
+        if isinstance(self.driver, WaitsFromAnswer):
             self.driver.wait_from_answer(
                 lambda: self.operator.answer_delay_s(now()) if self.operator is not None else 0.0
             )

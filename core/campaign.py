@@ -27,6 +27,7 @@ from core.journal.codec import decision_from_dict
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
+from core.operator import LoadWindow
 from core.plan import Block, Decision, IndentResult, PlannerSettings
 from core.policies.base import (
     DEFAULT_PITCH_UM,
@@ -187,7 +188,7 @@ class Campaign:
         self.refit_every = 1  # the bench's grid: refit only after every so many blocks
         # how long the next load runs before anyone comes again (a simulated operator, core.visits); None:
         # the run is planned as if someone were always there
-        self.unattended_s: Callable[[float], float | None] | None = None
+        self.unattended: Callable[[float], LoadWindow | None] | None = None
         self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
 
     # -- static facts ----------------------------------------------------------------------------
@@ -357,7 +358,7 @@ class Campaign:
             placement_mask=self.placement_mask,
             sample=self.sample,
             modulus=self._modulus_view(),
-            unattended_s=self.unattended_s(clock_s) if self.unattended_s is not None else None,
+            unattended=self.unattended(clock_s) if self.unattended is not None else None,
         )
 
     def propose(

@@ -7,7 +7,7 @@ A capability is a typed protocol a driver class either satisfies or not; the eng
 from __future__ import annotations
 
 import threading
-from collections.abc import Generator, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -118,6 +118,15 @@ class LoadsStretches(Protocol):
     already handed out stay as they are (a resumed run)."""
 
     def load_stretch(self, arrays: Sequence[Block]) -> None: ...
+
+
+@runtime_checkable
+class WaitsFromAnswer(Protocol):
+    """Lets a block's wait for the operator (the KLA ticket's deadline) count from when someone can answer,
+    not from when the block was handed out: ``delay_s()`` is how long from now that is (the engine's
+    [operator] calendar, core.operator.OperatorAvailability.answer_delay_s; 0 during the hours)."""
+
+    def wait_from_answer(self, delay_s: Callable[[], float]) -> None: ...
 
 
 class InstrumentState:

@@ -9,6 +9,7 @@ Times are naive local wall-clock datetimes (the lab's clock), with minute resolu
 
 from __future__ import annotations
 
+import math
 import re
 from bisect import bisect_right
 from dataclasses import dataclass, field
@@ -165,6 +166,21 @@ class OperatorHours:
 
 
 @dataclass(frozen=True)
+class LoadWindow:
+    """What the calendar asks of one load, in seconds from when it is loaded.
+
+    It should run about ``fill_s`` (until someone comes again). And it must not end between
+    ``last_answer_s``, the last moment a request is still answered before everybody leaves, and
+    ``next_answer_s``, when one is answered after the absence: nobody would load the next arrays, so the
+    instrument would stand idle the whole absence (inf: no such absence ahead).
+    """
+
+    fill_s: float
+    last_answer_s: float = math.inf
+    next_answer_s: float = math.inf
+
+
+@dataclass(frozen=True)
 class OperatorAvailability:
     """Who answers, and when: the weekly hours, the response time, routine visits and an ad-hoc absence."""
 
@@ -211,6 +227,15 @@ class OperatorAvailability:
             arrive = self.next_arrival(leave)
         # every presence is shorter than the response: they answer as soon as they can
         return first + timedelta(seconds=self.response_s)
+
+    def answer_delay_s(self, t: datetime) -> float:
+        """How long after ``t`` a wait for the operator (a KLA ticket's deadline) starts counting: 0 when a
+        request made at ``t`` is answered within the response time (as during the hours: the deadline's
+        margin covers the response), else until they answer after the absence (0 when nobody ever comes)."""
+        answer = self.answers_at(t)
+        if answer is None or answer <= t + timedelta(seconds=self.response_s):
+            return 0.0
+        return (answer - t).total_seconds()
 
     def unattended_s(self, t: datetime) -> float:
         """Seconds from ``t`` until a request made at ``t`` is answered (inf: nobody ever comes)."""

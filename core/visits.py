@@ -7,8 +7,8 @@ the response time during hours, not at all outside them); the instrument idles u
 known in full before the run (the grid baseline) is loaded once, and the later arrays of a stretch were
 loaded with its first.
 
-The planner asks :meth:`SimulatedOperator.unattended_s` how long the next load will run before anyone
-comes again, to plan a stretch that fills it.
+The planner asks :meth:`SimulatedOperator.unattended` how long the next load will run before anyone
+comes again, to plan a stretch that fills it (and when it must not end).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 
-from core.operator import OperatorAvailability
+from core.operator import LoadWindow, OperatorAvailability
 from core.plan import STRETCH_CONTINUES, Decision
 from core.run.events import BlockStarted, Decided, Observed, RunEvent
 
@@ -25,25 +25,28 @@ from core.run.events import BlockStarted, Decided, Observed, RunEvent
 LOADED_ONCE_PHASES: frozenset[str] = frozenset({"grid"})
 
 
-def unattended_after(availability: OperatorAvailability, now: datetime) -> float:
-    """How long a block loaded in answer to a request made at ``now`` runs before the operator comes by
-    again: the next routine visit during hours (``visit_every_s`` after the load), or, when they leave (or
-    are away) before it can be answered, until they answer again after the absence (inf: nobody ever comes). An operator who
-    has said they are away until a time (``away_until``) loads this block as they leave."""
+def unattended_after(availability: OperatorAvailability, now: datetime) -> LoadWindow:
+    """The calendar's window for a load answering a request made at ``now``: it runs until the operator
+    comes by again, the next routine visit during hours (``visit_every_s`` after the load), or, when they
+    leave (or are away) before that visit can be answered, until they answer again after the absence (inf:
+    nobody ever comes); and it must not end between the day's last answerable moment and that answer. An
+    operator who has said they are away until a time (``away_until``) loads this block as they leave."""
     if availability.away_until is not None and now < availability.away_until:
         back = availability.answers_at(now)
-        return math.inf if back is None else (back - now).total_seconds()
+        return LoadWindow(math.inf if back is None else (back - now).total_seconds())
     loaded = availability.answers_at(now)
     if loaded is None:
-        return math.inf
-    routine = loaded + timedelta(seconds=availability.visit_every_s)
+        return LoadWindow(math.inf)
     leave = availability.hours.next_departure(loaded)
-    # the routine visit loads the next arrays only if the request it answers is answered before they leave;
-    # a stretch that ends at 17:55 with a 10 min response leaves the night idle, so it fills the night instead
-    if leave is None or routine + timedelta(seconds=availability.response_s) <= leave:
-        return availability.visit_every_s
+    if leave is None:
+        return LoadWindow(availability.visit_every_s)
+    last = leave - timedelta(seconds=availability.response_s)  # a later request waits for the next morning
     back = availability.answers_at(leave)
-    return math.inf if back is None else (back - loaded).total_seconds()
+    next_answer_s = math.inf if back is None else (back - loaded).total_seconds()
+    routine = loaded + timedelta(seconds=availability.visit_every_s)
+    # the routine visit loads the next arrays only if the request it answers is answered before they leave
+    fill_s = availability.visit_every_s if routine <= last else next_answer_s
+    return LoadWindow(fill_s, (last - loaded).total_seconds(), next_answer_s)
 
 
 @dataclass(frozen=True)
@@ -91,10 +94,10 @@ class SimulatedOperator:
         answer = self.availability.answers_at(now)
         self.waited_s = math.inf if answer is None else self.waited_s + (answer - now).total_seconds()
 
-    def unattended_s(self, t_s: float) -> float:
+    def unattended(self, t_s: float) -> LoadWindow:
         """:func:`unattended_after` a request made at instrument time ``t_s``."""
         if math.isinf(self.waited_s):
-            return math.inf
+            return LoadWindow(math.inf)
         return unattended_after(self.availability, self.now(t_s))
 
     def emit(self, event: RunEvent) -> None:

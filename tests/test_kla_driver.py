@@ -3,10 +3,12 @@ reported exactly once, and no failed or not-run indent carries a number."""
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 from collections.abc import Iterator
 from dataclasses import replace
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
@@ -388,3 +390,62 @@ def test_a_refusal_is_kept_so_a_resume_journals_the_refused_rows_as_made(
     assert len([s for s in steps if s.category == "indent"]) == 5  # made, so priced
     made = d.archive.refused_made("r1", 0)  # kept with the refusal, before the block closed
     assert [o.indent_index for o in made] == list(range(5)) and {o.status for o in made} == {"unverified"}
+
+
+def test_a_block_handed_out_at_night_waits_for_the_morning_instead_of_closing_unrun(
+    exchange: Path, tmp_path: Path
+) -> None:
+    """Plain `aeni` on KLA with [operator] hours, a block proposed on Monday at 20:00: nobody can load it
+    before Tuesday 08:30 (+ 10 min response), so its ticket's wait counts from then. The lab's clock runs
+    5 min per look at the inbox until the operator is there; they then load each array as it comes (the
+    fake InView). Every indent is measured, none closes unrun overnight; during the hours the deadline is
+    as it always was."""
+    from core.operator import OperatorAvailability, OperatorHours
+    from drivers.kla.exchange import Ticket
+    from tests.test_engine import FakeCampaign, indents_of, run_engine
+
+    hours = OperatorAvailability(OperatorHours.parse("Mon-Fri 08:30-18:00"), 600.0, 7200.0)
+    evening, morning = datetime(2024, 1, 1, 20, 0), datetime(2024, 1, 2, 8, 40)
+    lab = [evening]
+
+    def utc() -> datetime:  # the driver's clock: the night passes while the block waits
+        if lab[0] < morning:
+            lab[0] += timedelta(minutes=5)
+        return lab[0].replace(tzinfo=UTC)
+
+    fake = FakeInView(exchange, PROFILE, make_scenario("ternary", SEED).make_emulator, invalid_rate=0.0,
+                      write_s=0.0, log=lambda _line: None)  # fmt: skip
+    stop = threading.Event()
+
+    def operator() -> None:  # comes in the morning and loads every array handed out
+        served: set[Path] = set()
+        while not stop.wait(0.01):
+            if lab[0] >= morning:
+                for path in sorted((exchange / "outbox").glob("*-ticket.json")):
+                    if path not in served:
+                        fake.serve(path)
+                        served.add(path)
+
+    thread = threading.Thread(target=operator)
+    thread.start()
+    try:
+        d = KlaDriver(PROFILE, exchange, "r1", tmp_path / "r1.sqlite.exports", now=utc, speed=1e6)
+        eng, journal = run_engine(
+            tmp_path, FakeCampaign(n_blocks=2), driver=d, operator=hours, local_now=lambda: lab[0]
+        )
+    finally:
+        stop.set()
+        thread.join()
+    assert eng.completed
+    rows = indents_of(journal)
+    assert len(rows) == 8 and all(math.isfinite(h) for *_, h in rows)
+    tickets = [
+        Ticket.from_dict(json.loads(p.read_text()), str(p))
+        for p in sorted((exchange / "outbox").glob("*-ticket.json"))
+    ]
+    night, day = tickets
+    # written at night: the wait counts from Tuesday 08:40; written during the hours: from when it was written
+    assert night.deadline() >= morning.replace(tzinfo=UTC) + timedelta(
+        seconds=PROFILE.inview.deadline_margin_s
+    )
+    assert (day.deadline() - datetime.fromisoformat(day.created_utc)).total_seconds() <= day.deadline_s + 1

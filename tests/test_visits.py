@@ -12,7 +12,7 @@ import pytest
 
 from core.errors import InputError
 from core.journal import JournalReader
-from core.operator import OperatorAvailability, OperatorHours, parse_start
+from core.operator import LoadWindow, OperatorAvailability, OperatorHours, parse_start
 from core.runconfig import parse_run_config
 from core.runview import CommandKind, EngineState
 from core.visits import OperatorCalendar, SimulatedOperator
@@ -47,19 +47,39 @@ def test_a_friday_evening_request_waits_for_monday() -> None:
 
 def test_unattended_is_the_routine_visit_during_hours_and_the_whole_absence_before_it() -> None:
     op = _operator("Mon 10:00")
-    assert op.unattended_s(0.0) == 7200.0  # loaded 10:10, next visit 12:10, before they leave
+    assert op.unattended(0.0).fill_s == 7200.0  # loaded 10:10, next visit 12:10, before they leave
     # a load at 17:10 runs until they answer again on Tuesday at 08:40
-    assert op.unattended_s(7 * 3600.0) == pytest.approx(15.5 * 3600)
+    assert op.unattended(7 * 3600.0).fill_s == pytest.approx(15.5 * 3600)
     # a load at 15:55: the routine visit at 17:55 could not be answered (10 min) before they leave at 18:00,
     # so the load runs the night too, until Tuesday at 08:40
-    assert op.unattended_s(5 * 3600.0 + 45 * 60.0) == pytest.approx(16.75 * 3600)  # loaded 15:55
+    assert op.unattended(5 * 3600.0 + 45 * 60.0).fill_s == pytest.approx(16.75 * 3600)  # loaded 15:55
     # at 15:45 the routine visit (17:45, answered 17:55) still comes before they leave
-    assert op.unattended_s(5 * 3600.0 + 35 * 60.0) == 7200.0
+    assert op.unattended(5 * 3600.0 + 35 * 60.0).fill_s == 7200.0
+
+
+def test_a_load_must_not_end_between_the_last_answerable_moment_and_the_next_morning() -> None:
+    """Film seed 4's Tuesday: a stretch loaded at 15:14 should run 2 h, to the routine visit; a request
+    after 17:50 (18:00 less the 10 min response) is answered only on Wednesday at 08:40, so a load that
+    ends between the two leaves the instrument idle all night."""
+    op = _operator("Tue 15:04")
+    w = op.unattended(0.0)  # loaded at 15:14
+    assert w.fill_s == 7200.0
+    assert w.last_answer_s == pytest.approx((2 * 60 + 36) * 60)  # 17:50
+    assert w.next_answer_s == pytest.approx((17 * 60 + 26) * 60)  # Wednesday 08:40
+    # a load ending at 17:55 falls between the two: nobody loads the next arrays until the morning
+    assert w.last_answer_s < (2 * 60 + 41) * 60 < w.next_answer_s
+    # loaded at 15:55 the routine visit (17:55) comes too late: the load fills the night, same span to avoid
+    late = _operator("Tue 15:45").unattended(0.0)
+    assert late.fill_s == late.next_answer_s == pytest.approx((16 * 60 + 45) * 60)
+    assert late.last_answer_s == pytest.approx(115 * 60)
+    # always there: no absence ahead, nothing to avoid
+    always = SimulatedOperator(OperatorAvailability(OperatorHours.parse("always")), parse_start("Mon 09:00"))
+    assert always.unattended(0.0) == LoadWindow(7200.0)
 
 
 def test_nobody_ever_comes_is_infinite_never_a_number() -> None:
     op = SimulatedOperator(OperatorAvailability(OperatorHours.parse("never")), parse_start("Mon 09:00"))
-    assert math.isinf(op.unattended_s(0.0))
+    assert math.isinf(op.unattended(0.0).fill_s)
     op.load(0.0)
     assert math.isinf(op.wall_s(10.0)) and op.visits == 1
 
@@ -118,13 +138,13 @@ def test_away_until_makes_the_engine_plan_for_nobody_until_then(tmp_path: Path) 
     campaign is told how long the next load runs unattended."""
     from tests.test_engine import FakeCampaign, cmd, run_engine, when
 
-    seen: list[float | None] = []
+    seen: list[LoadWindow | None] = []
 
     class Listening(FakeCampaign):
-        unattended_s: Callable[[float], float | None] | None = None
+        unattended: Callable[[float], LoadWindow | None] | None = None
 
         def propose(self, clock_s: float, *a: Any) -> Any:
-            seen.append(None if self.unattended_s is None else self.unattended_s(clock_s))
+            seen.append(None if self.unattended is None else self.unattended(clock_s))
             return super().propose(clock_s, *a)
 
     now = datetime(2024, 1, 1, 17, 0)  # a Monday, 17:00
@@ -142,7 +162,7 @@ def test_away_until_makes_the_engine_plan_for_nobody_until_then(tmp_path: Path) 
     assert eng.completed
     assert seen[0] is None  # no [operator] section: planned as if always attended
     # away until 09:00, then (always there) answered within the 10 min response: 16 h 10 min from 17:00
-    assert seen[-1] == pytest.approx(16 * 3600 + 600)
+    assert seen[-1] is not None and seen[-1].fill_s == pytest.approx(16 * 3600 + 600)
     with JournalReader(path) as r:
         texts = [e.text for e in r.events()]
     assert any("away until Tue 2024-01-02 09:00" in t for t in texts)
@@ -207,3 +227,19 @@ def test_program_life_and_stretch_modifiers_are_options_not_the_default() -> Non
     tuned = policy_parts("aeni+stretch+program-life").blocks
     assert isinstance(tuned, ScatteredSingles)
     assert tuned.stretch_min_s == 3 * 3600 and tuned.program_life
+
+
+def test_a_stretch_before_the_last_visit_of_the_day_does_not_leave_the_night_idle() -> None:
+    """The film, the operator coming by every 30 min, a start on Monday at 17:00: the first load (17:10)
+    should run to the 17:40 routine visit, but one film array (a program of singles) takes longer than the
+    40 min left before 17:50, the last moment a request is still answered. The stretch ends by then or
+    fills the night; either way the instrument never waits for the morning with a stretch done at 17:55."""
+    from aeni_console.commands.simulate import run_simulation
+
+    cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 1800.0), parse_start("Mon 17:00"))
+    out = run_simulation(
+        "aeni+stretch-visits", 0, scenario="film", lattice_n=24, budget_s=3 * 3600, calendar=cal
+    )
+    idle_h = out["wall_clock_h"] - out["instrument_s"] / 3600
+    # the first load waits 10 min; every later request is answered within the hours or after a full stretch
+    assert idle_h < 1.0, f"{idle_h:.2f} h idle"

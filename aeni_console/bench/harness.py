@@ -449,7 +449,7 @@ def run_one(spec: RunSpec) -> RunRecord:
 
     operator = spec.calendar.operator() if spec.calendar is not None else None
     if operator is not None:
-        campaign.unattended_s = operator.unattended_s
+        campaign.unattended = operator.unattended
     watch = BlockWatch()
     sinks: list[Any] = [watch] if operator is None else [operator, watch]
     result = run_auto(campaign, driver, evaluator, sinks=sinks, stop_when=stop_when)

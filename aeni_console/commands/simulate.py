@@ -112,7 +112,7 @@ def run_simulation(
     watch = [ModulusScore()] if campaign.settings.map_weights.maps_modulus else []
     operator = calendar.operator() if calendar is not None else None
     if operator is not None:
-        campaign.unattended_s = operator.unattended_s
+        campaign.unattended = operator.unattended
     result = run_auto(
         campaign,
         driver,

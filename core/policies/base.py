@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import numpy as np
 
 from core.cost import block_steps
+from core.operator import LoadWindow
 from core.plan import Alternative, Block, BlockKind, Decision, PlannerSettings, local_grid
 from core.profile import InstrumentProfile
 
@@ -90,8 +91,9 @@ class PlanContext:
     )
     sample: Sample | None = None  # for planners whose blocks are not on the lattice (the grid baseline)
     modulus: ModulusView | None = None  # the modulus map, when map_weights asks for it (else hardness only)
-    # how long the next load runs before anyone comes again (core.visits); None: attended, as always before
-    unattended_s: float | None = None
+    # how long the next load runs before anyone comes again, and when it must not end (core.visits); None:
+    # attended, as always before
+    unattended: LoadWindow | None = None
 
     @property
     def fixed_hold_s(self) -> float:

@@ -6,7 +6,8 @@ that adds most to the map's integrated relative variance given every site the st
 (the posterior conditioned on the stretch's earlier sites, y-free, as a block's own picks are), filled
 with the singles its safe band reaches, ordered for travel and priced by the cost model from where the
 previous array ends (its lift, engage and drift settle: one reconfiguration each). Arrays are added until
-their instrument time fills the absence.
+their instrument time fills the absence, and a stretch never ends where nobody could load the next one (see
+:func:`plan_stretch`).
 
 Each array still passes the interlock as its own block when the engine offers it; the ones after the
 first carry ``phase = "stretch-continues"`` (loaded with the first: no visit of their own).
@@ -14,6 +15,7 @@ first carry ``phase = "stretch-continues"`` (loaded with the first: no visit of 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -33,19 +35,60 @@ MAX_ARRAYS = 60  # a weekend is not filled with more (the run's budget stops it 
 def stretch_due(planner: ScatteredPlanner, ctx: PlanContext) -> bool:
     """A stretch is planned when the next load runs unattended for longer than the design's threshold."""
     d = planner.design
-    return d.stretch_min_s is not None and ctx.unattended_s is not None and ctx.unattended_s > d.stretch_min_s
+    w = ctx.unattended
+    return d.stretch_min_s is not None and w is not None and w.fill_s > d.stretch_min_s
 
 
 def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
-    """The stretch's arrays, in the order they run (empty when nothing can be placed)."""
+    """The stretch's arrays, in the order they run (empty when nothing can be placed).
+
+    The instrument must never idle while someone could have loaded it: a stretch that a visit during the
+    hours follows ends by the day's last answerable moment (else nobody loads the next arrays and the
+    instrument stands idle until the next morning); when not one array fits before that moment, the
+    stretch fills the night now instead.
+    """
+    window = ctx.unattended
+    assert window is not None
+    fill_s = window.fill_s
+    end_by_s = window.last_answer_s if fill_s <= window.last_answer_s else math.inf
+    planned, exploring, hold_mode = _arrays(planner, ctx, fill_s, end_by_s)
+    if not planned and math.isfinite(end_by_s):
+        fill_s = window.next_answer_s
+        planned, exploring, hold_mode = _arrays(planner, ctx, fill_s, math.inf)
+    total_s = sum(cost for _, cost, _ in planned)
+    n = len(planned)
+    out: list[Decision] = []
+    for k, (block, cost, gain) in enumerate(planned):
+        out.append(
+            Decision(
+                block=block,
+                policy=planner.name,
+                acquisition=gain,
+                score=gain / cost if cost > 0 else 0.0,
+                predicted_cost_s=cost,
+                reason=(
+                    f"stretch array {k + 1} of {n}: {block.n_indents} singles, {'maximin spacing' if exploring else 'IVR'} over the whole stretch; "
+                    f"the stretch runs ~{total_s / 3600:.1f} h unattended (nobody for {fill_s / 3600:.1f} h)"
+                ),
+                phase=STRETCH_PHASE if k == 0 else STRETCH_CONTINUES,
+                hold_mode=hold_mode,
+            )
+        )
+    return out
+
+
+def _arrays(
+    planner: ScatteredPlanner, ctx: PlanContext, fill_s: float, end_by_s: float
+) -> tuple[list[tuple[Block, float, float]], bool, str]:
+    """Arrays (block, cost, gain) until their instrument time fills ``fill_s``, the last one trimmed to the
+    singles that fit (at least one program's worth), and none that cannot end by ``end_by_s``; whether they
+    are the space-filling start, and the hold's mode."""
     from core.policies.scattered import BOX_FRACTION, MAX_CANDIDATES, _in_box, _Ivr, _Maximin, _Value
 
-    assert ctx.unattended_s is not None
-    fill_s = ctx.unattended_s
     d = planner.design
     allowed = base_mask(ctx, 0.0)
     if not allowed.any():
-        return []
+        return [], False, ""
     cand = np.flatnonzero(allowed)
     if len(cand) > MAX_CANDIDATES:
         cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
@@ -74,46 +117,44 @@ def plan_stretch(planner: ScatteredPlanner, ctx: PlanContext) -> list[Decision]:
         picks, gains = planner._batch(value, xy, band, first, ctx)
         if indents_left is not None:
             picks, gains = picks[:indents_left], gains[:indents_left]
+
+        cost_of = functools.cache(
+            functools.partial(_cost, planner, ctx, xy[picks], hold, anchor, pos, program_open)
+        )
+        keep = len(picks)
+        for limit_s in (fill_s if planned else math.inf, end_by_s):
+            # the singles that fit the limit, but at least one program's worth of them
+            while keep > d.indents_per_block and total_s + cost_of(keep) > limit_s:
+                keep -= 1
+        if total_s + cost_of(keep) > end_by_s:
+            break  # not even one program's worth ends by then
+        picks, gains = picks[:keep], gains[:keep]
+        if indents_left is not None:
             indents_left -= len(picks)
         block = planner._block(ctx, "global", xy[picks], hold, anchor)
         cost = block_costs_for(ctx.profile, block, pos, program_open)
-        if planned and total_s + cost > fill_s:
-            # the last array keeps the singles that fit the absence (at least one program's worth of them)
-            keep = len(picks)
-            while keep > d.indents_per_block:
-                keep -= 1
-                trimmed = planner._block(ctx, "global", xy[picks[:keep]], hold, anchor)
-                if total_s + block_costs_for(ctx.profile, trimmed, pos, program_open) <= fill_s:
-                    break
-            if keep < len(picks):
-                picks, gains = picks[:keep], gains[:keep]
-                block = planner._block(ctx, "global", xy[picks], hold, anchor)
-                cost = block_costs_for(ctx.profile, block, pos, program_open)
         for j in picks:
             free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
         planned.append((block, cost, float(sum(gains))))
         total_s += cost
         last = block.indents[-1]
         pos, program_open = (last.x_um, last.y_um), True
-    n = len(planned)
-    out: list[Decision] = []
-    for k, (block, cost, gain) in enumerate(planned):
-        out.append(
-            Decision(
-                block=block,
-                policy=planner.name,
-                acquisition=gain,
-                score=gain / cost if cost > 0 else 0.0,
-                predicted_cost_s=cost,
-                reason=(
-                    f"stretch array {k + 1} of {n}: {block.n_indents} singles, {'maximin spacing' if exploring else 'IVR'} over the whole stretch; "
-                    f"the stretch runs ~{total_s / 3600:.1f} h unattended (nobody for {fill_s / 3600:.1f} h)"
-                ),
-                phase=STRETCH_PHASE if k == 0 else STRETCH_CONTINUES,
-                hold_mode=hold_mode,
-            )
-        )
-    return out
+    return planned, exploring, hold_mode
+
+
+def _cost(
+    planner: ScatteredPlanner,
+    ctx: PlanContext,
+    sites_xy_um: np.ndarray,
+    hold_s: float,
+    anchor: tuple[float, float],
+    pos: tuple[float, float],
+    program_open: bool,
+    keep: int,
+) -> float:
+    """Instrument seconds of an array of the first ``keep`` sites, from ``pos``."""
+    block = planner._block(ctx, "global", sites_xy_um[:keep], hold_s, anchor)
+    return block_costs_for(ctx.profile, block, pos, program_open)
 
 
 def renumbered(decision: Decision, block_id: int) -> Decision:

@@ -35,6 +35,7 @@ from core.driver import (
     Recoverable,
     Restorable,
     WaitsForOperator,
+    WaitsFromAnswer,
 )
 from core.errors import InputError
 from core.interlock import Interlock
@@ -243,9 +244,14 @@ class Engine:
         from core.visits import unattended_after
 
         now = self._local_now or datetime.now
-        if hasattr(self.campaign, "unattended_s"):
-            self.campaign.unattended_s = lambda _clock_s: (
+        if hasattr(self.campaign, "unattended"):
+            self.campaign.unattended = lambda _clock_s: (
                 unattended_after(self.operator, now()) if self.operator is not None else None
+            )
+        # a ticket handed to the operator waits from when they can answer it (at night: from the morning)
+        if isinstance(self.driver, WaitsFromAnswer):
+            self.driver.wait_from_answer(
+                lambda: self.operator.answer_delay_s(now()) if self.operator is not None else 0.0
             )
 
     # -- small helpers -----------------------------------------------------------------------------

@@ -98,6 +98,7 @@ class KlaDriver(InstrumentState):
         super().__init__(start_um, clock_s)
         self._array: ArrayRun | None = None
         self._stretch: tuple[Block, ...] = ()  # a stretch handed to the operator: its arrays in load order
+        self._answer_delay_s: Callable[[], float] = lambda: 0.0  # until someone can answer a ticket
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -127,6 +128,10 @@ class KlaDriver(InstrumentState):
             return False, f"unknown report {kind!r} (expected {', '.join(REPORT_KINDS)} or skip)"
         return array.report(cast(ReportKind, kind), value, author)
 
+    def wait_from_answer(self, delay_s: Callable[[], float]) -> None:
+        """A ticket's deadline counts from when the operator can answer it (core.driver.WaitsFromAnswer)."""
+        self._answer_delay_s = delay_s
+
     # -- a stretch ---------------------------------------------------------------------------------
     def load_stretch(self, arrays: Sequence[Block]) -> None:
         """Nobody comes between a stretch's arrays: the first array's ticket goes out with all the others
@@ -137,6 +142,7 @@ class KlaDriver(InstrumentState):
         """The tickets of the loaded stretch, in load order (the first from ``start_index``), priced one
         after another by the cost model from where the instrument is now."""
         pos, is_open, clock, before = self._pos, self._open, self._clock_s, 0.0
+        delay_s = self._answer_delay_s()
         tickets = []
         for k, block in enumerate(self._stretch):
             first = start_index if k == 0 else 0
@@ -154,6 +160,7 @@ class KlaDriver(InstrumentState):
                     program_open=is_open,
                     speed=self.speed,
                     runs_after_s=before,
+                    answer_delay_s=delay_s,
                 )
             )
             before, clock = before + expected, clock + expected
@@ -179,7 +186,7 @@ class KlaDriver(InstrumentState):
         wanted = tuple((s.x_um, s.y_um) for s in block.indents[start_index:])
         if existing is not None and existing.first_index == start_index and existing.sites_um == wanted:
             if existing.deadline() <= self.now():  # the engine was down past it: a fresh wait, same token
-                wait = timedelta(seconds=self.profile.inview.deadline_margin_s)
+                wait = timedelta(seconds=self._answer_delay_s() + self.profile.inview.deadline_margin_s)
                 existing = replace(
                     existing, deadline_utc=(self.now() + wait).replace(microsecond=0).isoformat()
                 )
@@ -203,6 +210,7 @@ class KlaDriver(InstrumentState):
             from_um=self._pos,
             program_open=self._open,
             speed=self.speed,
+            answer_delay_s=self._answer_delay_s(),
         )
         self.folder.publish(ticket)
         return ticket

@@ -239,12 +239,15 @@ def make_ticket(
     program_open: bool = False,
     speed: float | None = None,
     runs_after_s: float = 0.0,
+    answer_delay_s: float = 0.0,
 ) -> Ticket:
     """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre.
 
     ``speed``: the instrument runs that many times faster than the cost model (a fake InView at ``--speed``),
     so the deadline is the estimate ÷ speed × factor + margin of wall time. ``runs_after_s``: instrument
     seconds of the arrays loaded before it that run first (a stretch), counted into the deadline.
+    ``answer_delay_s``: wall seconds until the operator can answer at all (nobody there): the wait counts
+    from then, so a block written at night does not run out unrun before anyone could load it.
     """
     if not _RUN_NAME.match(run):
         raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
@@ -282,7 +285,7 @@ def make_ticket(
         expected_s=float(expected_s),
         deadline_s=wait_s,
         created_utc=created.isoformat(),
-        deadline_utc=(created + timedelta(seconds=math.ceil(wait_s))).isoformat(),
+        deadline_utc=(created + timedelta(seconds=math.ceil(answer_delay_s + wait_s))).isoformat(),
         token=token or new_token(),
         clock_s=float(clock_s),
         from_um=(float(from_um[0]), float(from_um[1])),

@@ -23,7 +23,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from core.describe import describe_block
 from core.driver import (
@@ -75,13 +75,20 @@ if TYPE_CHECKING:
     from datetime import datetime
 
     from core.model import FitReport  # the refit's report (torch stays out of the engine's import)
-    from core.operator import OperatorAvailability
+    from core.operator import LoadWindow, OperatorAvailability
 
 
 class StageFrame(Protocol):
     """The campaign's calibration, as far as the engine needs it: unit-square (u, v) to stage µm."""
 
     def to_stage(self, u: float, v: float) -> tuple[Any, Any]: ...
+
+
+@runtime_checkable
+class PlansForAbsence(Protocol):
+    """A campaign that sizes its next load by when the operator will next come (core.visits)."""
+
+    unattended: Callable[[float], LoadWindow | None] | None
 
 
 class CampaignLike(Protocol):
@@ -244,7 +251,7 @@ class Engine:
         from core.visits import unattended_after
 
         now = self._local_now or datetime.now
-        if hasattr(self.campaign, "unattended"):
+        if isinstance(self.campaign, PlansForAbsence):
             self.campaign.unattended = lambda _clock_s: (
                 unattended_after(self.operator, now()) if self.operator is not None else None
             )

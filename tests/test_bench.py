@@ -182,6 +182,7 @@ def test_policy_subset_holds_on_extra_fields_and_runs_the_ablations_it_names() -
         (["--jobs", "two"], "--jobs"),
         (["--out", "{file}"], "folder"),
         (["--scenarios", "ternary,nope"], "nope"),
+        (["--lattice", "5"], "--lattice"),
     ],
 )
 def test_bench_bad_input_is_one_line_exit_2_and_nothing_written(

@@ -24,6 +24,10 @@ def _handler(args: argparse.Namespace) -> int:
     config = BenchConfig.make(
         quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios, policies=args.policies
     )
+    if args.lattice is not None:
+        from dataclasses import replace
+
+        config = replace(config, lattice_n=args.lattice)
     if args.failure_rate is not None:
         from dataclasses import replace
 
@@ -133,6 +137,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--jobs", type=whole_number("--jobs", 1, 64), default=2, help="worker processes (default 2)"
+    )
+    p.add_argument(
+        "--lattice",
+        type=whole_number("--lattice", 10, 400),
+        default=None,
+        help="candidate lattice per side (50; quick: 30; the product's default on the 1000 µm square is 100)",
     )
     p.add_argument(
         "--scenarios",

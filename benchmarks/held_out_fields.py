@@ -14,8 +14,8 @@ Protocol as in ``aeni bench``: the grid baseline of each seed sets the target (i
 budget; the policy runs until it reaches the target and on for 10 %, and the speed-up is grid time /
 policy time to the target, paired by seed (0 = never reached).
 
-Run: python benchmarks/held_out_fields.py [--policy aeni] [--seeds 5] [--jobs 2] → prints a table,
-writes results/held_out_<policy>.{json,md}
+Run: python benchmarks/held_out_fields.py [--policy aeni] [--seeds 5] [--jobs 2] [--fields noisy,...]
+[--lattice 50] → prints a table, writes results/held_out_<policy>[_lattice<n>].{json,md}
 """
 
 from __future__ import annotations
@@ -89,19 +89,20 @@ def write_truth(key: str, folder: Path) -> Path:
     return write_truth_csv(folder / f"held_out_{key}.csv", gx, gy, *FIELDS[key](gx, gy))
 
 
-def _spec(key: str, csv: Path, policy: str, seed: int, **kw: float) -> RunSpec:
+def _spec(key: str, csv: Path, policy: str, seed: int, lattice_n: int, **kw: float) -> RunSpec:
     sc = BenchScenario(key, "csv", f"held-out field {key}", ("grid", policy), group="robustness")
-    return RunSpec(sc, policy, seed, LATTICE_N, truth_csv=str(csv), **kw)  # type: ignore[arg-type]
+    return RunSpec(sc, policy, seed, lattice_n, truth_csv=str(csv), **kw)  # type: ignore[arg-type]
 
 
-def _grid(args: tuple[str, Path, int]) -> RunRecord:
-    key, csv, seed = args
-    return run_one(_spec(key, csv, "grid", seed))
+def _grid(args: tuple[str, Path, int, int]) -> RunRecord:
+    key, csv, seed, lattice_n = args
+    return run_one(_spec(key, csv, "grid", seed, lattice_n))
 
 
-def _policy(args: tuple[str, Path, str, int, float, float]) -> RunRecord:
-    key, csv, policy, seed, budget_s, target_pct = args
-    return run_one(_spec(key, csv, policy, seed, budget_s=budget_s, target_mape_pct=target_pct, margin=0.1))
+def _policy(args: tuple[str, Path, str, int, int, float, float]) -> RunRecord:
+    key, csv, policy, seed, lattice_n, budget_s, target_pct = args
+    spec = _spec(key, csv, policy, seed, lattice_n, budget_s=budget_s, target_mape_pct=target_pct, margin=0.1)
+    return run_one(spec)
 
 
 def main() -> None:
@@ -109,6 +110,12 @@ def main() -> None:
     ap.add_argument("--policy", default="aeni", help="a registry policy or an ablation BASE+modifier")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument(
+        "--lattice",
+        type=int,
+        default=LATTICE_N,
+        help=f"candidate lattice per side ({LATTICE_N}: the bench's)",
+    )
     ap.add_argument(
         "--fields", default=",".join(FIELDS), help="comma-separated subset of " + ", ".join(FIELDS)
     )
@@ -122,9 +129,17 @@ def main() -> None:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.jobs) as ex:
         csvs = {k: write_truth(k, Path(tmp)) for k in keys}  # rebuilt from this file: only results are kept
-        grids = list(ex.map(_grid, [(k, csvs[k], s) for k in keys for s in range(args.seeds)]))
+        grids = list(ex.map(_grid, [(k, csvs[k], s, args.lattice) for k in keys for s in range(args.seeds)]))
         tasks = [
-            (g.scenario, csvs[g.scenario], args.policy, g.seed, g.instrument_s, g.final_mape_pct)
+            (
+                g.scenario,
+                csvs[g.scenario],
+                args.policy,
+                g.seed,
+                args.lattice,
+                g.instrument_s,
+                g.final_mape_pct,
+            )
             for g in grids
         ]
         runs = list(ex.map(_policy, tasks))
@@ -148,7 +163,7 @@ def main() -> None:
             }
         )
     lines = [
-        f"# Held-out fields: `{args.policy}` against the grid ({args.seeds} seeds)",
+        f"# Held-out fields: `{args.policy}` against the grid ({args.seeds} seeds, lattice {args.lattice})",
         "",
         "Grid time / policy time to reach the grid's final MAPE, paired by seed (0 = never reached).",
         "",
@@ -167,7 +182,7 @@ def main() -> None:
     ]
     text = "\n".join(lines)
     print(text)
-    name = args.policy.replace("+", "_")
+    name = args.policy.replace("+", "_") + ("" if args.lattice == LATTICE_N else f"_lattice{args.lattice}")
     (out / f"held_out_{name}.md").write_text(text + "\n", encoding="utf-8")
     data = {"policy": args.policy, "seeds": args.seeds, "fields": keys, "runs": rows, "wall_s": wall}
     (out / f"held_out_{name}.json").write_text(json.dumps(data, indent=1), encoding="utf-8")

@@ -151,8 +151,21 @@ def main() -> int:
         default="hardness",
         help="which map the designs are scored on (issue 27: the modulus from the same indents)",
     )
+    ap.add_argument(
+        "--sizes",
+        default=None,
+        metavar="K[,K...]",
+        help="score exactly these k×k designs of single indents, every one (no stop once two reach the target); "
+        "writes oracle_bound_<field>_sizes.{md,json}: how far denser designs go, beside the cheapest one",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args()
+    try:
+        sizes = [int(k) for k in args.sizes.split(",")] if args.sizes else None
+    except ValueError:
+        ap.error(f"--sizes: expected whole numbers such as 26,38,50, got {args.sizes!r}")
+    if sizes is not None and any(k < 2 for k in sizes):
+        ap.error(f"--sizes: every k must be at least 2, got {args.sizes!r}")
     field: str = args.field
     ternary = field == "ternary"
     t0 = time.perf_counter()
@@ -173,7 +186,8 @@ def main() -> int:
     )
     print(f"{field}: grid {grid_time_s:,.0f} s, final MAPE {target:.3f} %", flush=True)
     rows: list[dict[str, Any]] = []
-    for kx, ky, g in designs_for(field, bounds, modulus):
+    designs = [(k, k, 1) for k in sizes] if sizes is not None else designs_for(field, bounds, modulus)
+    for kx, ky, g in designs:
         estimators: tuple[CentreEstimator, ...] = ("median", "huber") if g > 1 else ("median",)
         for estimator in estimators:
             best = None
@@ -211,7 +225,8 @@ def main() -> int:
                 f"  ({time.perf_counter() - t0:.0f} s)",
                 flush=True,
             )
-        if not ternary and len(rows) >= 2 and rows[-1]["reaches_target"] and rows[-2]["reaches_target"]:
+        two_reach = len(rows) >= 2 and rows[-1]["reaches_target"] and rows[-2]["reaches_target"]
+        if not ternary and sizes is None and two_reach:
             break  # cheapest first: the rest cannot be the cheapest that reaches it (two in a row: not a fluke)
     return _write(args, field, rows, target, grid_time_s, time.perf_counter() - t0)
 
@@ -232,8 +247,10 @@ def _write(
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    stem = ("oracle_bound" if ternary else f"oracle_bound_{field}") + (
-        "_modulus" if args.map == "modulus" else ""
+    stem = (
+        ("oracle_bound" if ternary else f"oracle_bound_{field}")
+        + ("_modulus" if args.map == "modulus" else "")
+        + ("_sizes" if args.sizes else "")
     )
     data: dict[str, object] = {} if ternary else {"field": field}
     data |= {
@@ -249,6 +266,7 @@ def _write(
     max_n = math.floor(grid_time_s / (goal * FAST_INDENT_S))
     cmd = "python benchmarks/oracle_bound.py" + ("" if ternary else f" --field {field}")
     cmd += " --map modulus" if args.map == "modulus" else ""
+    cmd += f" --sizes {args.sizes}" if args.sizes else ""
     of_map = ", modulus map" if args.map == "modulus" else ""
     if ternary:
         lines = [
@@ -272,8 +290,12 @@ def _write(
             "(measured here at the grid's centres with no drift, fitted by the same GP). An oracle places single "
             "indents evenly over the sample (kx×ky, edge to edge or at cell centres, the better of the two) at "
             "the 5 s hold, with no drift, travel or overhead; its speed-up is at most grid time / (indents × 45 s). "
-            "Designs are tried cheapest first; the second in a row that reaches the grid's MAPE ends the table. "
-            f"The bench's {goal:g}× target would need it reached with at most {max_n:,} indents.",
+            + (
+                "Every design named by --sizes is scored. "
+                if args.sizes
+                else "Designs are tried cheapest first; the second in a row that reaches the grid's MAPE ends the table. "
+            )
+            + f"The bench's {goal:g}× target would need it reached with at most {max_n:,} indents.",
             "",
             "| centres | layout | indents | median MAPE | reaches | speed-up bound |",
             "|---|---|---|---|---|---|",
@@ -309,6 +331,12 @@ def _write(
                     f"{found['g']}×{found['g']} ({found['indents']} indents): at least {found['min_time_s']:,.0f} s,"
                     f" at most **{found['max_speedup']:.1f}×** faster than the grid."
                 )
+    elif args.sizes:
+        low = min(rows, key=lambda r: r["median_mape_pct"])
+        lines.append(
+            f"- The lowest error of these designs: {low['shape']} ({low['indents']} indents) at "
+            f"{low['median_mape_pct']:.3f} %, {target / low['median_mape_pct']:.2f}× below the grid's final MAPE."
+        )
     else:
         pick = best_by_est["median"]
         if pick is None:

@@ -30,25 +30,25 @@ sys.path.insert(0, str(ROOT))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from aeni_console.bench.harness import (  # noqa: E402
-    EXTRA_SCENARIOS,
-    FULL_SCENARIOS,
+    BenchConfig,
     BenchScenario,
     RunRecord,
     RunSpec,
     flat_mape_pct,
     run_one,
 )
+from core.errors import InputError  # noqa: E402
 from drivers.sim.failures import REALISTIC_FAILURE_RATE  # noqa: E402
 
 UNCAPPED = 1_000_000  # blocks and centres: only the grid's time ends the policy's run
 
 
 def _scenario(key: str) -> BenchScenario:
-    for sc in FULL_SCENARIOS + EXTRA_SCENARIOS:
-        if sc.key == key:
-            return sc
-    known = ", ".join(sc.key for sc in FULL_SCENARIOS)
-    raise SystemExit(f"--scenario: unknown bench scenario {key!r} (known: {known})")
+    """The bench's scenario of that key, found as ``aeni bench --scenarios`` finds it."""
+    try:
+        return BenchConfig.make(quick=False, seeds=1, jobs=1, only=key).scenarios[0]
+    except InputError as exc:
+        raise SystemExit(f"--scenario: {exc.problem}") from None
 
 
 def _run(args: tuple[str, str, int, int, float | None]) -> RunRecord:

@@ -232,10 +232,8 @@ class OperatorAvailability:
         """How long after ``t`` a wait for the operator (a KLA ticket's deadline) starts counting: 0 when a
         request made at ``t`` is answered within the response time (as during the hours: the deadline's
         margin covers the response), else until they answer after the absence (0 when nobody ever comes)."""
-        answer = self.answers_at(t)
-        if answer is None or answer <= t + timedelta(seconds=self.response_s):
-            return 0.0
-        return (answer - t).total_seconds()
+        wait_s = self.unattended_s(t)
+        return 0.0 if math.isinf(wait_s) or wait_s <= self.response_s else wait_s
 
     def unattended_s(self, t: datetime) -> float:
         """Seconds from ``t`` until a request made at ``t`` is answered (inf: nobody ever comes)."""

@@ -6,6 +6,7 @@ import argparse
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from aeni_console.commands.common import map_weights_arg
@@ -25,19 +26,13 @@ def _handler(args: argparse.Namespace) -> int:
         quick=args.quick, seeds=args.seeds, jobs=args.jobs, only=args.scenarios, policies=args.policies
     )
     if args.lattice is not None:
-        from dataclasses import replace
-
         config = replace(config, lattice_n=args.lattice)
     if args.failure_rate is not None:
-        from dataclasses import replace
-
         from drivers.sim.failures import FailureModes
 
         FailureModes.at_rate(args.failure_rate, 0)  # refuse a bad rate before anything runs
         config = replace(config, failure_rate=args.failure_rate)
     if args.map_weights is not None:
-        from dataclasses import replace
-
         from core.settings import settings_from_dict
 
         settings_from_dict({"map_weights": args.map_weights})  # refuse bad weights before anything runs
@@ -46,8 +41,6 @@ def _handler(args: argparse.Namespace) -> int:
 
     calendar = operator_calendar(args)
     if calendar is not None:
-        from dataclasses import replace
-
         config = replace(config, calendar=calendar)
     n_runs = sum(len(s.policies) * min(config.seeds, s.max_seeds or config.seeds) for s in config.scenarios)
     start = time.monotonic()

@@ -118,21 +118,20 @@ def _arrays(
         if indents_left is not None:
             picks, gains = picks[:indents_left], gains[:indents_left]
 
-        cost_of = functools.cache(
-            functools.partial(_cost, planner, ctx, xy[picks], hold, anchor, pos, program_open)
+        array_of = functools.cache(
+            functools.partial(_array, planner, ctx, xy[picks], hold, anchor, pos, program_open)
         )
         keep = len(picks)
         for limit_s in (fill_s if planned else math.inf, end_by_s):
             # the singles that fit the limit, but at least one program's worth of them
-            while keep > d.indents_per_block and total_s + cost_of(keep) > limit_s:
+            while keep > d.indents_per_block and total_s + array_of(keep)[1] > limit_s:
                 keep -= 1
-        if total_s + cost_of(keep) > end_by_s:
+        block, cost = array_of(keep)
+        if total_s + cost > end_by_s:
             break  # not even one program's worth ends by then
         picks, gains = picks[:keep], gains[:keep]
         if indents_left is not None:
             indents_left -= len(picks)
-        block = planner._block(ctx, "global", xy[picks], hold, anchor)
-        cost = block_costs_for(ctx.profile, block, pos, program_open)
         for j in picks:
             free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
         planned.append((block, cost, float(sum(gains))))
@@ -142,7 +141,7 @@ def _arrays(
     return planned, exploring, hold_mode
 
 
-def _cost(
+def _array(
     planner: ScatteredPlanner,
     ctx: PlanContext,
     sites_xy_um: np.ndarray,
@@ -151,10 +150,10 @@ def _cost(
     pos: tuple[float, float],
     program_open: bool,
     keep: int,
-) -> float:
-    """Instrument seconds of an array of the first ``keep`` sites, from ``pos``."""
+) -> tuple[Block, float]:
+    """The array of the first ``keep`` sites, ordered for travel, and its instrument seconds from ``pos``."""
     block = planner._block(ctx, "global", sites_xy_um[:keep], hold_s, anchor)
-    return block_costs_for(ctx.profile, block, pos, program_open)
+    return block, block_costs_for(ctx.profile, block, pos, program_open)
 
 
 def renumbered(decision: Decision, block_id: int) -> Decision:

@@ -251,15 +251,13 @@ class Engine:
         from core.visits import unattended_after
 
         now = self._local_now or datetime.now
+        operator = self.operator  # every change of the operator's availability binds these again
+        assert operator is not None
         if isinstance(self.campaign, PlansForAbsence):
-            self.campaign.unattended = lambda _clock_s: (
-                unattended_after(self.operator, now()) if self.operator is not None else None
-            )
+            self.campaign.unattended = lambda _clock_s: unattended_after(operator, now())
         # a ticket handed to the operator waits from when they can answer it (at night: from the morning)
         if isinstance(self.driver, WaitsFromAnswer):
-            self.driver.wait_from_answer(
-                lambda: self.operator.answer_delay_s(now()) if self.operator is not None else 0.0
-            )
+            self.driver.wait_from_answer(lambda: operator.answer_delay_s(now()))
 
     # -- small helpers -----------------------------------------------------------------------------
     def _clock(self) -> float:

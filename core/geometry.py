@@ -36,6 +36,14 @@ _REPEAT_REL_DIST = 1e-9
 # Slack for "on the boundary" tests, relative to the size of the area (rounding only, never physics).
 _BOUNDARY_REL_TOL = 1e-9
 _Z_TOL_UM = 1e-9
+# Slack on distances between sites (rounding only, never physics): a lattice whose pitch is exactly r_excl
+# (50×50 over 1,000 µm at 20 µm) must stay usable when float noise makes a pitch 19.999999999999996 µm.
+DISTANCE_TOL_UM = 1e-6
+
+
+def far_enough(distance_um: ArrayLike, min_um: float) -> BoolArray:
+    """True where a distance is at least ``min_um`` (exactly ``min_um`` is allowed, up to rounding)."""
+    return np.asarray(np.asarray(distance_um) >= min_um - DISTANCE_TOL_UM, dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -456,12 +464,12 @@ def exclusion_mask(
     tree = cKDTree(ind)
     if h == 0.0:
         dist, _ = tree.query(cand, k=1, distance_upper_bound=r * pad)
-        return np.asarray(~(dist < r), dtype=bool)
+        return far_enough(dist, r)
     # Chebyshev pairs within h + r are a superset of the rounded square; check those exactly.
     pairs = cKDTree(cand).sparse_distance_matrix(tree, (h + r) * pad, p=np.inf, output_type="ndarray")
     i = pairs["i"]
     gap = np.maximum(np.abs(cand[i] - ind[pairs["j"]]) - h, 0.0)
-    close = np.einsum("ij,ij->i", gap, gap) < r * r
+    close = ~far_enough(np.sqrt(np.einsum("ij,ij->i", gap, gap)), r)
     allowed[i[close]] = False
     return allowed
 

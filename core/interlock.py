@@ -26,6 +26,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from core.geometry import DISTANCE_TOL_UM, far_enough
 from core.plan import Block, IndentResult
 from core.profile import InstrumentProfile
 from core.sample import CircleExclusion, PolygonExclusion, Sample
@@ -35,7 +36,7 @@ FloatArray = NDArray[np.float64]
 
 SAFETY_HOP_UM = 1000.0  # SPEC §3: a hop this long on either axis needs a reconfiguration
 MIN_OWN_PITCH_UM = 5.0  # SPEC §2: the method's sub-grid pitch; a block's own sites keep at least this apart
-_TOL_UM = 1e-6  # rounding slack on distances, never physics
+_TOL_UM = DISTANCE_TOL_UM  # rounding slack on distances, never physics
 
 
 class Interlock:
@@ -158,7 +159,7 @@ class Interlock:
         for start in range(0, len(earlier), 4096):
             chunk = earlier[start : start + 4096]
             d = np.hypot(xy[:, None, 0] - chunk[None, :, 0], xy[:, None, 1] - chunk[None, :, 1])
-            if (d < r - _TOL_UM).any():
+            if not far_enough(d, r).all():
                 i, j = np.unravel_index(int(np.argmin(d)), d.shape)
                 return (
                     f"site {i} ({xy[i, 0]:.1f}, {xy[i, 1]:.1f}) µm is {d[i, j]:.1f} µm from an earlier indent "

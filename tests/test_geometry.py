@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from core.errors import InputError
 from core.geometry import (
     CORNER_UV,
+    DISTANCE_TOL_UM,
     Calibration,
     CandidateLattice,
     Corner,
@@ -357,7 +358,7 @@ def test_calibration_safe_band_uses_the_plane_through_tl_tr_br() -> None:
 
 def _brute_force_mask(cand: np.ndarray, ind: np.ndarray, r: float, h: float) -> np.ndarray:
     gap = np.maximum(np.abs(cand[:, None, :] - ind[None, :, :]) - h, 0.0)
-    return ~(np.hypot(gap[..., 0], gap[..., 1]) < r).any(axis=1)
+    return ~(np.hypot(gap[..., 0], gap[..., 1]) < r - DISTANCE_TOL_UM).any(axis=1)
 
 
 @SETTINGS
@@ -409,8 +410,26 @@ def test_exclusion_mask_at_full_scale_agrees_with_the_centre_rule() -> None:
     from scipy.spatial import cKDTree
 
     d, _ = cKDTree(ind).query(cand)
-    np.testing.assert_array_equal(got, d >= 5.0)
+    np.testing.assert_array_equal(got, d >= 5.0 - DISTANCE_TOL_UM)
     assert 0 < got.sum() < len(cand)
+
+
+def test_a_lattice_at_exactly_the_exclusion_pitch_is_usable_to_its_last_site() -> None:
+    """The bench's 50×50 lattice on the 1,000 µm square is 20 µm apart, r_excl exactly: every site may be
+    indented. Float noise (19.999999999999996 µm) used to exclude about a third of them at random, so
+    singles ran out of sites at ~1,570 indents where 2,500 fit."""
+    from drivers.sim.scenarios import make_scenario
+
+    cal = make_scenario("ternary", 0).sample.calibration
+    lattice = CandidateLattice.build(cal, 50, grid_halfwidth_um=10.0)
+    xy = lattice.xy_um
+    pitch = np.hypot(*(xy[1] - xy[0]))
+    assert pitch == pytest.approx(20.0, abs=1e-9)
+    order = np.random.default_rng(0).permutation(len(xy))
+    ok = [bool(exclusion_mask(xy[j : j + 1], xy[order[:k]], 20.0)[0]) for k, j in enumerate(order)]
+    assert all(ok)
+    # and a site 1 nm too near stays refused: the slack is rounding, not physics
+    assert not exclusion_mask([[0.0, 0.0]], [[19.999, 0.0]], 20.0)[0]
 
 
 # ---------------------------------------------------------------------------------------------- edge penalty

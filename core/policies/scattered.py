@@ -32,6 +32,7 @@ from dataclasses import replace
 import numpy as np
 
 from core.cost import block_costs_for
+from core.geometry import far_enough
 from core.model import Prediction
 from core.plan import Alternative, Block, BlockKind, Decision, IndentSpec
 from core.policies.base import (
@@ -243,7 +244,7 @@ class ScatteredPlanner:
                 break
             gains.append(value.take(j))
             picks.append(j)
-            free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
+            free &= far_enough(np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]), spacing)
             if not free.any():
                 break
         return picks, gains

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from core.cost import block_costs_for
+from core.geometry import far_enough
 from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, Decision
 from core.policies.base import PlanContext, base_mask, reachable_mask
 
@@ -133,7 +134,7 @@ def _arrays(
         if indents_left is not None:
             indents_left -= len(picks)
         for j in picks:
-            free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= spacing
+            free &= far_enough(np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]), spacing)
         planned.append((block, cost, float(sum(gains))))
         total_s += cost
         last = block.indents[-1]

@@ -432,6 +432,53 @@ def test_a_lattice_at_exactly_the_exclusion_pitch_is_usable_to_its_last_site() -
     assert not exclusion_mask([[0.0, 0.0]], [[19.999, 0.0]], 20.0)[0]
 
 
+@SETTINGS
+@given(
+    n=st.integers(5, 120),
+    side=st.floats(200.0, 3000.0),
+    shear=st.floats(-0.3, 0.3),
+    aspect=st.floats(0.5, 2.0),
+    min_um=st.floats(0.0, 80.0),
+)
+def test_spaced_sites_keep_apart_and_pack_at_least_as_tight_as_a_square_stride(
+    n: int, side: float, shear: float, aspect: float, min_um: float
+) -> None:
+    h = side * aspect
+    cal = Calibration.from_corners((shear * h, h, 0), (side + shear * h, h, 0), (side, 0, 0), (0, 0, 0))
+    lattice = CandidateLattice.build(cal, n, grid_halfwidth_um=0.0)
+    sites = lattice.spaced_sites(min_um)
+    xy = lattice.xy_um[sites]
+    assert sites.dtype == bool and len(xy) >= 1
+    if len(xy) > 1:
+        from scipy.spatial import cKDTree
+
+        assert cKDTree(xy).query(xy, k=2)[0][:, 1].min() >= min_um - DISTANCE_TOL_UM
+    # never sparser than the square stride that keeps both axes min_um apart (a regular subset always does)
+    pu, pv = lattice.pitch_um
+    k = max(1, math.ceil(min_um / min(pu, pv) - 1e-9))
+    assert sites.sum() >= math.ceil(n / k) ** 2 * 0.999 - 2 * n
+
+
+def test_the_products_lattice_holds_2000_singles_where_picking_one_by_one_jammed_at_1500() -> None:
+    from drivers.sim.scenarios import make_scenario
+
+    cal = make_scenario("ternary", 0).sample.calibration
+    fine = CandidateLattice.build(cal, 100, grid_halfwidth_um=10.0)
+    sites = fine.spaced_sites(20.0)
+    assert sites.sum() == 2000  # the 5-to-1 tilted sub-lattice, 22.1 µm apart
+    assert CandidateLattice.build(cal, 50, grid_halfwidth_um=10.0).spaced_sites(20.0).all()  # 20 µm apart
+    # picking sites one by one (in a random order, as a planner would) from the whole fine lattice jams
+    xy = fine.xy_um
+    rng = np.random.default_rng(0)
+    free = np.ones(len(xy), dtype=bool)
+    taken = 0
+    while free.any():
+        j = int(rng.choice(np.flatnonzero(free)))
+        taken += 1
+        free &= np.hypot(xy[:, 0] - xy[j, 0], xy[:, 1] - xy[j, 1]) >= 20.0 - DISTANCE_TOL_UM
+    assert taken < 1700 < sites.sum()
+
+
 # ---------------------------------------------------------------------------------------------- edge penalty
 
 

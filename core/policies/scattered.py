@@ -71,12 +71,9 @@ class ScatteredPlanner:
 
     def propose(self, ctx: PlanContext) -> Decision | None:
         d = self.design
-        allowed = base_mask(ctx, 0.0)
-        if not allowed.any():
+        cand = single_sites(ctx, d)
+        if not len(cand):
             return None
-        cand = np.flatnonzero(allowed)
-        if len(cand) > MAX_CANDIDATES:
-            cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
         map_rel_err = aim_rel_error(ctx) if self.parts.hold.bias_aware else None
         hold, err, hold_mode = self.parts.hold.choose(ctx, map_rel_err, self.parts.noise.drift_correction)
         exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
@@ -277,6 +274,17 @@ class ScatteredPlanner:
             hold_s=hold_s,
             indents=tuple(IndentSpec(float(x), float(y), hold_s) for x, y in p),
         )
+
+
+def single_sites(ctx: PlanContext, design: ScatteredSingles) -> np.ndarray:
+    """The lattice indices a single may go to now: outside the exclusion zone and on the lattice's spaced
+    sites (``CandidateLattice.spaced_sites``: picks from a lattice finer than the spacing would jam it long
+    before it is full), thinned evenly past ``MAX_CANDIDATES``."""
+    spacing = max(design.min_spacing_um, ctx.r_excl_um)
+    cand = np.flatnonzero(base_mask(ctx, 0.0) & ctx.lattice.spaced_sites(spacing))
+    if len(cand) > MAX_CANDIDATES:
+        cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
+    return cand
 
 
 def program_life_indents(ctx: PlanContext) -> float:

@@ -25,7 +25,7 @@ import numpy as np
 from core.cost import block_costs_for
 from core.geometry import far_enough
 from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, Decision
-from core.policies.base import PlanContext, base_mask, reachable_mask
+from core.policies.base import PlanContext, reachable_mask
 
 if TYPE_CHECKING:
     from core.policies.scattered import ScatteredPlanner
@@ -84,15 +84,12 @@ def _arrays(
     """Arrays (block, cost, gain) until their instrument time fills ``fill_s``, the last one trimmed to the
     singles that fit (at least one program's worth), and none that cannot end by ``end_by_s``; whether they
     are the space-filling start, and the hold's mode."""
-    from core.policies.scattered import BOX_FRACTION, MAX_CANDIDATES, _in_box, _Ivr, _Maximin, _Value
+    from core.policies.scattered import BOX_FRACTION, _in_box, _Ivr, _Maximin, _Value, single_sites
 
     d = planner.design
-    allowed = base_mask(ctx, 0.0)
-    if not allowed.any():
+    cand = single_sites(ctx, d)
+    if not len(cand):
         return [], False, ""
-    cand = np.flatnonzero(allowed)
-    if len(cand) > MAX_CANDIDATES:
-        cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
     hold, _, hold_mode = planner.parts.hold.choose(ctx, None, planner.parts.noise.drift_correction)
     # in the space-filling start (no model yet) the stretch is the start itself: its maximin design, which
     # asks nothing of the data, loaded in one visit, and no more of it than the start has left

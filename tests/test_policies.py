@@ -496,6 +496,25 @@ def test_aeni_runs_blocks_of_scattered_singles_each_its_own_centre() -> None:
     assert blocks[0].hold_s == SLOW_HOLD_S and any(b.hold_s == FAST_HOLD_S for b in blocks)
 
 
+def test_aeni_on_the_products_lattice_indents_only_its_spaced_sites() -> None:
+    """At 100×100 on 1,000 µm (9.9 µm apart) singles go to the sub-lattice whose sites are all 20 µm apart, so
+    no pick jams the lattice for later ones (CandidateLattice.spaced_sites)."""
+    from scipy.spatial import cKDTree
+
+    from core.geometry import DISTANCE_TOL_UM
+
+    run = _run("aeni", lattice_n=100, budget_s=6_000.0)
+    c = run.campaign
+    xy = np.array([(i.x_um, i.y_um) for d in run.decisions for i in d.block.indents])
+    assert len(xy) >= 64 and any(d.phase == "exploit" for d in run.decisions)
+    sites = c.lattice.xy_um[c.lattice.spaced_sites(20.0)]
+    assert len(sites) == 2000
+    d_site, _ = cKDTree(sites).query(xy)
+    assert d_site.max() < 1e-6  # every indent on a spaced site
+    d_pair = cKDTree(xy).query(xy, k=2)[0][:, 1]
+    assert d_pair.min() >= 20.0 - DISTANCE_TOL_UM
+
+
 def test_travel_order_visits_points_on_a_line_in_order() -> None:
     from core.policies.scattered import travel_order
 

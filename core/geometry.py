@@ -433,44 +433,77 @@ class CandidateLattice:
         pu, pv = self.pitch_uv
         eu = (float(m[0, 0]) * pu, float(m[1, 0]) * pu)
         ev = (float(m[0, 1]) * pv, float(m[1, 1]) * pv)
-        a, b, d = _packing_basis(eu, ev, float(min_um))
-        k = np.arange(self.n * self.n)
+        (b00, b01, b10, b11), (a, b, d) = _packing_basis(eu, ev, float(min_um))
+        k = np.arange(self.n * self.n, dtype=np.int64)
         iu, iv = k % self.n, k // self.n  # ravel is v slow, u fast (see build)
-        return np.asarray((iv % d == 0) & ((iu - b * (iv // d)) % a == 0), dtype=bool)
+        # (iu, iv) = p·row0 + q·row1 of the reduced basis (unimodular): (p, q) by its integer inverse
+        det = b00 * b11 - b01 * b10
+        p = (iu * b11 - iv * b10) * det
+        q = (iv * b00 - iu * b01) * det
+        return np.asarray((q % d == 0) & ((p - b * (q // d)) % a == 0), dtype=bool)
+
+
+# Past this many lattice steps per spacing the search for the densest sub-lattice is not worth its cost: a
+# square stride of the reduced lattice is used (at most 13 % fewer sites than a hexagonal packing).
+_PACKING_SEARCH_STEPS = 12
+
+
+def _reduced_basis(e: FloatArray) -> NDArray[np.int64]:
+    """Lagrange–Gauss reduction of the lattice steps: integer rows (unimodular) whose stage steps are the
+    lattice's two shortest independent ones, so a stride of the first is never shorter than it looks."""
+    b = np.eye(2, dtype=np.int64)
+    for _ in range(200):
+        f = b @ e
+        if f[0] @ f[0] > f[1] @ f[1]:
+            b = b[::-1].copy()
+            f = f[::-1]
+        mu = round(float(f[0] @ f[1]) / float(f[0] @ f[0]))
+        if mu == 0:
+            break
+        b[1] -= mu * b[0]
+    return b
 
 
 @functools.lru_cache(maxsize=32)
-def _packing_basis(eu: tuple[float, float], ev: tuple[float, float], min_um: float) -> tuple[int, int, int]:
-    """(a, b, d): the sub-lattice {s·(a, 0) + t·(b, d)} of lattice steps (Hermite form, 0 ≤ b < a) with
-    the fewest lattice points per site (a·d) whose shortest step is at least ``min_um``; among those the
-    one with the longest shortest step.
+def _packing_basis(
+    eu: tuple[float, float], ev: tuple[float, float], min_um: float
+) -> tuple[tuple[int, int, int, int], tuple[int, int, int]]:
+    """The reduced lattice basis (row-major) and (a, b, d): the sub-lattice {s·(a, 0) + t·(b, d)} of it
+    (Hermite form, 0 ≤ b < a) with the fewest lattice points per site (a·d) whose shortest step is at least
+    ``min_um``; among those the one with the longest shortest step.
 
     The search runs from the hexagonal bound (no packing of points ``min_um`` apart has fewer than
-    √3/2·min²/cell lattice points per site) up to the square stride, which always qualifies."""
-    e = np.array([eu, ev], dtype=float)  # rows: the stage step of one lattice step along u, along v
-    if min_um <= DISTANCE_TOL_UM:
-        return (1, 0, 1)
+    √3/2·min²/cell lattice points per site) up to the square stride of the reduced basis, which always
+    qualifies (its shortest step is the stride times the lattice's shortest)."""
+    basis = _reduced_basis(np.array([eu, ev], dtype=float))
+    key = (int(basis[0, 0]), int(basis[0, 1]), int(basis[1, 0]), int(basis[1, 1]))
+    e = basis.astype(float) @ np.array([eu, ev], dtype=float)  # rows: the reduced stage steps
+    shortest_step = float(np.hypot(*e[0]))
+    if min_um <= DISTANCE_TOL_UM or shortest_step >= min_um - DISTANCE_TOL_UM:
+        return key, (1, 0, 1)
+    stride = math.ceil(min_um / shortest_step - 1e-9)
+    if stride > _PACKING_SEARCH_STEPS:
+        return key, (stride, 0, stride)
     cell = abs(float(np.linalg.det(e)))
-    stride = math.ceil(min_um / min(float(np.hypot(*e[0])), float(np.hypot(*e[1]))) - 1e-9)
-    # a step shorter than min_um spans at most r lattice steps on either axis (r from the least stretch of
-    # the lattice), so s and t within ±(2r + 1) see every step that could disqualify a basis
+    # a step shorter than min_um has |s|, |t| below r in the Hermite coordinates (r from the least
+    # stretch of the reduced lattice), so ±r sees every step that could disqualify a basis
     r = math.ceil(min_um / float(np.linalg.svd(e, compute_uv=False).min()))
-    c = np.arange(-2 * r - 1, 2 * r + 2)
+    c = np.arange(-r, r + 1)
     s, t = (x.ravel() for x in np.meshgrid(c, c))
     keep = (s != 0) | (t != 0)
     s, t = s[keep], t[keep]
     lo = max(1, math.floor(math.sqrt(3.0) / 2.0 * min_um**2 / cell))
-    for n in range(lo, stride * stride + 1):
+    for n in range(lo, stride * stride):
         bases = np.array([(a, b, n // a) for a in range(1, n + 1) if n % a == 0 for b in range(a)])
-        iu = s[None, :] * bases[:, :1] + t[None, :] * bases[:, 1:2]
-        iv = t[None, :] * bases[:, 2:3]
-        shortest = np.hypot(iu * e[0, 0] + iv * e[1, 0], iu * e[0, 1] + iv * e[1, 1]).min(axis=1)
-        ok = np.flatnonzero(far_enough(shortest, min_um))
+        p = s[None, :] * bases[:, :1] + t[None, :] * bases[:, 1:2]
+        q = t[None, :] * bases[:, 2:3]
+        step = np.hypot(p * e[0, 0] + q * e[1, 0], p * e[0, 1] + q * e[1, 1]).min(axis=1)
+        ok = np.flatnonzero(far_enough(step, min_um))
         if len(ok):
-            best = min(ok, key=lambda i: (-shortest[i], i))
+            best = min(ok, key=lambda i: (-step[i], i))
             a, b, d = (int(x) for x in bases[best])
-            return (a, b, d)
-    return (stride, 0, stride)
+            return key, (a, b, d)
+    return key, (stride, 0, stride)
 
 
 def _lattice_margin(calibration: Calibration, halfwidth_um: float) -> float:

@@ -436,7 +436,7 @@ def test_a_lattice_at_exactly_the_exclusion_pitch_is_usable_to_its_last_site() -
 @given(
     n=st.integers(5, 120),
     side=st.floats(200.0, 3000.0),
-    shear=st.floats(-0.3, 0.3),
+    shear=st.floats(-2.0, 2.0),
     aspect=st.floats(0.5, 2.0),
     min_um=st.floats(0.0, 80.0),
 )
@@ -457,6 +457,25 @@ def test_spaced_sites_keep_apart_and_pack_at_least_as_tight_as_a_square_stride(
     pu, pv = lattice.pitch_um
     k = max(1, math.ceil(min_um / min(pu, pv) - 1e-9))
     assert sites.sum() >= math.ceil(n / k) ** 2 * 0.999 - 2 * n
+
+
+def test_spaced_sites_on_a_sheared_or_very_fine_lattice_keep_apart_and_stay_cheap() -> None:
+    """A sheared calibration once got a 'square stride' of its unreduced steps (9.6 µm apart for 20); a 1 µm
+    pitch with a 100 µm spacing once asked for 19 GiB. The lattice is reduced first, and past a dozen steps
+    per spacing a square stride of the reduced lattice is used."""
+    from scipy.spatial import cKDTree
+
+    sheared = Calibration.from_corners((900, 300, 0), (1900, 300, 0), (1000, 0, 0), (0, 0, 0))
+    fine = Calibration.from_corners((0, 300, 0), (300, 300, 0), (300, 0, 0), (0, 0, 0))
+    for cal, n, min_um, most_below in (
+        (sheared, 100, 20.0, 0),
+        (fine, 300, 100.0, 9),
+        (fine, 300, 30.0, 100),
+    ):
+        lattice = CandidateLattice.build(cal, n, grid_halfwidth_um=0.0)
+        xy = lattice.xy_um[lattice.spaced_sites(min_um)]
+        assert cKDTree(xy).query(xy, k=2)[0][:, 1].min() >= min_um - DISTANCE_TOL_UM
+        assert len(xy) >= most_below
 
 
 def test_the_products_lattice_holds_2000_singles_where_picking_one_by_one_jammed_at_1500() -> None:

@@ -515,6 +515,25 @@ def test_aeni_on_the_products_lattice_indents_only_its_spaced_sites() -> None:
     assert d_pair.min() >= 20.0 - DISTANCE_TOL_UM
 
 
+def test_aeni_goes_off_the_spaced_sites_only_when_none_is_left() -> None:
+    """Earlier work on a sample may block every spaced site and leave room between them: the run goes on
+    there instead of stopping with places left."""
+    from dataclasses import replace
+
+    sc = make_scenario("ternary", 0)
+    c = Campaign(CampaignConfig(policy="aeni", seed=0, lattice_n=100), sc.sample)
+    ctx = c.context(0.0, (0.0, 0.0), False, 0)
+    spaced = c.lattice.spaced_sites(20.0)
+    on = c.policy.propose(ctx)
+    assert on is not None
+    idx = [c.lattice.nearest_index(i.x_um, i.y_um) for i in on.block.indents]
+    assert spaced[idx].all()
+    off = c.policy.propose(replace(ctx, placement_mask=~spaced))
+    assert off is not None
+    idx = [c.lattice.nearest_index(i.x_um, i.y_um) for i in off.block.indents]
+    assert not spaced[idx].any()
+
+
 def test_travel_order_visits_points_on_a_line_in_order() -> None:
     from core.policies.scattered import travel_order
 

@@ -279,9 +279,12 @@ class ScatteredPlanner:
 def single_sites(ctx: PlanContext, design: ScatteredSingles) -> np.ndarray:
     """The lattice indices a single may go to now: outside the exclusion zone and on the lattice's spaced
     sites (``CandidateLattice.spaced_sites``: picks from a lattice finer than the spacing would jam it long
-    before it is full), thinned evenly past ``MAX_CANDIDATES``."""
+    before it is full), thinned evenly past ``MAX_CANDIDATES``. When no spaced site is left but other
+    places are (earlier indents on the sample that are off the spaced sites), those."""
     spacing = max(design.min_spacing_um, ctx.r_excl_um)
-    cand = np.flatnonzero(base_mask(ctx, 0.0) & ctx.lattice.spaced_sites(spacing))
+    allowed = base_mask(ctx, 0.0)
+    spaced = allowed & ctx.lattice.spaced_sites(spacing)
+    cand = np.flatnonzero(spaced if spaced.any() else allowed)
     if len(cand) > MAX_CANDIDATES:
         cand = cand[np.linspace(0, len(cand) - 1, MAX_CANDIDATES).astype(int)]
     return cand

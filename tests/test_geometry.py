@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from scipy.spatial import cKDTree
 
 from core.errors import InputError
 from core.geometry import (
@@ -407,8 +408,6 @@ def test_exclusion_mask_at_full_scale_agrees_with_the_centre_rule() -> None:
     cand = np.column_stack([np.tile(u, 100), np.repeat(u, 100)])
     ind = rng.uniform(0, 1000, size=(5000, 2))
     got = exclusion_mask(cand, ind, 5.0)
-    from scipy.spatial import cKDTree
-
     d, _ = cKDTree(ind).query(cand)
     np.testing.assert_array_equal(got, d >= 5.0 - DISTANCE_TOL_UM)
     assert 0 < got.sum() < len(cand)
@@ -450,21 +449,17 @@ def test_spaced_sites_keep_apart_and_pack_at_least_as_tight_as_a_square_stride(
     xy = lattice.xy_um[sites]
     assert sites.dtype == bool and len(xy) >= 1
     if len(xy) > 1:
-        from scipy.spatial import cKDTree
-
         assert cKDTree(xy).query(xy, k=2)[0][:, 1].min() >= min_um - DISTANCE_TOL_UM
-    # never sparser than the square stride that keeps both axes min_um apart (a regular subset always does)
-    pu, pv = lattice.pitch_um
-    k = max(1, math.ceil(min_um / min(pu, pv) - 1e-9))
-    assert sites.sum() >= math.ceil(n / k) ** 2 * 0.999 - 2 * n
+    # never sparser than a square stride of the lattice's shortest step that keeps min_um (edges aside)
+    shortest = cKDTree(lattice.xy_um).query(lattice.xy_um, k=2)[0][:, 1].min()
+    k = max(1, math.ceil(min_um / shortest - 1e-9))
+    assert sites.sum() >= n * n / k**2 - 4 * n
 
 
 def test_spaced_sites_on_a_sheared_or_very_fine_lattice_keep_apart_and_stay_cheap() -> None:
     """A sheared calibration once got a 'square stride' of its unreduced steps (9.6 µm apart for 20); a 1 µm
     pitch with a 100 µm spacing once asked for 19 GiB. The lattice is reduced first, and past a dozen steps
     per spacing a square stride of the reduced lattice is used."""
-    from scipy.spatial import cKDTree
-
     sheared = Calibration.from_corners((900, 300, 0), (1900, 300, 0), (1000, 0, 0), (0, 0, 0))
     fine = Calibration.from_corners((0, 300, 0), (300, 300, 0), (300, 0, 0), (0, 0, 0))
     for cal, n, min_um, most_below in (

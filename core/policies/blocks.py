@@ -51,6 +51,10 @@ class ScatteredSingles:
     # block alone; False: the first block pays all of it (as before)
     program_life: bool = False
 
+    def spacing_um(self, r_excl_um: float) -> float:
+        """How far apart any two singles stay: the design's own spacing or the sample's exclusion."""
+        return max(self.min_spacing_um, r_excl_um)
+
     def block_sizes(self, available: int, fitted_on: int | None = None) -> tuple[int, ...]:
         """Block sizes the planner prices against each other (gain per second): from the fewest to the most
         in steps of the fewest, capped at the ``available`` picks and at ``max_block_fraction`` of the

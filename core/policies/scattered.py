@@ -234,7 +234,7 @@ class ScatteredPlanner:
         free = mask.copy()
         picks: list[int] = []
         gains: list[float] = []
-        spacing = max(self.design.min_spacing_um, ctx.r_excl_um)
+        spacing = self.design.spacing_um(ctx.r_excl_um)
         for _ in range(self.design.max_indents_per_block):
             j = first if first is not None and not picks else value.best(free)
             if j is None:
@@ -281,7 +281,7 @@ def single_sites(ctx: PlanContext, design: ScatteredSingles) -> np.ndarray:
     sites (``CandidateLattice.spaced_sites``: picks from a lattice finer than the spacing would jam it long
     before it is full), thinned evenly past ``MAX_CANDIDATES``. When no spaced site is left but other
     places are (earlier indents on the sample that are off the spaced sites), those."""
-    spacing = max(design.min_spacing_um, ctx.r_excl_um)
+    spacing = design.spacing_um(ctx.r_excl_um)
     allowed = base_mask(ctx, 0.0)
     spaced = allowed & ctx.lattice.spaced_sites(spacing)
     cand = np.flatnonzero(spaced if spaced.any() else allowed)

@@ -98,7 +98,7 @@ def _arrays(
     indents_left = max(d.space_filling_indents - len(ctx.indents_xy_um), 1) if exploring else None
     xy = ctx.lattice.xy_um[cand]
     box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
-    spacing = max(d.min_spacing_um, ctx.r_excl_um)
+    spacing = d.spacing_um(ctx.r_excl_um)
     free = np.ones(len(cand), dtype=bool)
     pos, program_open = ctx.position_um, ctx.program_open
     planned: list[tuple[Block, float, float]] = []  # block, cost, gain

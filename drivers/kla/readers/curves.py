@@ -115,6 +115,25 @@ class CurveResult:
     modulus_gpa: float | None
     max_load_mn: float | None
     max_depth_nm: float | None
+    # Oliver-Pharr only: what the file's own analysis can be checked against
+    raw_depth_nm: float | None = None  # depth at the analysed peak on the file's own zero
+    stiffness_mn_nm: float | None = None  # the unloading stiffness as measured (frame included)
+    contact_depth_nm: float | None = None
+
+
+def area_of(coeffs: tuple[float, ...] | None, hc_nm: float) -> float:
+    """Projected contact area (nm²): the file's area function, or the ideal Berkovich 24.5 hc²."""
+    if coeffs:
+        return float(sum(c * hc_nm ** (2.0 ** (1 - k)) for k, c in enumerate(coeffs)))
+    return BERKOVICH_C0 * hc_nm**2
+
+
+def describe_area(coeffs: tuple[float, ...] | None) -> str:
+    """The area function in one phrase, for the notes and ``aeni kla read``."""
+    if not coeffs:
+        return "A = 24.5 hc² (ideal Berkovich, assumed: the file states no area function)"
+    terms = " + ".join(f"{c:g} hc^{2.0 ** (1 - k):g}" for k, c in enumerate(coeffs))
+    return f"A = {terms} (the file's area function)"
 
 
 def _power_law(u: np.ndarray, a: float, uf: float, m: float) -> np.ndarray:
@@ -153,7 +172,8 @@ def oliver_pharr(
     sub = Curve(depth, load, clock, None, None, markers)
 
     peak = int(np.argmax(load))
-    depth = depth - find_surface(load, depth, clock, peak)
+    surface = find_surface(load, depth, clock, peak)
+    depth = depth - surface
 
     # unloading starts at the end of the hold: InView marks it, NanoSuite marks the first unload row
     start = marker_row(sub, "end of hold")
@@ -170,6 +190,7 @@ def oliver_pharr(
         below = np.flatnonzero(load[start:] < 0.5 * load[start])
         fit_hi = start + int(below[0]) if below.size else load.size - 1
     p_max, h_max = float(load[start]), float(depth[start])
+    raw_depth = h_max + surface
     u = depth[fit_lo : fit_hi + 1] / h_max
     q = load[fit_lo : fit_hi + 1] / p_max
     if u.size < 5 or h_max <= 0 or p_max <= 0:
@@ -189,6 +210,7 @@ def oliver_pharr(
         notes.append(f"test {test}: power-law fit to the unloading curve failed")
         return None
     stiffness = p_max / h_max * m * a * (1.0 - uf) ** (m - 1.0)  # mN/nm
+    measured_stiffness = stiffness
     compliance = 1.0 / stiffness - frame_compliance_nm_mn
     if compliance <= 0:
         notes.append(f"test {test}: frame compliance exceeds the measured compliance; not removed")
@@ -200,15 +222,12 @@ def oliver_pharr(
     if hc <= 0:
         notes.append(f"test {test}: contact depth {hc:.1f} nm is not positive")
         return None
-    if area_coeffs:
-        area = sum(c * hc ** (2.0 ** (1 - k)) for k, c in enumerate(area_coeffs))
-    else:
-        area = BERKOVICH_C0 * hc**2
+    area = area_of(area_coeffs, hc)
     hardness = p_max / area * 1e6  # mN/nm² -> GPa
     er = math.sqrt(math.pi) / 2.0 * stiffness / math.sqrt(area) * 1e6
     inv = 1.0 / er - (1 - DIAMOND_NU**2) / DIAMOND_E_GPA
     modulus = (1 - poisson**2) / inv if inv > 0 else None
-    return CurveResult(hardness, modulus, p_max, h_max)
+    return CurveResult(hardness, modulus, p_max, h_max, raw_depth, measured_stiffness, hc)
 
 
 def peak_of(curve: Curve) -> tuple[float, float] | None:

@@ -66,6 +66,8 @@ class KlaExport:
     # the depth range (nm) the hardness column says it was averaged over, e.g. "Avg Hardness [75-85 nm]"
     hardness_range_nm: tuple[float, float] | None = None
     hardness_column: str = ""  # the column the hardness came from ("load-depth curve" when derived)
+    # how values computed from curves were computed: the method, the area function, the frame compliance
+    analysis: str = ""
 
     @property
     def has_positions(self) -> bool:

@@ -49,12 +49,20 @@ from drivers.kla.readers.curves import (
     CurveResult,
     area_coeffs_of,
     csm_average,
+    describe_area,
     frame_compliance_from_cycles,
     oliver_pharr,
     parse_curve,
     peak_of,
 )
-from drivers.kla.readers.plausibility import MAX_HARDNESS_GPA, MAX_MODULUS_GPA, implausible, note_outliers
+from drivers.kla.readers.plausibility import (
+    MAX_HARDNESS_GPA,
+    MAX_MODULUS_GPA,
+    contradiction,
+    implausible,
+    note_outliers,
+    own_cycles,
+)
 from drivers.kla.readers.records import NO_POSITIONS, KlaExport, KlaIndent
 from drivers.kla.readers.tables import (
     Table,
@@ -337,8 +345,13 @@ def read_workbook(
 
     cf = frame_compliance_nm_mn
     cf_notes: list[str] = []
+    cf_source = "given by the caller" if cf is not None else ""
     if need_h and cf is None:
         cf = frame_compliance_from_cycles(sheets, cf_notes)
+        cf_source = cf_notes[-1].split(" estimated ")[-1] if cf else ""
+    own_sheet, own = own_cycles(sheets, notes) if need_h else ("", {})
+    areas_used: set[str] = set()
+    contradictions: list[str] = []
 
     indents: list[KlaIndent] = []
     missing_curves: list[str] = []
@@ -379,14 +392,28 @@ def read_workbook(
                     notes.append(f"test {test}: no Poisson ratio in the file, {DEFAULT_POISSON} assumed")
                     poisson = DEFAULT_POISSON
                 used_op = True
+                coeffs = area_coeffs_of(extra)
+                areas_used.add(describe_area(coeffs))
                 derived = oliver_pharr(
                     curve,
                     test=test,
                     frame_compliance_nm_mn=cf or 0.0,
                     poisson=poisson,
-                    area_coeffs=area_coeffs_of(extra),
+                    area_coeffs=coeffs,
                     notes=notes,
                 )
+                if derived is not None:
+                    why = contradiction(
+                        test,
+                        load_mn=derived.max_load_mn,
+                        raw_depth_nm=derived.raw_depth_nm,
+                        area_coeffs=coeffs,
+                        own=own[test][-1] if own.get(test) else None,
+                        own_sheet=own_sheet,
+                        results_load_mn=p_max,
+                    )
+                    if why is not None:
+                        contradictions.append(why)
             else:  # hardness from Results; the curve only fills the peak load/depth
                 peak_values = peak_of(curve)
                 if peak_values is not None:
@@ -412,8 +439,19 @@ def read_workbook(
         raise InputError(
             str(path), f"no hardness in {res_name!r} and no Test sheet with Load/Depth columns to derive it"
         )
+    if contradictions:
+        more = f" ({len(contradictions)} of {len(test_ids)} tests)" if len(contradictions) > 1 else ""
+        raise InputError(str(path), f"hardness from the curves refused: {contradictions[0]}{more}")
     if missing_curves:
         notes.append(f"no Test sheet for test(s) {', '.join(missing_curves)}: hardness missing")
+    analysis = ""
+    if used_op:
+        cf_text = f"{cf:.3f} nm/mN ({cf_source})" if cf else "none (not estimable from the file: E reads low)"
+        analysis = (
+            f"Oliver-Pharr on each test's final unload; area function {'; '.join(sorted(areas_used))}; "
+            f"frame compliance {cf_text}"
+        )
+        notes.append(f"hardness computed from the curves: {analysis}")
     if used_op:
         notes.extend(cf_notes)
         if not cf:
@@ -431,4 +469,5 @@ def read_workbook(
         tuple(dict.fromkeys(notes)),
         hardness_range,
         hardness_column if not need_h else "load-depth curve",
+        analysis,
     )

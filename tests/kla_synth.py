@@ -132,8 +132,10 @@ def indent(
                 "E": material.modulus_gpa,
             }
         )
-    for _ in range(20):  # drift hold at 10 %
+    for k in range(20):  # drift hold at 10 %
         add(p[-1], h[-1])
+        if k in (1, 18):
+            markers[len(p) - 1] = "Begin Drift Data Index" if k == 1 else "End Drift Data Index"
     for load in np.linspace(p[-1], 0.0, 10)[1:]:
         pm, hm, hf = prev  # type: ignore[misc]
         add(load, hf + (hm - hf) * (load / pm) ** (2 / 3) + load * frame_nm_mn + zero_before_contact_nm)
@@ -187,3 +189,119 @@ def inview_workbook(records: list[Record], *, poisson: float = 0.17, cycles: boo
     for n, rec in enumerate(records, start=1):
         sheets[f"Test {n}"] = curve_sheet(rec)
     return sheets
+
+
+RECORD_HEADER = [
+    "Markers",
+    "Displacement",
+    "Force",
+    "Time",
+    "DEPTH",
+    "LOAD",
+    "STIFFNESS",
+    "HARDNESS",
+    "MODULUS",
+    "hdotOverh",
+    "Velocity",
+    "Dyn. Phase",
+    "X Axis Position",
+    "Y Axis Position",
+]
+RECORD_UNITS = ["", "nm", "mN", "s", "nm", "mN", "N/m", "GPa", "GPa", "1/s", "nm/s", "deg", "µm", "µm"]
+INVALID = 1.797e308
+
+
+@dataclass(frozen=True)
+class RecordStyle:
+    """How one InView per-test CSV is written: the ways real ones differ."""
+
+    markers: str = "top"  # "top": marker rows gathered under the units row; "inline": on their sample
+    bom: bool = False
+    crlf: bool = False
+    semicolon: bool = False  # ';' separated with decimal commas (a German/French Windows locale)
+    invalid: str = "blank"  # how an invalid HARDNESS is written: "blank" or "dbl_max"
+    window_nm: tuple[float, float] | None = None  # a preamble naming the method's averaging window
+    drift_nm_s: float = 0.05  # the raw Displacement drifts by this; DEPTH is corrected
+    fail: bool = False  # the surface was not found: every HARDNESS/MODULUS sample invalid
+
+
+def record_rows(
+    rec: Record, material: Material, x_um: float, y_um: float, style: RecordStyle
+) -> tuple[list[list[object]], dict[str, float]]:
+    """An InView per-test record and the values InView reports from it (the truth for a reader):
+    H and E at the End Of Loading marker, or averaged over the style's window."""
+    n = rec.time_s.size
+    contact = np.argmax(rec.load_mn > 0.01 * rec.load_mn.max())
+    depth = rec.depth_nm - rec.depth_nm[contact]
+    # the instrument's running hardness and modulus: a mild size effect so that "where" matters
+    hc = np.clip(depth, 1.0, None)
+    hardness = np.where(np.arange(n) >= contact, material.hardness_gpa * (1 + 30.0 / (hc + 30.0)), np.nan)
+    modulus = np.where(np.arange(n) >= contact, material.modulus_gpa * (1 + 5.0 / (hc + 50.0)), np.nan)
+    end_loading = next(i for i, m in rec.markers.items() if m == "End Of Loading Index")
+    if style.window_nm is not None:
+        lo, hi = style.window_nm
+        band = np.zeros(n, dtype=bool)
+        band[: end_loading + 1] = (depth[: end_loading + 1] >= lo) & (depth[: end_loading + 1] <= hi)
+        truth = {"H": float(np.nanmean(hardness[band])), "E": float(np.nanmean(modulus[band]))}
+    else:
+        truth = {"H": float(hardness[end_loading]), "E": float(modulus[end_loading])}
+    truth.update(x=x_um, y=y_um, drift=style.drift_nm_s, P=float(rec.load_mn[end_loading]))
+    markers = dict(rec.markers)
+
+    def value(v: float) -> object:
+        if not math.isfinite(v):
+            return INVALID if style.invalid == "dbl_max" else None
+        return v
+
+    samples: list[list[object]] = []
+    for i in range(n):
+        failed = style.fail or not math.isfinite(hardness[i])
+        samples.append(
+            [
+                None,
+                float(rec.depth_nm[i] + style.drift_nm_s * rec.time_s[i]),
+                float(rec.load_mn[i]),
+                float(rec.time_s[i]),
+                float(depth[i]),
+                float(rec.load_mn[i]),
+                None if failed else 1e6 * 2 / math.sqrt(math.pi) * material.reduced_gpa * 1e-6 * math.sqrt(24.5) * hc[i],
+                value(math.nan if failed else float(hardness[i])),
+                value(math.nan if failed else float(modulus[i])),
+                0.05,
+                10.0,
+                1.2,
+                x_um,
+                y_um,
+            ]
+        )
+    if style.fail:
+        truth["H"] = truth["E"] = math.nan
+    rows: list[list[object]] = []
+    if style.window_nm is not None:
+        rows += [["Minimum Calculation Depth", style.window_nm[0], "nm"], ["Maximum Calculation Depth", style.window_nm[1], "nm"], []]
+    rows += [list(RECORD_HEADER), list(RECORD_UNITS)]
+    if style.markers == "top":
+        for i, label in sorted(markers.items(), key=lambda kv: kv[1]):  # by name: not in row order
+            rows.append([label, *samples[i][1:]])
+        rows += samples
+    else:
+        for i, row in enumerate(samples):
+            rows.append([markers.get(i), *row[1:]])
+    return rows, truth
+
+
+def write_record(path: str, rows: list[list[object]], style: RecordStyle) -> None:
+    sep = ";" if style.semicolon else ","
+
+    def cell(v: object) -> str:
+        if v is None:
+            return ""
+        if isinstance(v, float):
+            text = repr(v)
+            return text.replace(".", ",") if style.semicolon else text
+        return str(v)
+
+    text = ("\r\n" if style.crlf else "\n").join(sep.join(cell(v) for v in row) for row in rows) + "\n"
+    data = text.encode("utf-8")
+    with open(path, "wb") as fh:
+        fh.write((b"\xef\xbb\xbf" if style.bom else b"") + data)

@@ -6,10 +6,12 @@ its family (``readers.workbook``: InView/NanoSuite workbooks and results tables)
 
 from __future__ import annotations
 
+import re
+from collections.abc import Sequence
 from pathlib import Path
 
 from core.errors import InputError
-from drivers.kla.readers.records import (
+from drivers.kla.readers.indents import (
     NO_POSITIONS,
     SOFTWARE_ANTON_PAAR,
     SOFTWARE_FISCHERSCOPE,
@@ -23,6 +25,7 @@ from drivers.kla.readers.records import (
     KlaIndent,
     records,
 )
+from drivers.kla.readers.inview_record import is_record, read_record_export
 from drivers.kla.readers.sniff import VENDOR_HINTS, check_file, detect_software, read_sheets
 from drivers.kla.readers.workbook import read_workbook
 
@@ -38,13 +41,17 @@ __all__ = [
     "SOFTWARE_UNKNOWN",
     "KlaExport",
     "KlaIndent",
+    "export_files",
+    "natural_key",
     "read_kla_export",
+    "read_kla_exports",
     "records",
 ]
 
 
 def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = None) -> KlaExport:
-    """Read one nanoindenter export; ``frame_compliance_nm_mn`` overrides the estimate from the file.
+    """Read one nanoindenter export (a file, or a folder of files that are one export together);
+    ``frame_compliance_nm_mn`` overrides the estimate from the file.
 
     Every per-test row of the file is one indent (per-cycle rows and summary rows are not tests). A row
     whose hardness is missing, marked invalid or impossible (≤ 0, or modulus ≤ 0) comes back as a failed
@@ -52,8 +59,12 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
     the program that wrote it, when it can tell.
     """
     path = Path(path)
+    if path.is_dir():
+        return read_kla_exports([path], frame_compliance_nm_mn=frame_compliance_nm_mn)
     engine = check_file(path)
     sheets = read_sheets(path, engine)
+    if is_record(sheets):
+        return read_record_export(path, next(iter(sheets.values())))
     software = detect_software(sheets)
     try:
         return read_workbook(path, sheets, software, frame_compliance_nm_mn)
@@ -62,3 +73,74 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
             raise
         hint = VENDOR_HINTS.get(software, "")
         raise InputError(exc.source, f"{software} export: {exc.problem}{hint}") from None
+
+
+_EXPORT_SUFFIXES = (".csv", ".txt", ".tsv", ".xlsx", ".xls")
+
+
+def natural_key(path: Path) -> tuple[object, ...]:
+    """Test2 before Test10 before Test100: digit runs compare as numbers."""
+    parts = re.split(r"(\d+)", path.name.lower())
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts)
+
+
+def export_files(sources: Sequence[str | Path]) -> list[Path]:
+    """The files of an export given as files and/or folders: a folder's export files (not hidden, not an
+    Excel lock file '~$...'), each group in natural test order."""
+    files: list[Path] = []
+    for source in map(Path, sources):
+        if source.is_dir():
+            found = sorted(
+                (
+                    f
+                    for f in source.iterdir()
+                    if f.is_file()
+                    and f.suffix.lower() in _EXPORT_SUFFIXES
+                    and not f.name.startswith(("~$", "."))
+                ),
+                key=natural_key,
+            )
+            if not found:
+                raise InputError(str(source), f"folder holds no export file ({', '.join(_EXPORT_SUFFIXES)})")
+            files.extend(found)
+        else:
+            files.append(source)
+    return files
+
+
+def read_kla_exports(
+    sources: Sequence[str | Path], *, frame_compliance_nm_mn: float | None = None
+) -> KlaExport:
+    """Several files (or folders of them) read as ONE export, tests in natural order: one CSV per test
+    (InView's per-test records), or results files of one run. A test that two files both hold is refused:
+    which one is this run's cannot be told."""
+    files = export_files(sources)
+    if len(files) == 1:
+        return read_kla_export(files[0], frame_compliance_nm_mn=frame_compliance_nm_mn)
+    parts = [read_kla_export(f, frame_compliance_nm_mn=frame_compliance_nm_mn) for f in files]
+    seen: dict[str, str] = {}
+    indents: list[KlaIndent] = []
+    notes: list[str] = []
+    for f, part in zip(files, parts, strict=True):
+        for indent in part.indents:
+            if indent.test_id in seen:
+                raise InputError(
+                    str(f),
+                    f"test {indent.test_id} is also in {seen[indent.test_id]}: one export holds each test once",
+                )
+            seen[indent.test_id] = f.name
+            indents.append(indent)
+        notes.extend(n if n.startswith(f.name) else f"{f.name}: {n}" for n in part.warnings)
+    formats = sorted({p.software for p in parts})
+    wheres = sorted({p.hardness_column for p in parts if p.hardness_column})
+    name = str(sources[0]) if len(sources) == 1 else f"{files[0].parent}"
+    notes.insert(0, f"{len(files)} files read as one export ({files[0].name} ... {files[-1].name})")
+    return KlaExport(
+        name,
+        " + ".join(formats),
+        tuple(indents),
+        tuple(dict.fromkeys(notes)),
+        None,
+        "; ".join(wheres),
+        "; ".join(sorted({p.analysis for p in parts if p.analysis})),
+    )

@@ -12,7 +12,7 @@ import pandas as pd
 
 from drivers.kla.readers.columns import clean_unit, norm_key, unit_factor
 from drivers.kla.readers.curves import area_of, describe_area
-from drivers.kla.readers.records import KlaIndent
+from drivers.kla.readers.indents import KlaIndent
 from drivers.kla.readers.tables import numeric, split_table
 
 # values no material has: hardness above diamond's, modulus above diamond's (GPa)

@@ -18,7 +18,7 @@ from openpyxl.worksheet._read_only import ReadOnlyWorksheet
 
 from core.errors import InputError
 from drivers.kla.readers.columns import TEST_SHEET, norm_key
-from drivers.kla.readers.records import (
+from drivers.kla.readers.indents import (
     SOFTWARE_ANTON_PAAR,
     SOFTWARE_FISCHERSCOPE,
     SOFTWARE_HYSITRON,

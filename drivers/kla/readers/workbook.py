@@ -55,6 +55,7 @@ from drivers.kla.readers.curves import (
     parse_curve,
     peak_of,
 )
+from drivers.kla.readers.indents import NO_POSITIONS, KlaExport, KlaIndent
 from drivers.kla.readers.plausibility import (
     MAX_HARDNESS_GPA,
     MAX_MODULUS_GPA,
@@ -63,7 +64,6 @@ from drivers.kla.readers.plausibility import (
     note_outliers,
     own_cycles,
 )
-from drivers.kla.readers.records import NO_POSITIONS, KlaExport, KlaIndent
 from drivers.kla.readers.tables import (
     Table,
     finite,

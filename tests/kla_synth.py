@@ -85,7 +85,7 @@ def indent(
         h.append(depth)
 
     for k in range(points):  # approach: depth runs, the load is noise
-        add(float(rng.normal(0.0, noise_mn)), zero_before_contact_nm * k / points)
+        add(float(rng.normal(0.0, noise_mn)), zero_before_contact_nm * k / (points - 1))
 
     def plastic(load: float) -> tuple[float, float, float]:
         area = load * 1e6 / material.hardness_gpa

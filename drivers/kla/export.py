@@ -101,7 +101,9 @@ def export_files(sources: Sequence[str | Path]) -> list[Path]:
                 key=natural_key,
             )
             if not found:
-                raise InputError(str(source), f"folder holds no export file ({', '.join(_EXPORT_SUFFIXES)})")
+                raise InputError(
+                    str(source), f"is a folder with no export file in it ({', '.join(_EXPORT_SUFFIXES)})"
+                )
             files.extend(found)
         else:
             files.append(source)
@@ -130,7 +132,8 @@ def read_kla_exports(
                 )
             seen[indent.test_id] = f.name
             indents.append(indent)
-        notes.extend(n if n.startswith(f.name) else f"{f.name}: {n}" for n in part.warnings)
+        # notes shared by the files are said once; a note about a file's own column names the file
+        notes.extend(f"{f.name}: {n}" if "column" in n and f.name not in n else n for n in part.warnings)
     formats = sorted({p.software for p in parts})
     wheres = sorted({p.hardness_column for p in parts if p.hardness_column})
     name = str(sources[0]) if len(sources) == 1 else f"{files[0].parent}"

@@ -327,3 +327,47 @@ def area_coeffs_of(values: Mapping[str, float]) -> tuple[float, ...] | None:
         return None
     coeffs = tuple(values[f"area{k}"] for k in range(1, ks[-1] + 1) if f"area{k}" in values)
     return coeffs if len(coeffs) == ks[-1] and coeffs[0] > 0 else None
+
+
+def cycle_results(
+    curve: Curve,
+    *,
+    test: str,
+    frame_compliance_nm_mn: float,
+    poisson: float,
+    area_coeffs: tuple[float, ...] | None,
+    min_share: float = 0.1,
+) -> list[CurveResult]:
+    """Oliver-Pharr on every unload of a multi-cycle test whose peak is at least ``min_share`` of the
+    test's (the shallow ones are tip rounding), shallowest first: the record cut after each cycle's unload
+    is analysed as a test of its own. A homogeneous sample has one modulus at every depth, so moduli that
+    drift with depth say the area function is not the tip's (``plausibility.cycles_disagree``)."""
+    load = curve.load_mn
+    if np.isfinite(load).sum() < 20:
+        return []
+    filled = np.where(np.isfinite(load), load, 0.0)
+    top = float(filled.max())
+    results: list[CurveResult] = []
+    running = 0.0
+    i = 0
+    while i < filled.size:
+        p = filled[i]
+        running = max(running, p)
+        if running >= min_share * top and p < 0.6 * running:  # this cycle's unload is past 60 %
+            while i + 1 < filled.size and filled[i + 1] <= filled[i]:
+                i += 1  # to where the unload ends
+            clock = None if curve.time_s is None else curve.time_s[: i + 1]
+            sub = Curve(curve.depth_nm[: i + 1], load[: i + 1], clock, None, None, {})
+            result = oliver_pharr(
+                sub,
+                test=test,
+                frame_compliance_nm_mn=frame_compliance_nm_mn,
+                poisson=poisson,
+                area_coeffs=area_coeffs,
+                notes=[],
+            )
+            if result is not None:
+                results.append(result)
+            running = 0.0
+        i += 1
+    return results

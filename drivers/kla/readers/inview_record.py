@@ -175,7 +175,7 @@ def _marker(rec: _Record, *words: str) -> tuple[str, int] | None:
     return None
 
 
-def _drift(rec: _Record, notes: list[str], test: str) -> float | None:
+def _drift(rec: _Record, notes: list[str]) -> float | None:
     if "drift" in rec.preamble:
         return rec.preamble["drift"]
     if "drift" in rec.channels:
@@ -186,7 +186,7 @@ def _drift(rec: _Record, notes: list[str], test: str) -> float | None:
     raw = rec.channels.get("raw_depth")
     if begin is None or end is None or raw is None or end[1] - begin[1] < 5:
         notes.append(
-            f"test {test}: the record states no drift rate and has no drift segment on the raw Displacement"
+            "the record states no drift rate and has no drift segment on the raw Displacement: drift missing"
         )
         return None
     t = rec.channels["time"][begin[1] : end[1] + 1]
@@ -195,7 +195,7 @@ def _drift(rec: _Record, notes: list[str], test: str) -> float | None:
     if ok.sum() < 5:
         return None
     notes.append(
-        f"test {test}: drift rate measured over the drift segment ({begin[0]!r} to {end[0]!r}) of the raw Displacement"
+        f"drift rate measured over the drift segment ({begin[0]!r} to {end[0]!r}) of the raw Displacement"
     )
     return float(np.polyfit(t[ok], d[ok], 1)[0])
 
@@ -265,7 +265,7 @@ def read_record(path: Path, raw: pd.DataFrame, notes: list[str]) -> tuple[KlaInd
     p_max = float(load[index]) if math.isfinite(load[index]) else None
     h_max = float(depth[index]) if math.isfinite(depth[index]) else None
     indent = KlaIndent(
-        test, position("x"), position("y"), h, e, _drift(rec, notes, test), p_max, h_max, "record", failure
+        test, position("x"), position("y"), h, e, _drift(rec, notes), p_max, h_max, "record", failure
     )
     return indent, where
 

@@ -6,12 +6,13 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import pandas as pd
 
 from drivers.kla.readers.columns import clean_unit, norm_key, unit_factor
-from drivers.kla.readers.curves import area_of, describe_area
+from drivers.kla.readers.curves import CurveResult, area_of, describe_area
 from drivers.kla.readers.indents import KlaIndent
 from drivers.kla.readers.tables import numeric, split_table
 
@@ -164,3 +165,21 @@ def contradiction(
                 f"{1 / ratio:.2f}x"
             )
     return None
+
+
+CYCLE_MODULUS_SPREAD = 0.20  # FusedSilica.xlsx: 5-9 % over 150-465 nm; an area 2x off at 100 nm: 80 %
+
+
+def cycle_spread(results: list[CurveResult]) -> tuple[float, str] | None:
+    """How far a test's per-cycle moduli drift with depth (max/min - 1) and a phrase naming the extremes;
+    None with fewer than three cycles to compare."""
+    usable = [r for r in results if r.modulus_gpa is not None and r.contact_depth_nm is not None]
+    if len({round(cast(float, r.contact_depth_nm)) for r in usable}) < 3:
+        return None
+    shallow, deep = usable[0], usable[-1]
+    moduli = [cast(float, r.modulus_gpa) for r in usable]
+    phrase = (
+        f"E {shallow.modulus_gpa:.0f} GPa at hc = {shallow.contact_depth_nm:.0f} nm but "
+        f"{deep.modulus_gpa:.0f} GPa at {deep.contact_depth_nm:.0f} nm"
+    )
+    return max(moduli) / min(moduli) - 1.0, phrase

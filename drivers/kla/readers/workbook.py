@@ -49,6 +49,7 @@ from drivers.kla.readers.curves import (
     CurveResult,
     area_coeffs_of,
     csm_average,
+    cycle_results,
     describe_area,
     frame_compliance_from_cycles,
     oliver_pharr,
@@ -57,9 +58,11 @@ from drivers.kla.readers.curves import (
 )
 from drivers.kla.readers.indents import NO_POSITIONS, KlaExport, KlaIndent
 from drivers.kla.readers.plausibility import (
+    CYCLE_MODULUS_SPREAD,
     MAX_HARDNESS_GPA,
     MAX_MODULUS_GPA,
     contradiction,
+    cycle_spread,
     implausible,
     note_outliers,
     own_cycles,
@@ -352,6 +355,7 @@ def read_workbook(
     own_sheet, own = own_cycles(sheets, notes) if need_h else ("", {})
     areas_used: set[str] = set()
     contradictions: list[str] = []
+    spreads: list[tuple[float, str, str]] = []  # per test: how its cycles' moduli drift with depth
 
     indents: list[KlaIndent] = []
     missing_curves: list[str] = []
@@ -414,6 +418,17 @@ def read_workbook(
                     )
                     if why is not None:
                         contradictions.append(why)
+                    spread = cycle_spread(
+                        cycle_results(
+                            curve,
+                            test=test,
+                            frame_compliance_nm_mn=cf or 0.0,
+                            poisson=poisson,
+                            area_coeffs=coeffs,
+                        )
+                    )
+                    if spread is not None:
+                        spreads.append((spread[0], test, spread[1]))
             else:  # hardness from Results; the curve only fills the peak load/depth
                 peak_values = peak_of(curve)
                 if peak_values is not None:
@@ -439,9 +454,7 @@ def read_workbook(
         raise InputError(
             str(path), f"no hardness in {res_name!r} and no Test sheet with Load/Depth columns to derive it"
         )
-    if contradictions:
-        more = f" ({len(contradictions)} of {len(test_ids)} tests)" if len(contradictions) > 1 else ""
-        raise InputError(str(path), f"hardness from the curves refused: {contradictions[0]}{more}")
+    _refuse_contradictions(path, contradictions, spreads, areas_used, len(test_ids))
     if missing_curves:
         notes.append(f"no Test sheet for test(s) {', '.join(missing_curves)}: hardness missing")
     analysis = ""
@@ -471,3 +484,25 @@ def read_workbook(
         hardness_column if not need_h else "load-depth curve",
         analysis,
     )
+
+
+def _refuse_contradictions(
+    path: Path,
+    contradictions: list[str],
+    spreads: list[tuple[float, str, str]],
+    areas_used: set[str],
+    n_tests: int,
+) -> None:
+    """One line for values computed from curves that the file itself contradicts: per test (its own load,
+    depth, contact area) or as a whole (the cycles' moduli drift with depth in the median test)."""
+    if contradictions:
+        more = f" ({len(contradictions)} of {n_tests} tests)" if len(contradictions) > 1 else ""
+        raise InputError(str(path), f"hardness from the curves refused: {contradictions[0]}{more}")
+    if spreads and float(np.median([s for s, _, _ in spreads])) > CYCLE_MODULUS_SPREAD:
+        drift, test, phrase = sorted(spreads)[len(spreads) // 2]
+        raise InputError(
+            str(path),
+            f"hardness from the curves refused: the curves' own cycles contradict the area function "
+            f"{'; '.join(sorted(areas_used))}: test {test} has {phrase} (median drift {100 * drift:.0f} % over "
+            f"{len(spreads)} tests; a sample has one modulus, so the area is not this tip's)",
+        )

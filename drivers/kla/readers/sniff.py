@@ -28,6 +28,7 @@ from drivers.kla.readers.indents import (
     SOFTWARE_TESTWORKS,
     SOFTWARE_UNKNOWN,
 )
+from drivers.kla.readers.nanoblitz import SOFTWARE_NANOBLITZ_4D, nanoblitz_kind
 from drivers.kla.readers.tables import parse_header
 
 _XLSX_MAGIC = b"PK\x03\x04"
@@ -193,9 +194,14 @@ def detect_software(sheets: Mapping[str, pd.DataFrame]) -> str:
     ):
         return SOFTWARE_INVIEW
     text, keys = _sheet_words(sheets)
-    for software, words in _VENDOR_WORDS:
-        if any(re.search(rf"\b{re.escape(w)}\b", text) for w in words):
-            return software
+    said = [sw for sw, words in _VENDOR_WORDS if any(re.search(rf"\b{re.escape(w)}\b", text) for w in words)]
+    if said and said[0] != SOFTWARE_INVIEW:
+        return said[0]
+    blitz = nanoblitz_kind(sheets, text)  # NanoBlitz runs inside InView: its files may say "InView"
+    if blitz is not None:
+        return blitz
+    if said:
+        return said[0]
     if {"hit", "eit"} <= keys and keys & {"hvit", "fmax", "cit", "rit"}:  # ISO 14577 names, Anton Paar's
         return SOFTWARE_ANTON_PAAR
     # Hysitron's contact depth, peak force and reduced modulus (short or spelt out)
@@ -211,6 +217,7 @@ def detect_software(sheets: Mapping[str, pd.DataFrame]) -> str:
 
 # what to export instead, for programs whose usual files are one test's raw curve
 VENDOR_HINTS = {
+    SOFTWARE_NANOBLITZ_4D: " (export NanoBlitz's per-indent summary, or name the depth window in the columns)",
     SOFTWARE_HYSITRON: " (export the analysed results table from TriboScan/TriboView, not a single .hld/.txt curve)",
     SOFTWARE_MICRO_MATERIALS: " (export the NanoTest results table with one row per indent)",
     SOFTWARE_FISCHERSCOPE: " (export the WIN-HCU results table with one row per indent, not a .hap file)",

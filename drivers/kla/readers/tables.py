@@ -161,9 +161,6 @@ def missing_value(raw: object) -> str:
     return repr(text) if text else "blank"
 
 
-def is_summary_row(data: pd.DataFrame, row: int) -> bool:
+def is_summary_row(cells: list[object]) -> bool:
     """'Average', 'Std Dev', '% COV' ... in any text cell of the row (the label column varies)."""
-    for cell in data.iloc[row]:
-        if isinstance(cell, str) and norm_key(cell).rstrip(":") in SUMMARY_LABELS:
-            return True
-    return False
+    return any(isinstance(cell, str) and norm_key(cell).rstrip(":") in SUMMARY_LABELS for cell in cells)

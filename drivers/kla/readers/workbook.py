@@ -207,10 +207,10 @@ def _test_rows(
     rows: list[tuple[int, str]] = []
     cycles: list[str] = []
     other = 0
-    for row in range(len(table.data)):
-        cells = list(table.data.iloc[row])
+    all_cells: list[list[object]] = table.data.to_numpy(dtype=object).tolist()  # rows, not pandas per row
+    for row, cells in enumerate(all_cells):
         label = cells[test_col] if test_col is not None else None
-        if is_summary_row(table.data, row):
+        if is_summary_row(cells):
             continue
         if all(is_blank(c) for c in (cells[i] for i in range(len(cells)) if i != test_col)):
             continue

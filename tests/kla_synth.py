@@ -151,7 +151,12 @@ def curve_sheet(rec: Record, *, load_unit: str = "mN", depth_unit: str = "nm") -
     rows: list[list[object]] = [["Markers", "Time", "Load", "Depth"], ["", "s", load_unit, depth_unit]]
     for i in range(rec.time_s.size):
         rows.append(
-            [rec.markers.get(i), float(rec.time_s[i]), float(rec.load_mn[i] * lf), float(rec.depth_nm[i] * df)]
+            [
+                rec.markers.get(i),
+                float(rec.time_s[i]),
+                float(rec.load_mn[i] * lf),
+                float(rec.depth_nm[i] * df),
+            ]
         )
     return rows
 
@@ -166,19 +171,32 @@ def cycles_sheet(records: list[Record]) -> list[list[object]]:
         rows.append([f"Test {n}"])
         for c, cyc in enumerate(rec.cycles, start=1):
             rows.append(
-                [f"{n}:{c}", cyc["Pmax"], cyc["hmax"], cyc["S"] * 1e6, cyc["A"], cyc["E"], cyc["H"], cyc["hc"]]
+                [
+                    f"{n}:{c}",
+                    cyc["Pmax"],
+                    cyc["hmax"],
+                    cyc["S"] * 1e6,
+                    cyc["A"],
+                    cyc["E"],
+                    cyc["H"],
+                    cyc["hc"],
+                ]
             )
     return rows
 
 
-def inview_workbook(records: list[Record], *, poisson: float = 0.17, cycles: bool = True) -> dict[str, list[list[object]]]:
+def inview_workbook(
+    records: list[Record], *, poisson: float = 0.17, cycles: bool = True
+) -> dict[str, list[list[object]]]:
     """An InView multi-cycle workbook whose Results sheet holds no H or E (as FusedSilica.xlsx)."""
     results: list[list[object]] = [
         ["Test", "Pmax", "Target  Load", "X_Position", "Y_Position"],
         ["", "mN", "mN", "Âµm", "Âµm"],
     ]
     for n, rec in enumerate(records, start=1):
-        results.append([n, float(np.max(rec.load_mn)), round(float(np.max(rec.load_mn))), 1000.0 + 30 * n, 2000.0])
+        results.append(
+            [n, float(np.max(rec.load_mn)), round(float(np.max(rec.load_mn))), 1000.0 + 30 * n, 2000.0]
+        )
     sheets: dict[str, list[list[object]]] = {
         "Results": results,
         "Pre-Test Inputs": [["Test", "Poisson's Ratio of Sample"], ["", "None"]]
@@ -226,7 +244,14 @@ class RecordStyle:
 
 
 def record_rows(
-    rec: Record, material: Material, x_um: float, y_um: float, style: RecordStyle
+    rec: Record,
+    material: Material,
+    x_um: float,
+    y_um: float,
+    style: RecordStyle,
+    *,
+    pos_unit: str = "µm",
+    h_unit: str = "GPa",
 ) -> tuple[list[list[object]], dict[str, float]]:
     """An InView per-test record and the values InView reports from it (the truth for a reader):
     H and E at the End Of Loading marker, or averaged over the style's window."""
@@ -248,10 +273,13 @@ def record_rows(
     truth.update(x=x_um, y=y_um, drift=style.drift_nm_s, P=float(rec.load_mn[end_loading]))
     markers = dict(rec.markers)
 
+    ps = {"µm": 1.0, "mm": 1e-3}[pos_unit]
+    hs = {"GPa": 1.0, "MPa": 1e3}[h_unit]
+
     def value(v: float) -> object:
         if not math.isfinite(v):
             return INVALID if style.invalid == "dbl_max" else None
-        return v
+        return v * hs
 
     samples: list[list[object]] = []
     for i in range(n):
@@ -264,22 +292,31 @@ def record_rows(
                 float(rec.time_s[i]),
                 float(depth[i]),
                 float(rec.load_mn[i]),
-                None if failed else 1e6 * 2 / math.sqrt(math.pi) * material.reduced_gpa * 1e-6 * math.sqrt(24.5) * hc[i],
+                None
+                if failed
+                else 1e6 * 2 / math.sqrt(math.pi) * material.reduced_gpa * 1e-6 * math.sqrt(24.5) * hc[i],
                 value(math.nan if failed else float(hardness[i])),
                 value(math.nan if failed else float(modulus[i])),
                 0.05,
                 10.0,
                 1.2,
-                x_um,
-                y_um,
+                x_um * ps,
+                y_um * ps,
             ]
         )
     if style.fail:
         truth["H"] = truth["E"] = math.nan
     rows: list[list[object]] = []
     if style.window_nm is not None:
-        rows += [["Minimum Calculation Depth", style.window_nm[0], "nm"], ["Maximum Calculation Depth", style.window_nm[1], "nm"], []]
-    rows += [list(RECORD_HEADER), list(RECORD_UNITS)]
+        rows += [
+            ["Minimum Calculation Depth", style.window_nm[0], "nm"],
+            ["Maximum Calculation Depth", style.window_nm[1], "nm"],
+            [],
+        ]
+    units = list(RECORD_UNITS)
+    units[7] = units[8] = h_unit
+    units[12] = units[13] = pos_unit
+    rows += [list(RECORD_HEADER), units]
     if style.markers == "top":
         for i, label in sorted(markers.items(), key=lambda kv: kv[1]):  # by name: not in row order
             rows.append([label, *samples[i][1:]])

@@ -86,7 +86,7 @@ def natural_key(path: Path) -> tuple[object, ...]:
 
 def export_files(sources: Sequence[str | Path]) -> list[Path]:
     """The files of an export given as files and/or folders: a folder's export files (not hidden, not an
-    Excel lock file '~$...'), each group in natural test order."""
+    Excel lock file '~$...'), in natural test order."""
     files: list[Path] = []
     for source in map(Path, sources):
         if source.is_dir():
@@ -107,7 +107,7 @@ def export_files(sources: Sequence[str | Path]) -> list[Path]:
             files.extend(found)
         else:
             files.append(source)
-    return files
+    return sorted(files, key=natural_key)  # a shell's glob gives Test1, Test10, Test2
 
 
 def read_kla_exports(

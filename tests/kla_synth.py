@@ -241,6 +241,7 @@ class RecordStyle:
     window_nm: tuple[float, float] | None = None  # a preamble naming the method's averaging window
     drift_nm_s: float = 0.05  # the raw Displacement drifts by this; DEPTH is corrected
     fail: bool = False  # the surface was not found: every HARDNESS/MODULUS sample invalid
+    size_effect: bool = True  # the running H and E change with depth (so where they are taken matters)
 
 
 def record_rows(
@@ -260,8 +261,10 @@ def record_rows(
     depth = rec.depth_nm - rec.depth_nm[contact]
     # the instrument's running hardness and modulus: a mild size effect so that "where" matters
     hc = np.clip(depth, 1.0, None)
-    hardness = np.where(np.arange(n) >= contact, material.hardness_gpa * (1 + 30.0 / (hc + 30.0)), np.nan)
-    modulus = np.where(np.arange(n) >= contact, material.modulus_gpa * (1 + 5.0 / (hc + 50.0)), np.nan)
+    grow_h = 1 + 30.0 / (hc + 30.0) if style.size_effect else np.ones(n)
+    grow_e = 1 + 5.0 / (hc + 50.0) if style.size_effect else np.ones(n)
+    hardness = np.where(np.arange(n) >= contact, material.hardness_gpa * grow_h, np.nan)
+    modulus = np.where(np.arange(n) >= contact, material.modulus_gpa * grow_e, np.nan)
     end_loading = next(i for i, m in rec.markers.items() if m == "End Of Loading Index")
     if style.window_nm is not None:
         lo, hi = style.window_nm

@@ -464,6 +464,12 @@ def read_workbook(
             f"Oliver-Pharr on each test's final unload; area function {'; '.join(sorted(areas_used))}; "
             f"frame compliance {cf_text}"
         )
+        checked = [f"the file's own analysis in {own_sheet!r}"] if own else []
+        if spreads:
+            drift = float(np.median([d for d, _, _ in spreads]))
+            checked.append(f"its cycles' moduli (median drift {100 * drift:.0f} % with depth)")
+        if checked:
+            analysis += f"; checked against {' and '.join(checked)}"
         notes.append(f"hardness computed from the curves: {analysis}")
     if used_op:
         notes.extend(cf_notes)

@@ -204,3 +204,13 @@ def test_nanoblitz_4d_is_named_and_its_rows_by_depth_are_refused_in_one_line(tmp
     with pytest.raises(InputError) as refused:
         read_kla_export(_blitz(tmp_path / "map4d.csv", rows))
     assert refused.value.problem.startswith("NanoBlitz 4D export:") and "\n" not in refused.value.problem
+
+
+def test_a_record_without_a_markers_column_is_still_one_test_taken_at_the_peak_load(tmp_path: Path) -> None:
+    rec = indent(SILICA, Tip(), FS_PEAKS, seed=2, points=25)
+    rows, truth = record_rows(rec, SILICA, 5.0, 6.0, RecordStyle(markers="inline"))
+    write_record(str(tmp_path / "Test 4.csv"), [r[1:] for r in rows], RecordStyle())
+    export = read_kla_export(tmp_path / "Test 4.csv")
+    (only,) = export.indents
+    assert only.test_id == "4" and only.hardness_gpa == pytest.approx(truth["H"], rel=0.02)
+    assert "peak load" in export.hardness_column and only.drift_rate_nm_s is None

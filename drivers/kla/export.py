@@ -66,6 +66,8 @@ def read_kla_export(path: str | Path, *, frame_compliance_nm_mn: float | None = 
     if is_record(sheets):
         return read_record_export(path, next(iter(sheets.values())))
     software = detect_software(sheets)
+    if software in (SOFTWARE_INVIEW, SOFTWARE_UNKNOWN) and is_record(sheets, unmarked=True):
+        return read_record_export(path, next(iter(sheets.values())))
     try:
         return read_workbook(path, sheets, software, frame_compliance_nm_mn)
     except InputError as exc:

@@ -30,7 +30,15 @@ from core.errors import InputError
 from drivers.kla.readers.columns import RESULT_ALIASES, norm_key, unit_factor
 from drivers.kla.readers.indents import KlaExport, KlaIndent
 from drivers.kla.readers.plausibility import MAX_HARDNESS_GPA, MAX_MODULUS_GPA, implausible
-from drivers.kla.readers.tables import Table, as_number, is_blank, missing_value, numeric, split_table
+from drivers.kla.readers.tables import (
+    Table,
+    as_number,
+    is_blank,
+    missing_value,
+    numeric,
+    parse_header,
+    split_table,
+)
 
 SOFTWARE_INVIEW_RECORD = "InView per-test record"
 
@@ -67,8 +75,10 @@ _CALC_DEPTH = {
 }
 
 
-def is_record(sheets: dict[str, pd.DataFrame]) -> bool:
-    """One sheet whose header names markers, a time, a load and a depth channel: a test's record."""
+def is_record(sheets: dict[str, pd.DataFrame], *, unmarked: bool = False) -> bool:
+    """One sheet whose header names markers, a time, a load and a depth channel: a test's record.
+    ``unmarked``: also without a Markers column, when it has a HARDNESS channel and no test column (a
+    results table has a test column; a record without markers would otherwise be hundreds of "tests")."""
     if len(sheets) != 1:
         return False
     table = _table(next(iter(sheets.values())))
@@ -77,11 +87,16 @@ def is_record(sheets: dict[str, pd.DataFrame]) -> bool:
     cols = {k: table.column(a) for k, a in _CHANNELS.items()}
     has_load = cols["load"] is not None or cols["raw_load"] is not None
     has_depth = cols["depth"] is not None or cols["raw_depth"] is not None
-    return cols["marker"] is not None and cols["time"] is not None and has_load and has_depth
+    if cols["time"] is None or not has_load or not has_depth:
+        return False
+    if cols["marker"] is not None:
+        return True
+    no_test_column = table.column(RESULT_ALIASES["test_id"]) is None
+    return unmarked and no_test_column and cols["hardness"] is not None and len(table.data) >= 50
 
 
 def _table(raw: pd.DataFrame) -> Table | None:
-    return split_table(raw, _CHANNELS["marker"] + _CHANNELS["time"])
+    return split_table(raw, _CHANNELS["marker"] + _CHANNELS["time"] + _CHANNELS["load"] + _CHANNELS["depth"])
 
 
 def test_id_of(path: Path) -> str:
@@ -126,12 +141,11 @@ def _parse(path: Path, raw: pd.DataFrame, notes: list[str]) -> _Record:
     header_row = next(
         r
         for r in range(len(raw))
-        if any(isinstance(c, str) and norm_key(c) in _CHANNELS["marker"] for c in raw.iloc[r])
+        if any(isinstance(c, str) and norm_key(parse_header(c)[0]) in _CHANNELS["time"] for c in raw.iloc[r])
     )
     cols = {k: table.column(a) for k, a in _CHANNELS.items()}
     marker_col = cols.pop("marker")
-    assert marker_col is not None
-    labels = table.data[marker_col]
+    labels = table.data[marker_col] if marker_col is not None else pd.Series([None] * len(table.data))
     is_marker = np.array([isinstance(v, str) and bool(v.strip()) for v in labels])
     channels: dict[str, np.ndarray] = {}
     for key, col in cols.items():

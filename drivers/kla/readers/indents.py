@@ -47,7 +47,7 @@ class KlaIndent:
     drift_rate_nm_s: float | None
     max_load_mn: float | None
     max_depth_nm: float | None
-    source: str  # "results" or "curve"
+    source: str  # "results", "curve" (computed from its load-depth curve) or "record" (a per-test record)
     # why this indent has no usable hardness (blank, "--", 1.797e308, zero/negative/impossible value);
     # None for a measured indent. A failed indent never carries a hardness number.
     failure: str | None = None

@@ -214,3 +214,11 @@ def test_a_record_without_a_markers_column_is_still_one_test_taken_at_the_peak_l
     (only,) = export.indents
     assert only.test_id == "4" and only.hardness_gpa == pytest.approx(truth["H"], rel=0.02)
     assert "peak load" in export.hardness_column and only.drift_rate_nm_s is None
+
+
+def test_fused_silica_says_which_area_function_and_frame_compliance_it_used(kla_dir: Path) -> None:
+    export = read_kla_export(kla_dir / "FusedSilica.xlsx")
+    assert "A = 24.5 hc² (ideal Berkovich, assumed" in export.analysis
+    assert "frame compliance 0.881 nm/mN" in export.analysis
+    # checked against the file's own analysis and its cycles (the ideal tip passes: 5-9 % drift)
+    assert "Cycles-GroupedByCycle" in export.analysis and "median drift 8 %" in export.analysis

@@ -149,7 +149,11 @@ _INPUT_SHEET_WORDS = ("input", "information", "sample", "parameter", "setup", "p
 
 
 def _inputs_by_test(
-    sheets: Mapping[str, pd.DataFrame], skip: set[str], notes: list[str], reads: frozenset[str] = frozenset()
+    sheets: Mapping[str, pd.DataFrame],
+    skip: set[str],
+    notes: list[str],
+    reads: frozenset[str] = frozenset(),
+    known: frozenset[str] = frozenset(),
 ) -> dict[str, dict[str, float]]:
     """Per-test values from the input sheets (positions, Poisson ratio, calculation depths, area function).
 
@@ -168,6 +172,8 @@ def _inputs_by_test(
         assert test_col is not None
         wanted: dict[str, tuple[int, float]] = {}
         for key, aliases in INPUT_ALIASES.items():
+            if name in reads and key in known:
+                continue  # the results sheet's own column, already read (a 40,000-row map reads it once)
             col = table.column(aliases)
             if col is not None:
                 factor = 1.0 if key == "poisson" else unit_factor(key, table.units[col], name, notes)
@@ -325,7 +331,10 @@ def read_workbook(
         )
     area_cols = {int(m.group(1)): i for i, k in enumerate(table.keys) if (m := AREA_COEFF.match(k))}
 
-    inputs = _inputs_by_test(sheets, set(), notes, frozenset({res_name}))  # Results may carry depths too
+    known = frozenset(k for k in ("x_um", "y_um") if k in values)
+    inputs = _inputs_by_test(
+        sheets, set(), notes, frozenset({res_name}), known
+    )  # Results may carry depths too
     for row, test in test_ids:
         for k, col in area_cols.items():
             v = numeric(table.data[col].iloc[[row]])[0]

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from kla_synth import Material, RecordStyle, Tip, indent, record_rows, write_record
 
 from core.errors import InputError
 from core.plan import Block, IndentResult, local_grid
@@ -567,3 +568,22 @@ def test_a_kill_while_an_export_is_archived_loses_nothing(
     accepted = poll_until(InboxWatcher(exchange, archive), t).accepted  # the resumed engine
     assert accepted is not None and not path.exists() and accepted.archived.is_file()
     assert archive.accepted_export("r1", 2) is not None
+
+
+def test_a_block_export_as_a_folder_of_per_test_records_is_accepted_whole(
+    exchange: ExchangeFolder, watcher: InboxWatcher
+) -> None:
+    t = ticket_for(block())
+    folder = exchange.inbox / "r1-002-export"  # InView's one CSV per test, in the block's export folder
+    folder.mkdir()
+    material, truths = Material(5.0, 100.0), []
+    for k, (x, y) in enumerate(t.sites_um, start=1):
+        rows, truth = record_rows(
+            indent(material, Tip(), (0.5, 1.0), seed=k, points=15), material, x, y, RecordStyle()
+        )
+        write_record(str(folder / f"Test{k}.csv"), rows, RecordStyle())
+        truths.append(truth["H"])
+    accepted = poll_until(watcher, t).accepted
+    assert accepted is not None and accepted.fmt == "InView per-test record"
+    assert [o.hardness_gpa for o in accepted.outcomes] == pytest.approx(truths, rel=1e-6)
+    assert not folder.exists() and accepted.archived.is_dir()  # archived whole, out of the inbox

@@ -17,6 +17,7 @@ import openpyxl
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from kla_synth import Material, RecordStyle, Tip, indent, record_rows, write_record
 
 from core.errors import InputError
 from drivers.kla.export import read_kla_export
@@ -71,7 +72,9 @@ class Layout:
     decoy_copy: bool  # a copy of the Results sheet with other numbers, under an unrelated name
     cycle_column: bool  # per-cycle rows marked by a 'Cycle' column instead of '1-1' labels
     stray_rows: bool  # a note line and a repeated header inside the table
-    shape: str  # "results-xlsx", "results-csv", "test-sheets" (label | value rows), "test-sheets-table"
+    # "results-xlsx", "results-csv", "test-sheets" (label | value rows), "test-sheets-table",
+    # "records-folder" (InView's one CSV per test), "nanoblitz-csv"
+    shape: str
     n_tests: int
     seed: int
 
@@ -90,7 +93,9 @@ layouts = st.builds(
     decoy_copy=st.booleans(),
     cycle_column=st.booleans(),
     stray_rows=st.booleans(),
-    shape=st.sampled_from(["results-xlsx", "results-csv", "test-sheets", "test-sheets-table"]),
+    shape=st.sampled_from(
+        ["results-xlsx", "results-csv", "test-sheets", "test-sheets-table", "records-folder", "nanoblitz-csv"]
+    ),
     n_tests=st.integers(1, 9),
     seed=st.integers(0, 10_000),
 )
@@ -119,6 +124,10 @@ def build(layout: Layout, folder: Path) -> Path:
     def tid(k: int) -> object:
         return f"{k + 1:03d}" if v.text_ids else k + 1
 
+    if v.shape == "records-folder":
+        return _records_folder(v, tests, folder)
+    if v.shape == "nanoblitz-csv":
+        return _nanoblitz_csv(v, tests, folder)
     if v.shape == "test-sheets-table":  # one sheet per test: a one-row results table above its curve
         sheets = {}
         for k, t in enumerate(tests):
@@ -206,6 +215,57 @@ def build(layout: Layout, folder: Path) -> Path:
     return write_xlsx(folder / "results.xlsx", sheets)
 
 
+def _records_folder(v: Layout, tests: list[dict[str, float]], folder: Path) -> Path:
+    """InView's one CSV per test, each written its own way (markers on top or inline, BOM, CRLF, ';' with
+    decimal commas, invalid samples blank or 1.797e308); the folder is the export."""
+    out = folder / "records"
+    out.mkdir()
+    rng = random.Random(v.seed)
+    for k, t in enumerate(tests):
+        style = RecordStyle(
+            markers=rng.choice(["top", "inline"]),
+            bom=rng.random() < 0.5,
+            crlf=rng.random() < 0.5,
+            semicolon=rng.random() < 0.3,
+            invalid=rng.choice(["blank", "dbl_max"]),
+            size_effect=False,
+        )
+        material = Material(t["h"], t["e"])
+        rec = indent(material, Tip(), (0.3, 1.0), seed=k, points=12)
+        rows, _ = record_rows(rec, material, t["x"], t["y"], style, pos_unit=v.pos_unit, h_unit=v.h_unit)
+        if not v.positions:  # a template without the stage's X/Y Axis Position
+            rows = [row[:12] for row in rows]
+        write_record(str(out / (f"Test{k + 1:03d}.csv" if v.text_ids else f"Test{k + 1}.csv")), rows, style)
+    return out
+
+
+def _nanoblitz_csv(v: Layout, tests: list[dict[str, float]], folder: Path) -> Path:
+    """A NanoBlitz 3D map as it arrives: UTF-8 BOM, CRLF, a units row, X/Y Position, summary rows."""
+    p_scale = 1e-3 if v.pos_unit == "mm" else 1.0
+    h_scale = 1e3 if v.h_unit == "MPa" else 1.0
+    pos = ["Y Position", "X Position"] if v.y_first else ["X Position", "Y Position"]
+    names = [
+        "Test",
+        *(pos if v.positions else []),
+        "Load at Max Load",
+        "Depth at Max Load",
+        "Modulus",
+        "Hardness",
+    ]
+    units = ["", *([v.pos_unit] * 2 if v.positions else []), "mN", "nm", v.h_unit, v.h_unit]
+    lines = [",".join(names), ",".join(units)]
+    for k, t in enumerate(tests):
+        xy = [t["y"], t["x"]] if v.y_first else [t["x"], t["y"]]
+        cells = [f"{k + 1:03d}" if v.text_ids else str(k + 1)]
+        cells += [repr(c * p_scale) for c in xy] if v.positions else []
+        cells += ["1.5", "120.0", repr(t["e"] * h_scale), repr(t["h"] * h_scale)]
+        lines.append(",".join(cells))
+    lines += [",".join([label] + ["1.0"] * (len(names) - 1)) for label in v.summary]
+    path = folder / "nanoblitz.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + ("\r\n".join(lines) + "\r\n").encode("utf-8"))
+    return path
+
+
 @settings(max_examples=36, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(layout=layouts)
 def test_generated_lab_layouts_read_within_two_percent(
@@ -226,6 +286,10 @@ def test_generated_lab_layouts_read_within_two_percent(
     assert export.has_positions is layout.positions
     if layout.shape.startswith("test-sheets"):
         assert export.software == "TestWorks"
+    if layout.shape == "records-folder":
+        assert export.software == "InView per-test record"
+    if layout.shape == "nanoblitz-csv" and layout.positions:
+        assert export.software == "NanoBlitz 3D"
     if layout.cycles and layout.shape.startswith("results"):
         assert any("per-cycle row" in w for w in export.warnings)
         # the per-test hardness is the averaged column, named; 'H' is empty on the per-test rows

@@ -24,9 +24,17 @@ def register(subparsers: Any) -> None:
     read = actions.add_parser(
         "read",
         help="read an export into indent records",
-        description="Read a KLA export: a short table by default, --json for records, --csv to convert.",
+        description=(
+            "Read a KLA export: a short table by default, --json for records, --csv to convert. Several files or a "
+            "folder (InView's one CSV per test) are read as one export, in natural test order."
+        ),
     )
-    read.add_argument("file", metavar="FILE", help="InView .xlsx/.xls or CSV export, NanoSuite .xls")
+    read.add_argument(
+        "file",
+        metavar="FILE",
+        nargs="+",
+        help="InView .xlsx/.xls or CSV export, NanoSuite .xls, NanoBlitz CSV, or per-test CSVs / their folder",
+    )
     read.add_argument("--json", action="store_true", help="print a JSON list of indent records")
     read.add_argument("--csv", metavar="OUT", type=Path, help="write the records to a CSV file")
     read.set_defaults(func=_read)
@@ -95,9 +103,10 @@ def register(subparsers: Any) -> None:
 
 
 def _read(args: argparse.Namespace) -> int:
-    from drivers.kla.export import read_kla_export, records  # pandas/scipy load only when used
+    from drivers.kla.export import read_kla_exports, records  # pandas/scipy load only when used
 
-    export = read_kla_export(input_file(args.file, "export file"))
+    sources = [Path(f) if Path(f).is_dir() else input_file(f, "export file") for f in args.file]
+    export = read_kla_exports(sources)
     if args.csv is not None:
         write_csv_atomic(export, args.csv)
     for note in export.warnings:
@@ -138,8 +147,10 @@ def _num(value: float | None, digits: int) -> str:
 
 
 def format_table(export: KlaExport) -> str:
-    lines = [
-        export.summary,
+    lines = [export.summary]
+    if export.analysis:
+        lines.append(f"computed from the curves: {export.analysis}")
+    lines += [
         f"{'test':>6} {'x_um':>12} {'y_um':>12} {'H_GPa':>8} {'E_GPa':>8} {'drift_nm_s':>11}  failure",
     ]
     for i in export.indents:

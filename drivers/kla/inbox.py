@@ -10,11 +10,9 @@ again; stale and duplicate exports are refused with a reason and kept in the arc
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import json
 import math
-import shutil
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -23,6 +21,7 @@ from typing import Any, Literal
 from core.errors import InputError
 from drivers.kla.exchange import EXPORT_SUFFIXES, ExchangeFolder, Ticket, parse_name
 from drivers.kla.export import KlaExport, KlaIndent, read_kla_export
+from drivers.kla.export_folder import copy_export, lock_names, remove_export, sha256_tree, tree_stat
 
 # the same words as core.plan.IndentResult.status
 SiteStatus = Literal["measured", "failed", "not_run", "unverified"]
@@ -34,11 +33,7 @@ STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a lit
 
 
 def sha256_of(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
+    return sha256_tree(path)  # a file, or a folder of per-test files (one export)
 
 
 @dataclass(frozen=True)
@@ -160,10 +155,10 @@ class ExportArchive:
         folder = self.folder / sub if sub else self.folder
         folder.mkdir(exist_ok=True)
         dst = folder / f"{sha[:12]}-{src.name}"
-        shutil.copy2(src, dst)
+        copy_export(src, dst)
         entry["file"] = f"{sub}/{dst.name}" if sub else dst.name
         self._append(entry)
-        src.unlink(missing_ok=True)
+        remove_export(src)
         return dst
 
     def accept(self, src: Path, sha: str, run: str, block_id: int, export: AcceptedExport) -> AcceptedExport:
@@ -490,35 +485,38 @@ class InboxWatcher:
         out = []
         for path in sorted(self.folder.inbox.iterdir()):
             name = path.name
-            if name.startswith((".", "~")) or not path.is_file():
+            if name.startswith((".", "~")) or not (path.is_file() or path.is_dir()):
                 continue  # temp files, lock files
             parsed = parse_name(name)
             if parsed is None or parsed.run != self.folder.run or parsed.kind != "export":
                 continue
-            if parsed.suffix in EXPORT_SUFFIXES:
+            if parsed.suffix in EXPORT_SUFFIXES or (
+                path.is_dir() and not parsed.suffix
+            ):  # a folder: per-test files
                 out.append((path, parsed.block_id))
         return out
 
     def _locked(self, path: Path) -> bool:
         """Excel/InView keep ``~$<name>`` (sometimes with the first letters cut) while the file is open."""
-        for lock in self.folder.inbox.glob("~$*"):
+        folder = path if path.is_dir() else self.folder.inbox
+        for lock in folder.glob("~$*"):
             rest = lock.name[2:]
-            if rest and path.name.endswith(rest):
+            if rest and any(name.endswith(rest) for name in lock_names(path)):
                 return True
         return False
 
     def _stable(self, path: Path) -> bool:
         try:
-            st = path.stat()
+            size, mtime_ns = tree_stat(path)
         except FileNotFoundError:
             self._seen.pop(path.name, None)
             return False
         seen = self._seen.get(path.name)
-        if seen is None or (seen.size, seen.mtime_ns) != (st.st_size, st.st_mtime_ns):
-            self._seen[path.name] = _Seen(st.st_size, st.st_mtime_ns)
+        if seen is None or (seen.size, seen.mtime_ns) != (size, mtime_ns):
+            self._seen[path.name] = _Seen(size, mtime_ns)
             return False
         seen.stable += 1
-        return seen.stable >= self.folder.settings.stable_polls and st.st_size > 0
+        return seen.stable >= self.folder.settings.stable_polls and size > 0
 
     def _refuse(
         self,

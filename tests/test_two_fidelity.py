@@ -4,6 +4,7 @@ more than a tolerance where the fast channel misleads."""
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import gpytorch
@@ -50,6 +51,7 @@ class Case:
     model: TwoFidelityGP
     report: TwoFidelityReport
     csm: Observations
+    fast: Observations
     truth: np.ndarray  # the CSM truth on lattice()
     mape_two: float
     mape_csm: float
@@ -78,13 +80,15 @@ def build(misleading: bool) -> Case:
         n_indents=np.full(N_CSM, 9),
     )
     model = TwoFidelityGP()
-    report = model.fit(csm, fast_observations(uf, hf))
+    fast = fast_observations(uf, hf)
+    report = model.fit(csm, fast)
     grid = lattice()
     truth = csm_truth(grid[:, 0], grid[:, 1])
     return Case(
         model,
         report,
         csm,
+        fast,
         truth,
         _mape(model.predict(grid).mean, truth),
         _mape(model.csm_gp.predict(grid).mean, truth),
@@ -153,18 +157,15 @@ def test_too_few_fast_cells_is_the_csm_only_map(good: Case) -> None:
 def test_the_guard_keeps_the_last_good_bias_kernel(good: Case) -> None:
     """Scatter between centres that their spreads cannot see (0.4 GPa, spreads of 0.05) pulls δ's
     length-scale to its floor: the guard keeps the previous fit's."""
-    model = TwoFidelityGP()
+    model = copy.deepcopy(good.model)  # its fast GP already fitted: the refit only conditions it
+    assert not good.report.collapse
     rng = np.random.default_rng(1)
-    uf = lattice(N_FAST_SIDE)
-    fast = fast_observations(uf, fast_truth(uf[:, 0], uf[:, 1]) + 0.15 * rng.standard_normal(len(uf)))
-    first = model.fit(good.csm, fast)
-    assert not first.collapse
     uc = rng.random((80, 2))
     h = rho_truth(uc[:, 0], uc[:, 1]) * fast_truth(uc[:, 0], uc[:, 1]) + 0.4 * rng.standard_normal(80)
     noisy = Observations(uv=uc, median_gpa=h, spread_var_gpa2=np.full(80, 0.05**2), n_indents=np.full(80, 9))
-    second = model.fit(noisy, fast)
+    second = model.fit(noisy, good.fast)
     assert second.collapse and second.used_last_good, second.collapse_reason
-    assert second.delta_lengthscales_uv == pytest.approx(first.delta_lengthscales_uv)
+    assert second.delta_lengthscales_uv == pytest.approx(good.report.delta_lengthscales_uv)
 
 
 @settings(max_examples=30, deadline=None)

@@ -242,8 +242,48 @@ def run_case(case: str, seed: int, n_fast_list: list[int], m_list: list[int]) ->
     return rows
 
 
+def add_equal_time(rows: list[dict[str, object]]) -> None:
+    """Each row's CSM-only MAPE at the same instrument time: as many more CSM indents as the fast survey took
+    (at the run's own seconds per CSM indent), on that seed's design of that size."""
+    cache: dict[tuple[str, int, int], tuple[float, float]] = {}
+    for row in rows:
+        case, seed, m = str(row["case"]), int(str(row["seed"])), int(str(row["m_csm"]))
+        per_indent_s = float(str(row["csm_time_s"])) / m
+        m_eq = m + int(float(str(row["total_time_two_fidelity_s"])) - float(str(row["csm_time_s"]))) // int(
+            per_indent_s
+        )
+        key = (case, seed, m_eq)
+        if key not in cache:
+            scenario = make_scenario(CASES[case], seed)
+            profile = load_profile(scenario.profile_name)
+            sites = csm_design(scenario, m_eq, seed)
+            centre = (
+                (sites[:, 0].min() + sites[:, 0].max()) / 2,
+                (sites[:, 1].min() + sites[:, 1].max()) / 2,
+            )
+            obs, time_s = csm_indents(scenario, profile, sites, centre, False)
+            ev = scenario.evaluator(100)
+            u, v = scenario.calibration.to_uv(ev.xy_um[:, 0], ev.xy_um[:, 1])
+            model = TwoFidelityGP()
+            model.fit(obs, None)
+            cache[key] = (mape(model.predict(np.column_stack([u, v])).mean, ev.truth_gpa), time_s)
+        row["m_csm_equal_time"] = m_eq
+        row["mape_csm_only_equal_time_pct"], row["csm_equal_time_s"] = cache[key]
+        print(case, seed, m, "->", m_eq, f"{cache[key][0]:.3f} %", flush=True)
+
+
 def _key(row: dict[str, object]) -> tuple[str, int, int]:
     return (str(row["case"]), int(str(row["n_fast_requested"])), int(str(row["m_csm"])))
+
+
+def _equal_time_cells(sel: list[dict[str, object]]) -> str:
+    if any("mape_csm_only_equal_time_pct" not in r for r in sel):
+        return " | | |"
+    eq = np.array([float(str(r["mape_csm_only_equal_time_pct"])) for r in sel])
+    two = np.array([float(str(r["mape_two_fidelity_pct"])) for r in sel])
+    m_eq = np.median([int(str(r["m_csm_equal_time"])) for r in sel])
+    gain = eq / two
+    return f" {m_eq:.0f} | {np.median(eq):.2f} | {np.median(gain):.2f}× / {gain.min():.2f}× |"
 
 
 def summarise(rows: list[dict[str, object]]) -> str:
@@ -252,8 +292,9 @@ def summarise(rows: list[dict[str, object]]) -> str:
 
     out = [
         "| case | N fast | M CSM | MAPE CSM-only % | MAPE two-fidelity % | gain (median) | gain (worst seed) |"
-        " fast survey s | CSM s | δ share |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        " fast survey s | CSM s | δ share | M' CSM at equal time | MAPE CSM-only at equal time % |"
+        " gain at equal time (median / worst) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     groups: dict[tuple[str, int, int], list[dict[str, object]]] = {}
     for r in rows:
@@ -264,9 +305,15 @@ def summarise(rows: list[dict[str, object]]) -> str:
             f"| {case} | ~{n_fast:,} | {m} | {np.median(f('mape_csm_only_pct', sel)):.2f} | "
             f"{np.median(f('mape_two_fidelity_pct', sel)):.2f} | {np.median(gain):.2f}× | {gain.min():.2f}× | "
             f"{np.median(f('fast_time_s', sel)):,.0f} | {np.median(f('csm_time_s', sel)):,.0f} | "
-            f"{np.median(f('delta_share', sel)):.3f} |"
+            f"{np.median(f('delta_share', sel)):.3f} |" + _equal_time_cells(sel)
         )
     mis = [r for r in rows if "roi_mape_two_pct" in r]
+    out.append("")
+    out.append(
+        "gain = MAPE CSM-only / MAPE two-fidelity per seed (median, and the worst seed); the two-fidelity run "
+        "takes the fast survey's time on top. At equal time: the CSM-only GP given M' = M + (fast survey s / s "
+        "per CSM indent) CSM indents instead."
+    )
     if mis:
         out += [
             "",
@@ -298,7 +345,22 @@ def main() -> None:
     ap.add_argument("--n-fast", default="2500,10000")
     ap.add_argument("--m-csm", default="50,150")
     ap.add_argument("--out", default="benchmarks/results/two_fidelity_study")
+    ap.add_argument(
+        "--equal-time-from",
+        help="a results JSON of this script: add the CSM-only MAPE at equal time, rewrite",
+    )
     args = ap.parse_args()
+    if args.equal_time_from:
+        source = Path(args.equal_time_from)
+        loaded: list[dict[str, object]] = json.loads(source.read_text(encoding="utf-8"))
+        add_equal_time(loaded)
+        table = summarise(loaded)
+        print(table)
+        source.write_text(json.dumps(loaded, indent=1, default=float), encoding="utf-8")
+        md = source.with_suffix(".md")
+        head = md.read_text(encoding="utf-8").split("\n\n")[0] if md.exists() else "# Two-fidelity study"
+        md.write_text(f"{head}\n\n{table}\n", encoding="utf-8")
+        return
     n_fast = [int(s) for s in args.n_fast.split(",")]
     m_csm = [int(s) for s in args.m_csm.split(",")]
     rows: list[dict[str, object]] = []

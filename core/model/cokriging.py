@@ -45,11 +45,28 @@ def plane_basis(x: torch.Tensor) -> torch.Tensor:
 
 def _kernel(kernel: KernelName, a: torch.Tensor, b: torch.Tensor, ls: torch.Tensor) -> torch.Tensor:
     """Unit-outputscale k(a, b), differentiable in the length-scales."""
-    r2 = ((a.unsqueeze(1) - b.unsqueeze(0)) / ls).square().sum(dim=-1)
+    r2 = torch.cdist(a / ls, b / ls).square()
     if kernel == "rbf":
         return torch.exp(-0.5 * r2)
     r = torch.sqrt(5.0 * r2.clamp_min(1e-30))
     return (1.0 + r + (5.0 / 3.0) * r2) * torch.exp(-r)
+
+
+def _sparse(idx: torch.Tensor, w: torch.Tensor, m: int) -> torch.Tensor:
+    """The (n, m) interpolation weights as a sparse matrix: 16 entries a row, so products with it cost 16 per
+    row and column of the other factor, with no (n × 16 × ·) gather in memory."""
+    rows = torch.arange(idx.shape[0]).repeat_interleave(idx.shape[1])
+    return torch.sparse_coo_tensor(
+        torch.stack([rows, idx.reshape(-1)]),
+        w.reshape(-1),
+        (idx.shape[0], m),
+        check_invariants=False,  # indices from Grid.weights: always in range
+    )
+
+
+def interpolation_matrix(grid: Grid, x: torch.Tensor) -> torch.Tensor:
+    idx, w = grid.weights(x)
+    return _sparse(idx, w, grid.m)
 
 
 @dataclass(frozen=True)
@@ -93,10 +110,12 @@ class CoKrigingProblem(Problem):
     basis: torch.Tensor = field(init=False, repr=False)  # (n, 3)
 
     def __post_init__(self) -> None:
-        idx, w = self.grid.weights(self.x)
-        cross = (self.fast_grid_cov[:, idx] * w.unsqueeze(0)).sum(dim=-1)  # (m, n)
-        cov = (cross[idx, :] * w.unsqueeze(-1)).sum(dim=1)  # (n, n)
-        object.__setattr__(self, "fast_mean", (self.fast_grid_mean[idx] * w).sum(dim=1))
+        weights = interpolation_matrix(self.grid, self.x)
+        cross = torch.sparse.mm(weights, self.fast_grid_cov).T  # (m, n): Σ_g is symmetric
+        cov = torch.sparse.mm(weights, cross)  # (n, n)
+        object.__setattr__(
+            self, "fast_mean", torch.sparse.mm(weights, self.fast_grid_mean.unsqueeze(1))[:, 0]
+        )
         object.__setattr__(self, "fast_cross", cross)
         object.__setattr__(self, "fast_cov", 0.5 * (cov + cov.T))
         object.__setattr__(self, "basis", plane_basis(self.x))
@@ -192,7 +211,8 @@ class CoKrigingConditioned:
         idx, w = self.grid.weights(xs)
         fast = (self.fast_grid_mean[idx] * w).sum(dim=1)
         prior_mean = rho * fast + basis @ self.plane
-        cross = rho.unsqueeze(1) * torch.einsum("ck,ckn->cn", w, self.cross_rho[idx, :])
+        weights = _sparse(idx, w, self.grid.m)
+        cross = rho.unsqueeze(1) * torch.sparse.mm(weights, self.cross_rho)
         cross = cross + cross_kernel(self.kernel, xs, self.x, self.lengthscale, self.outputscale)
         return prior_mean, cross, rho, idx, w
 

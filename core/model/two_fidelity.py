@@ -32,7 +32,7 @@ from core.model.cokriging import (
     start_theta,
     unpack_theta,
 )
-from core.model.fitting import COLD_WIN_NATS, cold_search_due, optimise
+from core.model.fitting import COLD_WIN_NATS, cold_search_due, optimisation_due, optimise
 from core.model.guard import GUARDS, CollapseRule, GuardName
 from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName
 from core.model.observations import Observations, standardise
@@ -143,6 +143,8 @@ class TwoFidelityGP:
         self._last_good: torch.Tensor | None = None
         self._prev_n = 0
         self._cold_n = 0
+        self._fit_n = 0  # CSM centres at the CSM level's last optimisation
+        self._fast_n = 0  # fast cells then
         self._cond: CoKrigingConditioned | None = None
         self._loc = 0.0
         self._scale = 1.0
@@ -179,6 +181,17 @@ class TwoFidelityGP:
         fast_report = self.fast_gp.fit(fast)
         p = self._problem(csm)
         iterations = 0
+        if (
+            self._theta is not None
+            and fast.n == self._fast_n
+            and not optimisation_due(csm.n, self._fit_n)
+            and not cold_search_due(csm.n, self._cold_n)
+        ):
+            # a few more CSM centres and no new fast data: condition with the kept hyperparameters (as the
+            # interpolated GP does between optimisations; deterministic in the data sizes)
+            self._cond = p.condition(self._theta)
+            return self._report(csm_report, fast_report, csm, self._theta, False, "", False, 0, t0)
+        self._fit_n, self._fast_n = csm.n, fast.n
         if self._theta is None:
             theta = self._cold(p)[0]
             iterations += self.max_iter
@@ -210,6 +223,22 @@ class TwoFidelityGP:
         self._prev_n = csm.n
         self._theta = theta.clone()
         self._cond = p.condition(theta)
+        return self._report(
+            csm_report, fast_report, csm, theta, collapse, reason, used_last_good, iterations, t0
+        )
+
+    def _report(
+        self,
+        csm_report: FitReport,
+        fast_report: FitReport,
+        csm: Observations,
+        theta: torch.Tensor,
+        collapse: bool,
+        reason: str,
+        used_last_good: bool,
+        iterations: int,
+        t0: float,
+    ) -> TwoFidelityReport:
         t = unpack_theta(theta, self.floor_uv)
         delta_var = float(t.outputscale) * self._scale**2
         return TwoFidelityReport(

@@ -5,6 +5,7 @@ more than a tolerance where the fast channel misleads."""
 from __future__ import annotations
 
 import copy
+import json
 from dataclasses import dataclass
 
 import gpytorch
@@ -14,6 +15,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from core.errors import InputError
 from core.model.cokriging import unpack_theta
 from core.model.observations import Observations
 from core.model.two_fidelity import TwoFidelityGP, TwoFidelityReport, fast_observations
@@ -166,6 +168,34 @@ def test_the_guard_keeps_the_last_good_bias_kernel(good: Case) -> None:
     second = model.fit(noisy, good.fast)
     assert second.collapse and second.used_last_good, second.collapse_reason
     assert second.delta_lengthscales_uv == pytest.approx(good.report.delta_lengthscales_uv)
+
+
+def test_resume_from_the_record_is_the_same_model(good: Case) -> None:
+    """A journal's record (through JSON) conditions a new model on the same data to the same map, bit for bit,
+    and both go on to the same next fit."""
+    record = json.loads(json.dumps(good.model.hyper))
+    restored = TwoFidelityGP()
+    restored.set_hyper(record, good.csm, good.fast)
+    assert restored.mode == "two-fidelity"
+    grid = lattice(20)
+    a, b = good.model.predict(grid), restored.predict(grid)
+    np.testing.assert_array_equal(a.mean, b.mean)
+    np.testing.assert_array_equal(a.epistemic_sd, b.epistemic_sd)
+    original = copy.deepcopy(good.model)
+    more = Observations(
+        uv=np.vstack([good.csm.uv, [[0.5, 0.5]]]),
+        median_gpa=np.append(good.csm.median_gpa, 5.5),
+        spread_var_gpa2=np.append(good.csm.spread_var_gpa2, 0.003),
+        n_indents=np.append(good.csm.n_indents, 9),
+    )
+    original.fit(more, good.fast)
+    restored.fit(more, good.fast)
+    np.testing.assert_array_equal(original.predict(grid).mean, restored.predict(grid).mean)
+    with pytest.raises(InputError, match="fast"):
+        TwoFidelityGP().set_hyper(record, good.csm, None)
+    record["cokriging"]["raw"] = record["cokriging"]["raw"][:5]
+    with pytest.raises(InputError, match="malformed"):
+        TwoFidelityGP().set_hyper(record, good.csm, good.fast)
 
 
 @settings(max_examples=30, deadline=None)

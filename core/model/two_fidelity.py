@@ -46,7 +46,19 @@ MIN_CSM_CENTRES = 4  # ... and fewer CSM centres: ρ's plane and δ's plane need
 CELL_SPACINGS = 3.0
 CELL_UV_BOUNDS = (0.005, 0.1)
 DELTA_COLD_STARTS = ((0.3, 0.3), (0.1, 0.15))  # δ's (outputscale, length-scale) of the cold starts
-PREDICT_CHUNK = 1024  # candidates per block (memory: chunk × 16 × n_csm doubles for the gathers)
+PREDICT_CHUNK = 1024  # candidates per block of the predictive diagonal
+HYPER_VERSION = 1
+_FIELD = "surrogate.two_fidelity"
+
+
+def _raw(values: object) -> torch.Tensor:
+    if (
+        not isinstance(values, list)
+        or len(values) != N_THETA
+        or not all(isinstance(v, int | float) and math.isfinite(v) for v in values)
+    ):
+        raise ValueError(f"expected {N_THETA} finite numbers, got {values!r}")
+    return torch.tensor([float(v) for v in values], dtype=DTYPE)
 
 
 def fast_observations(uv: np.ndarray, hardness_gpa: np.ndarray, cell_uv: float | None = None) -> Observations:
@@ -157,6 +169,47 @@ class TwoFidelityGP:
     def theta(self) -> tuple[float, ...] | None:
         """The CSM level's raw vector in use (None in csm-only mode): for the journal and a warm start."""
         return None if self._theta is None or self._cond is None else tuple(self._theta.tolist())
+
+    @property
+    def hyper(self) -> dict[str, Any] | None:
+        """The journal's record (JSON-able): both GPs' records and the CSM level's state; None before a fit."""
+        csm = self.csm_gp.hyper
+        if csm is None:
+            return None
+        record: dict[str, Any] = {"version": HYPER_VERSION, "csm": csm}
+        if self._cond is not None and self._theta is not None:
+            record["fast"] = self.fast_gp.hyper
+            record["cokriging"] = {
+                "raw": self._theta.tolist(),
+                "last_good": None if self._last_good is None else self._last_good.tolist(),
+                "prev_n": self._prev_n,
+                "cold_n": self._cold_n,
+                "fit_n": self._fit_n,
+                "fast_n": self._fast_n,
+            }
+        return record
+
+    def set_hyper(self, record: object, csm: Observations, fast: Observations | None) -> None:
+        """Condition on the data with a recorded fit, no optimisation (crash-resume: the same model as before)."""
+        if not isinstance(record, dict) or record.get("version") != HYPER_VERSION or "csm" not in record:
+            raise InputError(_FIELD, f"not a version-{HYPER_VERSION} two-fidelity record")
+        self.csm_gp.set_hyper(record["csm"], csm)
+        if "cokriging" not in record:
+            self._cond = None
+            return
+        if fast is None or "fast" not in record:
+            raise InputError(_FIELD, "records a fast channel but no fast data (or no fast record) was given")
+        self.fast_gp.set_hyper(record["fast"], fast)
+        ck = record["cokriging"]
+        try:
+            raw = _raw(ck["raw"])
+            last_good = None if ck.get("last_good") is None else _raw(ck["last_good"])
+            counters = [int(ck[k]) for k in ("prev_n", "cold_n", "fit_n", "fast_n")]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(_FIELD, f"malformed cokriging record: {exc!r}") from None
+        self._theta, self._last_good = raw, last_good
+        self._prev_n, self._cold_n, self._fit_n, self._fast_n = counters
+        self._cond = self._problem(csm).condition(raw)
 
     def fit(self, csm: Observations, fast: Observations | None) -> TwoFidelityReport:
         """Fit the CSM-only GP, the fast GP and the CSM level (warm from the previous fit)."""

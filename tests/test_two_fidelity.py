@@ -170,6 +170,23 @@ def test_the_guard_keeps_the_last_good_bias_kernel(good: Case) -> None:
     assert second.delta_lengthscales_uv == pytest.approx(good.report.delta_lengthscales_uv)
 
 
+def test_what_a_fast_array_would_buy(good: Case) -> None:
+    """Precise fast cells around one place lower the CSM map's variance most there, and nowhere raise it."""
+    grid = lattice(20)
+    before = good.model.predict(grid).epistemic_sd ** 2
+    c = np.linspace(0.65, 0.95, 8)
+    cu, cv = np.meshgrid(c, c)
+    cells = np.column_stack([cu.ravel(), cv.ravel()])
+    after = good.model.csm_variance_after_fast(grid, cells, np.full(len(cells), 1e-4))
+    drop = before - after
+    assert np.all(drop >= -1e-9 * before.max())
+    near = np.all((grid >= 0.65) & (grid <= 0.95), axis=1)
+    assert drop[near].mean() > 3.0 * drop[~near].mean() and drop[near].mean() > 0.05 * before[near].mean()
+    # no cells: nothing bought; the same call conditions as predict does
+    none = good.model.csm_variance_after_fast(grid, np.array([[0.5, 0.5]]), np.array([1e9]))
+    np.testing.assert_allclose(none, before, rtol=1e-6, atol=1e-12)
+
+
 def test_resume_from_the_record_is_the_same_model(good: Case) -> None:
     """A journal's record (through JSON) conditions a new model on the same data to the same map, bit for bit,
     and both go on to the same next fit."""

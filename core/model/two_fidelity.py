@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -29,6 +29,7 @@ from core.model.cokriging import (
     N_THETA,
     CoKrigingConditioned,
     CoKrigingProblem,
+    interpolation_matrix,
     start_theta,
     unpack_theta,
 )
@@ -158,6 +159,7 @@ class TwoFidelityGP:
         self._fit_n = 0  # CSM centres at the CSM level's last optimisation
         self._fast_n = 0  # fast cells then
         self._cond: CoKrigingConditioned | None = None
+        self._p: CoKrigingProblem | None = None  # the CSM level's data, kept for what-if variances
         self._loc = 0.0
         self._scale = 1.0
 
@@ -209,7 +211,8 @@ class TwoFidelityGP:
             raise InputError(_FIELD, f"malformed cokriging record: {exc!r}") from None
         self._theta, self._last_good = raw, last_good
         self._prev_n, self._cold_n, self._fit_n, self._fast_n = counters
-        self._cond = self._problem(csm).condition(raw)
+        self._p = self._problem(csm)
+        self._cond = self._p.condition(raw)
 
     def fit(self, csm: Observations, fast: Observations | None) -> TwoFidelityReport:
         """Fit the CSM-only GP, the fast GP and the CSM level (warm from the previous fit)."""
@@ -242,7 +245,7 @@ class TwoFidelityGP:
         ):
             # a few more CSM centres and no new fast data: condition with the kept hyperparameters (as the
             # interpolated GP does between optimisations; deterministic in the data sizes)
-            self._cond = p.condition(self._theta)
+            self._p, self._cond = p, p.condition(self._theta)
             return self._report(csm_report, fast_report, csm, self._theta, False, "", False, 0, t0)
         self._fit_n, self._fast_n = csm.n, fast.n
         if self._theta is None:
@@ -275,7 +278,7 @@ class TwoFidelityGP:
             self._last_good = theta.clone()
         self._prev_n = csm.n
         self._theta = theta.clone()
-        self._cond = p.condition(theta)
+        self._p, self._cond = p, p.condition(theta)
         return self._report(
             csm_report, fast_report, csm, theta, collapse, reason, used_last_good, iterations, t0
         )
@@ -330,6 +333,35 @@ class TwoFidelityGP:
             noise_sd=noise,
             total_sd=np.sqrt(epi**2 + noise**2),
         )
+
+    def csm_variance_after_fast(
+        self, uv: np.ndarray, cells_uv: np.ndarray, cells_noise_var_gpa2: np.ndarray
+    ) -> np.ndarray:
+        """The CSM map's latent variance (GPa²) at ``uv`` if fast cells at ``cells_uv`` were added, each value
+        with its noise variance, every hyperparameter held: what a fast array would buy (the planner's
+        integrated variance reduction). The fast grid's posterior takes the cells (an n_cells-sized update), and
+        the CSM level is conditioned on its data again over it."""
+        if self._cond is None or self._p is None or self._theta is None:
+            raise RuntimeError("TwoFidelityGP.csm_variance_after_fast: no fast channel in this fit")
+        p = self._p
+        xa = torch.as_tensor(np.array(cells_uv, dtype=float).reshape(-1, 2), dtype=DTYPE)
+        noise = torch.as_tensor(np.asarray(cells_noise_var_gpa2, dtype=float).ravel(), dtype=DTYPE)
+        if noise.shape[0] != xa.shape[0] or not bool(torch.all(noise > 0)):
+            raise InputError("cells_noise_var_gpa2", "one noise variance > 0 per cell is needed")
+        with torch.no_grad():
+            weights = interpolation_matrix(p.grid, xa)
+            sw = torch.sparse.mm(weights, p.fast_grid_cov)  # (n_cells, m): W Σ_g
+            s = torch.sparse.mm(weights, sw.T.contiguous()) + torch.diag(noise / self._scale**2)
+            z = torch.linalg.solve_triangular(torch.linalg.cholesky(s), sw, upper=False)
+            after = replace(p, fast_grid_cov=p.fast_grid_cov - z.T @ z).condition(self._theta)
+            xs_all = torch.as_tensor(np.array(uv, dtype=float).reshape(-1, 2), dtype=DTYPE)
+            var = torch.cat(
+                [
+                    after.mean_var(xs_all[i : i + PREDICT_CHUNK])[1]
+                    for i in range(0, xs_all.shape[0], PREDICT_CHUNK)
+                ]
+            )
+        return var.numpy() * self._scale**2
 
     def predict_fast(self, uv: np.ndarray) -> Prediction:
         """The fast channel's own map (what a fast indent reads), from the fast data alone."""

@@ -76,6 +76,29 @@ class InViewSettings:
 
 
 @dataclass(frozen=True)
+class FastMode:
+    """The instrument's fast-array option (NanoBlitz-class, SPEC §9): load-controlled indents in seconds.
+
+    An array is ``rows × cols`` indents at a pitch, run column by column; it pays one program opening, one
+    surface find and one drift settle (the profile's ``steps.engage_s`` and ``steps.drift_settle_s``, when
+    ``surface_find`` and ``drift_settle`` say it needs them), then ``indent_s`` per indent (the step to the
+    next site included) and ``column_change_s`` more at each change of column.
+    """
+
+    indent_s: float
+    column_change_s: float
+    max_extent_um: float  # the largest side of one array (first to last site)
+    min_pitch_um: float  # the closest two sites of an array may be
+    peak_load_mn: float
+    surface_find: bool
+    drift_settle: bool
+
+
+_FAST_NUMBERS = {"indent_s", "column_change_s", "max_extent_um", "min_pitch_um", "peak_load_mn"}
+_FAST_FLAGS = {"surface_find", "drift_settle"}
+
+
+@dataclass(frozen=True)
 class InstrumentProfile:
     name: str = "kla-imicro"
     description: str = ""
@@ -103,6 +126,8 @@ class InstrumentProfile:
     # the test method's drift segment (s): the time over which Eq. 7's drift displaces the measured depth
     drift_segment_s: float = DRIFT_SEGMENT_S
     inview: InViewSettings = InViewSettings()
+    # the fast-array option (NanoBlitz-class): None when the instrument has none (a profile without [fast])
+    fast: FastMode | None = None
 
     @property
     def reconfiguration_s(self) -> float:
@@ -189,6 +214,7 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
         "stage",
         "drift",
         "inview",
+        "fast",
     }
     for key in data:
         if key not in known:
@@ -263,6 +289,8 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
         updates[drift_fields[key]] = _number(source, f"drift.{key}", value, positive=key == "segment_s")
     if "inview" in data:
         updates["inview"] = _inview(base.inview, data["inview"], source)
+    if "fast" in data:
+        updates["fast"] = _fast(base.fast, data["fast"], source)
     profile = replace(base, **updates)
     missing = [
         h for h in profile.allowed_holds_s if not any(math.isclose(h, m) for m, _ in profile.inview.methods)
@@ -327,6 +355,43 @@ def _inview(base: InViewSettings, table: Any, source: str) -> InViewSettings:
     return replace(base, **updates)
 
 
+def _fast(base: FastMode | None, table: Any, source: str) -> FastMode | None:
+    """The [fast] table: every field required unless inherited; ``available = false`` removes an inherited one."""
+    if not isinstance(table, dict):
+        raise InputError(source, "[fast] must be a table")
+    allowed = _FAST_NUMBERS | _FAST_FLAGS | {"available"}
+    for key in table:
+        if key not in allowed:
+            raise InputError(source, f"unknown field fast.{key} (allowed: {', '.join(sorted(allowed))})")
+    available = table.get("available", True)
+    if not isinstance(available, bool):
+        raise InputError(source, f"field fast.available must be true or false, got {available!r}")
+    if not available:
+        if len(table) > 1:
+            raise InputError(source, "field fast.available = false takes no other [fast] field")
+        return None
+    if base is None:
+        missing = sorted((_FAST_NUMBERS | _FAST_FLAGS) - set(table))
+        if missing:
+            raise InputError(source, f"[fast] needs field(s) {', '.join(f'fast.{m}' for m in missing)}")
+    updates: dict[str, Any] = {}
+    for key, value in table.items():
+        if key in _FAST_FLAGS:
+            if not isinstance(value, bool):
+                raise InputError(source, f"field fast.{key} must be true or false, got {value!r}")
+            updates[key] = value
+        elif key in _FAST_NUMBERS:
+            updates[key] = _number(source, f"fast.{key}", value, positive=key != "column_change_s")
+    fast = FastMode(**updates) if base is None else replace(base, **updates)
+    if fast.min_pitch_um > fast.max_extent_um:
+        raise InputError(
+            source,
+            f"field fast.min_pitch_um {fast.min_pitch_um:g} is larger than fast.max_extent_um "
+            f"{fast.max_extent_um:g}",
+        )
+    return fast
+
+
 def _read_toml(text: str, source: str) -> dict[str, Any]:
     try:
         return tomllib.loads(text)
@@ -376,6 +441,8 @@ def profile_to_dict(profile: InstrumentProfile) -> dict[str, Any]:
         elif isinstance(value, InViewSettings):
             value = {vf.name: getattr(value, vf.name) for vf in fields(InViewSettings)}
             value["methods"] = [[h, m] for h, m in value["methods"]]
+        elif isinstance(value, FastMode):
+            value = {ff.name: getattr(value, ff.name) for ff in fields(FastMode)}
         elif isinstance(value, tuple):
             value = list(value)
         out[f.name] = value
@@ -390,6 +457,8 @@ def profile_from_dict(data: dict[str, Any]) -> InstrumentProfile:
         inview = dict(kwargs["inview"])
         inview["methods"] = tuple((float(h), str(m)) for h, m in inview["methods"])
         kwargs["inview"] = InViewSettings(**inview)
+    if kwargs.get("fast") is not None:  # absent in journals written before the fast mode: none
+        kwargs["fast"] = FastMode(**kwargs["fast"])
     return InstrumentProfile(**kwargs)
 
 

@@ -31,13 +31,22 @@ class CollapseRule:
     min_points: int  # ... once the previous fit had at least this many points
 
     def check(self, hyper: Hyperparameters, prev: Hyperparameters | None) -> tuple[bool, str]:
-        ls = hyper.lengthscales_uv
+        return self.check_lengthscales(
+            hyper.lengthscales_uv,
+            None if prev is None else prev.lengthscales_uv,
+            0 if prev is None else prev.n_points,
+        )
+
+    def check_lengthscales(
+        self, ls: tuple[float, float], prev_ls: tuple[float, float] | None, prev_n_points: int
+    ) -> tuple[bool, str]:
+        """The rule on any GP's length-scales (the two-fidelity model's bias GP too)."""
         reasons = []
         for axis, value in zip("uv", ls, strict=True):
             if value <= self.floor_uv * FLOOR_MARGIN:
                 reasons.append(f"length-scale {axis} = {value:.4f} at its floor {self.floor_uv:.4f}")
-        if prev is not None and prev.n_points >= self.min_points:
-            for axis, value, old in zip("uv", ls, prev.lengthscales_uv, strict=True):
+        if prev_ls is not None and prev_n_points >= self.min_points:
+            for axis, value, old in zip("uv", ls, prev_ls, strict=True):
                 if value < self.drop_ratio * old:
                     reasons.append(
                         f"length-scale {axis} dropped from {old:.4f} to {value:.4f} "

@@ -113,11 +113,15 @@ class Observations:
             )
         _, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
         order = np.argsort(first, kind="stable")
+        # each group's indents in their original order, by one stable sort (not a mask per group: fast
+        # arrays bring thousands of cells)
+        by_group = np.argsort(inverse.ravel(), kind="stable")
+        starts = np.searchsorted(inverse.ravel()[by_group], np.arange(first.size + 1))
         uv, med, spread, count, dof = [], [], [], [], []
         for group in order:
-            mask = inverse == group
-            vals = h[mask]
-            pos = uv_i[mask]
+            members = by_group[starts[group] : starts[group + 1]]
+            vals = h[members]
+            pos = uv_i[members]
             uv.append(pos.mean(axis=0))
             med.append(float(np.median(vals)))
             count.append(int(vals.size))

@@ -29,7 +29,7 @@ from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName, lengthscales_of
 from core.model.noise import MIN_SPREADS_FOR_GP, NoiseData, NoiseField, noise_data, noise_kind_for
 from core.model.observations import Observations, pooled_var, spread_mask, standardise
 from core.model.problem import Predictor, Problem
-from core.model.ski import SKI_ABOVE, Grid, SkiProblem, grid_for
+from core.model.ski import SKI_ABOVE, Grid, SkiConditioned, SkiProblem, grid_for
 
 MAX_THREADS = 2  # torch intra-op threads; 1 is the default: on a busy 2-core machine a second thread
 # mostly waits for a core (measured 3–5× slower decisions under load, no gain when idle)
@@ -290,6 +290,14 @@ class HeteroskedasticGP:
             mean=mean_gpa, epistemic_sd=epi, noise_sd=noise, total_sd=np.sqrt(epi**2 + noise**2)
         )
 
+    def predict_noise_sd(self, uv: np.ndarray) -> np.ndarray:
+        """The per-indent noise sd σ(x) (GPa) only: the noise model, without the mean GP's work."""
+        if self._mean is None:
+            raise RuntimeError("HeteroskedasticGP.predict_noise_sd before fit() or set_hyper()")
+        xs = torch.as_tensor(np.array(uv, dtype=float).reshape(-1, 2), dtype=DTYPE)
+        with torch.no_grad():
+            return np.sqrt(self._noise.var_at(xs).numpy())
+
     def predict_mean(self, uv: np.ndarray) -> np.ndarray:
         """The posterior mean only (GPa): one kernel product, no variances (metrics on large lattices)."""
         if self._mean is None:
@@ -301,6 +309,17 @@ class HeteroskedasticGP:
                 parts.append(self._mean.mean(xs[start : start + PREDICT_CHUNK]).numpy())
         mean = np.concatenate(parts) if parts else np.empty(0)
         return np.asarray(mean * self._y_scale + self._y_loc, dtype=float)
+
+    def latent_grid(self) -> tuple[Grid, np.ndarray, np.ndarray]:
+        """The interpolated GP's posterior over its grid values in GPa: (grid, mean (m,), covariance (m, m)).
+
+        The latent map at x is wₓᵀ g (the cubic weights sum to one), so a model built on this GP (the
+        two-fidelity model's fast channel) can carry its whole posterior, not only its diagonal.
+        """
+        if not isinstance(self._mean, SkiConditioned):
+            raise RuntimeError("HeteroskedasticGP.latent_grid needs a fitted interpolated (ski) GP")
+        mean = (self._mean.grid_mean.numpy() + self._mean.constant) * self._y_scale + self._y_loc
+        return self._mean.grid, mean, self._mean.grid_cov.numpy() * self._y_scale**2
 
     @property
     def model(self) -> ModelKind | None:

@@ -451,3 +451,52 @@ async def test_collapse_alarm_is_shown_until_acknowledged(live_run: LiveRunFacto
         await pilot.press("a")
         await wait_until(pilot, lambda: bool(canned.sent), what="approve sent")
         assert canned.sent[0].kind is CommandKind.APPROVE
+
+
+async def test_adjust_at_the_first_proposal_of_the_aeni_policy_applies(live_run: LiveRunFactory) -> None:
+    """Issue 38: the form hides `fixed hold (s)` for `aeni` (it picks every hold) and must not require it."""
+    run = live_run(policy="aeni")
+    first = run.until_awaiting().pending
+    assert first is not None and shown_policy(run) == "aeni"
+    async with attached(run.source(), (80, 24)) as (app, pilot):
+        await pilot.press("e")
+        await wait_until(pilot, lambda: isinstance(app.screen, AdjustScreen), what="adjust form")
+        form = app.screen
+        assert not form.query("#f-fixed_hold_s")  # not shown: the policy's holds
+        form.query_one("#f-edge_penalty").value = "0.3"
+        await pilot.pause()
+        assert widget_text(form.query_one("#adjust-error")).strip() == ""
+        await pilot.press("ctrl+s")
+        await wait_until(pilot, lambda: not isinstance(app.screen, AdjustScreen), what="form closes")
+        await wait_until(pilot, lambda: shown(app).settings.edge_penalty == 0.3, what="the engine took it")
+        adjust = commands(run)[-1]
+        assert adjust["kind"] == "adjust" and adjust["outcome"] == "accepted"
+        assert adjust["payload"] == {"edge_penalty": 0.3}
+
+
+def shown_policy(run: LiveRun) -> str:
+    return run.snapshot().policy
+
+
+@pytest.mark.parametrize("size", SIZES)
+async def test_away_until_is_in_the_footer_and_in_help(
+    live_run: LiveRunFactory, size: tuple[int, int]
+) -> None:
+    """Issue 38: `w` (away until a time: the run plans for nobody until then) is shown, not a hidden key."""
+    run = live_run()
+    run.until_awaiting()
+    async with attached(run.source(), size) as (app, pilot):
+        assert "away_until" in footer_keys(app)
+        keys = [k for k in app.query("FooterKey") if k.display]
+        shown_keys = ["".join(widget_text(k).split()) for k in keys]  # "w Away", or "wAway" at 80 columns
+        assert "wAway" in shown_keys and shown_keys[-1] == "qLeave", shown_keys
+        assert all(k.region.right <= size[0] for k in keys), [(t, k.region) for t, k in zip(shown_keys, keys)]
+        await pilot.press("question_mark")
+        await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
+    from rich.console import Console
+
+    from aeni_console.widgets.help import help_text
+
+    console = Console(width=90, record=True)
+    console.print(help_text())
+    assert any(ln.split()[:2] == ["w", "away"] for ln in console.export_text().splitlines()), "w not in help"

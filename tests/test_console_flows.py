@@ -490,7 +490,9 @@ async def test_away_until_is_in_the_footer_and_in_help(
         keys = [k for k in app.query("FooterKey") if k.display]
         shown_keys = ["".join(widget_text(k).split()) for k in keys]  # "w Away", or "wAway" at 80 columns
         assert "wAway" in shown_keys and shown_keys[-1] == "qLeave", shown_keys
-        assert all(k.region.right <= size[0] for k in keys), [(t, k.region) for t, k in zip(shown_keys, keys)]
+        assert all(k.region.right <= size[0] for k in keys), [
+            (t, k.region) for t, k in zip(shown_keys, keys, strict=True)
+        ]
         await pilot.press("question_mark")
         await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
     from rich.console import Console

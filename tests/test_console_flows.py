@@ -550,7 +550,7 @@ async def test_the_next_best_coordinates_fit_at_80x24(live_run: LiveRunFactory) 
     pending = run.snapshot().pending
     assert pending is not None and pending.alternatives
     best = pending.alternatives[0]
-    async with attached(run.source(), (80, 24)) as (app, pilot):
+    async with attached(run.source(), (80, 24)) as (app, _pilot):
         text = widget_text(app.decision_panel)
         assert f"({best.center_x_um:.0f}, {best.center_y_um:.0f})" in text, text
         import re

@@ -356,3 +356,16 @@ def test_a_refused_export_is_alerted_once_as_refused_not_as_a_silent_instrument(
     now[0] += 3600.0
     w.check()
     assert [k for k, _ in w.sent] == ["refused", "silence"]
+
+
+def test_the_alert_kinds_in_docs_are_the_code_s() -> None:
+    """docs/alerts.md's table lists every kind with its severity and cause, as aeni_console.alerts.KINDS has it."""
+    from aeni_console.alerts import KINDS
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "alerts.md").read_text(encoding="utf-8")
+    rows = {
+        ln.split("|")[1].strip().strip("`"): ln.split("|") for ln in doc.splitlines() if ln.startswith("| `")
+    }
+    assert set(rows) == set(KINDS)
+    for kind, what in KINDS.items():
+        assert rows[kind][2].strip().startswith(what.severity.value) and rows[kind][3].strip() == what.cause

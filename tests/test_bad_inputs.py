@@ -622,17 +622,23 @@ def test_a_journal_of_a_newer_schema_is_called_newer(
 
 @pytest.fixture
 def read_only_share(tmp_path: Path) -> Iterator[Path]:
-    """A read-only mount, as a share the instrument PC exports read-only (root writes through chmod)."""
+    """A share the instrument PC exports read-only, its outbox and inbox already there (the run used to wait
+    silently on it): a read-only bind mount, since root writes through any chmod."""
     import subprocess
 
     share = tmp_path / "share"
-    share.mkdir()
-    mounted = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(share)], capture_output=True, check=False
-    )
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a read-only tmpfs here ({mounted.stderr.decode().strip() or 'no mount'})")
+    (share / "outbox").mkdir(parents=True)
+    (share / "inbox").mkdir()
+
+    def mount(*argv: str) -> subprocess.CompletedProcess[bytes]:
+        return subprocess.run(["mount", *argv], capture_output=True, check=False)
+
+    bound = mount("--bind", str(share), str(share))
+    if bound.returncode != 0:
+        pytest.skip(f"cannot bind-mount here ({bound.stderr.decode().strip() or 'no mount'})")
     try:
+        if mount("-o", "remount,bind,ro", str(share)).returncode != 0:
+            pytest.skip("cannot remount a bind mount read-only here")
         yield share
     finally:
         subprocess.run(["umount", str(share)], check=False)

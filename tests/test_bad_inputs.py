@@ -445,8 +445,8 @@ CASES: tuple[Case, ...] = (
         "send-finished-confirm",  # was "start it with `aeni resume`", which then had nothing to resume
         ("send", "{run}", "confirm", "ACDEF"),
         (
-            "no engine is running this journal (the run is finished (indent budget",
-            "it takes no more commands",
+            "done.sqlite: no engine is running this journal: the run is finished (indent budget",
+            "so it takes no more commands and there is nothing to resume",
         ),
     ),
     Case(
@@ -615,8 +615,9 @@ def test_a_journal_of_a_newer_schema_is_called_newer(
     conn.close()
     err = _refused(["status", str(path)], capsys, tmp_path)
     assert err == (
-        f"{path}: journal written by a newer release (schema {SCHEMA_VERSION + 1} > {SCHEMA_VERSION}, the newest "
-        "this program reads): open it with that release or a later one"
+        f"{path}: journal schema version {SCHEMA_VERSION + 1} is not supported: it was written by a newer release "
+        f"(schema {SCHEMA_VERSION + 1} > {SCHEMA_VERSION}, the newest this program reads); open it with that release "
+        "or a later one"
     )
 
 

@@ -227,8 +227,8 @@ def _check_schema(conn: sqlite3.Connection, src: str) -> None:
     if int(row[0]) > SCHEMA_VERSION:
         raise InputError(
             src,
-            f"journal written by a newer release (schema {row[0]} > {SCHEMA_VERSION}, the newest this program "
-            "reads): open it with that release or a later one",
+            f"journal schema version {row[0]} is not supported: it was written by a newer release (schema "
+            f"{row[0]} > {SCHEMA_VERSION}, the newest this program reads); open it with that release or a later one",
         )
     if int(row[0]) not in READABLE_VERSIONS:
         raise InputError(

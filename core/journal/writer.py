@@ -623,10 +623,10 @@ def _why_no_engine(p: Path) -> str:
     except sqlite3.Error:
         row = None
     if row is not None and row[2]:
-        return f"the run is finished ({row[1] or 'done'}): it takes no more commands"
+        return f"the run is finished ({row[1] or 'done'}), so it takes no more commands and there is nothing to resume"
     if row is not None and row[0] == "stopped":
         return f"the run was stopped ({row[1] or 'by the operator'}); `aeni resume --continue {p}` resumes it"
-    return "start it with `aeni resume`"
+    return "start it again with `aeni resume`"
 
 
 def send_command(journal_path: str | Path, command: Command, *, uid: int | None = None) -> int:
@@ -646,7 +646,7 @@ def send_command(journal_path: str | Path, command: Command, *, uid: int | None 
             f"{p}: only the run's owner {user_name(owner)} may command it; {user_name(me)} may watch"
         )
     if not engine_running(p):
-        raise InputError(str(p), f"no engine is running this journal ({_why_no_engine(p)})")
+        raise InputError(str(p), f"no engine is running this journal: {_why_no_engine(p)}")
     kind = CommandKind(command.kind)
     conn = sqlite3.connect(str(p), isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
     try:

@@ -3,7 +3,9 @@
 An ``AlertWatcher`` reads the journal's new rows, as a console does, in a background thread of the engine's
 process: sending never blocks or fails the engine. It alerts when a decision waits for approval, a timeout
 was taken, the instrument has not answered for ``instrument_silence_s``, the interlock refused a block, a
-deadline passed, the exchange folder went missing, the run ended or failed. The same kind of alert is sent at
+deadline passed, the exchange folder went missing, an export was refused (once, with its reason: no silence
+alerts follow it while the corrected export is awaited), the run ended or failed. Each alert carries apprise's
+severity (``Severity``: failure, warning, info) and a title naming its cause. The same kind of alert is sent at
 most once per ``repeat_s``. A send that fails is journaled, without the URL (it may hold a token); apprise's
 own log, which could name the service, is kept quiet.
 """
@@ -17,13 +19,47 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
-from core.notifyconfig import NotifyConfig
+from core.notifyconfig import NotifyConfig, import_apprise
 from core.runview import LogEvent
 
 TITLE = "AE-NI"
-# what in a log row is worth an alert, by kind (the engine's and the drivers' words)
+
+
+class Severity(StrEnum):
+    """How bad it is, in apprise's own words (its ``NotifyType`` values): a service shows them as a colour or
+    an icon. A stable API: the supervisor sends ``Severity.FAILURE`` when the engine dies."""
+
+    FAILURE = (
+        "failure"  # the run cannot go on by itself: it failed, the engine died, the exchange folder went
+    )
+    WARNING = "warning"  # the run goes on, but someone should look: a decision waits, a refusal, a silence
+    INFO = "info"  # news only: the run ended as planned
+
+
+@dataclass(frozen=True)
+class AlertKind:
+    """What happened (the cause an alert names in its title) and how bad it is."""
+
+    cause: str
+    severity: Severity
+
+
+# every alert the watcher sends, by kind; the title is "AE-NI <severity>: <cause>"
+KINDS: dict[str, AlertKind] = {
+    "interlock": AlertKind("the safety interlock refused a block", Severity.WARNING),
+    "refused": AlertKind("an export was refused", Severity.WARNING),
+    "timeout": AlertKind("an approval timed out", Severity.WARNING),
+    "deadline": AlertKind("a block's deadline passed", Severity.WARNING),
+    "folder": AlertKind("the exchange folder is gone", Severity.FAILURE),
+    "approval": AlertKind("a decision waits for approval", Severity.WARNING),
+    "silence": AlertKind("the instrument is silent", Severity.WARNING),
+    "ended": AlertKind("the run ended", Severity.INFO),
+    "failed": AlertKind("the run failed", Severity.FAILURE),
+}
+# what in a log row is worth an alert, by kind (the engine's and the drivers' words), first match wins
 EVENT_KINDS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("interlock", ("safety interlock refused",)),
     ("timeout", ("timed out", "timeout")),
@@ -38,6 +74,8 @@ def event_kind(text: str) -> str | None:
     low = text.lower()
     if low.startswith("alert"):
         return None  # our own rows
+    if low.startswith("export ") and " refused: " in low:  # the inbox's words (drivers.kla.array_run)
+        return "refused"
     return next((kind for kind, needles in EVENT_KINDS if any(n in low for n in needles)), None)
 
 
@@ -46,19 +84,36 @@ def alert_worthy(events: Iterable[LogEvent]) -> bool:
     return any(event_kind(e.text) is not None for e in events)
 
 
-def send(urls: tuple[str, ...], body: str, title: str = TITLE) -> tuple[bool, str]:
-    """(sent, what happened in words without any URL)."""
-    import apprise
+def alert_title(severity: Severity, cause: str) -> str:
+    return f"{TITLE} {severity.value}: {cause}"
 
+
+def send(
+    urls: tuple[str, ...],
+    body: str,
+    severity: Severity = Severity.INFO,
+    cause: str = "",
+) -> tuple[bool, str]:
+    """Send one alert with apprise's severity (its NotifyType) and a title naming the cause; returns
+    (sent, what happened in words without any URL). Never raises for a service that fails."""
+    import warnings
+
+    apprise = import_apprise()
     logging.getLogger("apprise").setLevel(logging.CRITICAL + 1)  # its messages may name the service
-    ap = apprise.Apprise()
-    bad = sum(1 for u in urls if not ap.add(u))
-    if len(ap) == 0:
-        return False, f"none of the {len(urls)} alert URL(s) is one apprise knows"
-    ok = bool(ap.notify(title=title, body=body))
+    with warnings.catch_warnings():  # its plugins load on first use (one imports the deprecated imghdr)
+        warnings.simplefilter("ignore", DeprecationWarning)
+        ap = apprise.Apprise()
+        bad = sum(1 for u in urls if not ap.add(u))
+        if len(ap) == 0:
+            return False, f"none of the {len(urls)} alert URL(s) is one apprise knows"
+        title = alert_title(severity, cause) if cause else TITLE
+        ok = bool(ap.notify(title=title, body=body, notify_type=apprise.NotifyType(severity.value)))
     if not ok:
         return False, f"a service did not accept the alert ({len(ap)} tried)"
     return True, f"sent to {len(ap)} service(s)" + (f"; {bad} URL(s) not understood" if bad else "")
+
+
+Sender = Callable[[tuple[str, ...], str, Severity, str], tuple[bool, str]]
 
 
 @dataclass
@@ -67,6 +122,7 @@ class _Seen:
     event_id: int = 0
     progress_at: float = 0.0  # monotonic time of the last sign of life while waiting for the instrument
     results: int = 0
+    refused: bool = False  # the last news is a refused export, and nothing has moved since
 
 
 class AlertWatcher:
@@ -78,7 +134,7 @@ class AlertWatcher:
         config: NotifyConfig,
         *,
         poll_s: float = 1.0,
-        sender: Callable[[tuple[str, ...], str], tuple[bool, str]] = send,
+        sender: Sender = send,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.journal = Path(journal)
@@ -87,6 +143,7 @@ class AlertWatcher:
         self.sender = sender
         self.clock = clock
         self.sent: list[tuple[str, str]] = []  # (kind, text) of every alert sent, for the report and tests
+        self.severities: list[Severity] = []  # the severity each of them was sent with
         self._last: dict[str, float] = {}
         self._seen = _Seen(progress_at=clock())
         self._stop = threading.Event()
@@ -139,27 +196,43 @@ class AlertWatcher:
             return
         if rows or results != seen.results or state != seen.state:
             seen.progress_at = now
+        if results != seen.results or state != seen.state:
+            seen.refused = False  # the instrument went on: a later silence is news again
         for event_id, text in rows:
             seen.event_id = event_id
             kind = event_kind(text)
             if kind is not None:
                 self._alert(kind, text)
+            if kind == "refused":
+                # the refusal says why nothing moves: no "has not answered" on top while the corrected export
+                # is awaited (it would repeat every silence, and say less)
+                seen.refused = True
         if state != seen.state:
             if state == "awaiting-approval":
                 self._alert("approval", f"{self.journal.name}: a decision waits for approval")
             elif state == "stopped":
-                self._alert("ended", f"{self.journal.name}: run ended: {reason or 'stopped'}")
+                # a run that ended on refusals or a timeout is news someone must act on, not just news
+                bad_end = any(w in (reason or "").lower() for w in ("refus", "timed out", "interlock"))
+                self._alert(
+                    "ended",
+                    f"{self.journal.name}: run ended: {reason or 'stopped'}",
+                    Severity.WARNING if bad_end else None,
+                )
             elif state == "failed":
                 self._alert("failed", f"{self.journal.name}: run failed: {reason or 'failed'}")
         seen.state, seen.results = state, results
         silent = now - seen.progress_at
-        if state == "waiting-for-instrument" and silent >= self.config.instrument_silence_s:
+        if (
+            state == "waiting-for-instrument"
+            and silent >= self.config.instrument_silence_s
+            and not seen.refused
+        ):
             self._alert(
                 "silence", f"{self.journal.name}: the instrument has not answered for {silent:,.0f} s"
             )
             seen.progress_at = now  # the next one after another silence as long (and the rate limit)
 
-    def _alert(self, kind: str, text: str) -> None:
+    def _alert(self, kind: str, text: str, severity: Severity | None = None) -> None:
         now = self.clock()
         last = self._last.get(kind)
         if kind in ONCE_KINDS:
@@ -169,12 +242,15 @@ class AlertWatcher:
             return
         self._last[kind] = now
         body = text if text.startswith(self.journal.name) else f"{self.journal.name}: {text}"
+        what = KINDS[kind]
+        severity = severity or what.severity
         try:
-            ok, how = self.sender(self.config.urls, body)
+            ok, how = self.sender(self.config.urls, body, severity, what.cause)
         except Exception as exc:  # a sender that raises is a failed send, never the engine's problem
             ok, how = False, type(exc).__name__
         if ok:
             self.sent.append((kind, body))
+            self.severities.append(severity)
         else:
             self._journal(f"alert not sent ({kind}): {how}")
 

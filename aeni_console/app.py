@@ -117,8 +117,9 @@ class ConsoleApp(App[None]):
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (90, "-wide")]  # noqa: RUF012
     VERTICAL_BREAKPOINTS = [(0, "-short"), (28, "-tall")]  # noqa: RUF012
     BINDINGS: ClassVar[list[BindingType]] = [
-        Binding("space", "pause", "Pause"),
-        Binding("space", "resume", "Resume"),
+        # ␣ for space and w before the map: at 80 columns every shown key fits the footer's one line
+        Binding("space", "pause", "Pause", key_display="␣"),
+        Binding("space", "resume", "Resume", key_display="␣"),
         Binding("a", "approve", "Approve"),
         Binding("c", "confirm_start", "Started"),
         Binding("a", "report_aborted", "Aborted"),
@@ -129,7 +130,7 @@ class ConsoleApp(App[None]):
         Binding("s", "step", "Step"),
         Binding("b", "stop_after_block", "Stop"),
         Binding("x", "abort", "Abort"),
-        Binding("w", "away_until", "Away", show=False),
+        Binding("w", "away_until", "Away"),
         Binding("left", "replay_prev", "Prev block"),
         Binding("comma", "replay_prev", "Prev block", show=False),
         Binding("right", "replay_next", "Next block"),

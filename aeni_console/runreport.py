@@ -21,18 +21,40 @@ from core.errors import InputError
 
 FIGURE_DPI = 110
 LEDGER_ORDER = ("setup", "lift", "move", "engage", "drift", "indent", "hold", "reconfigure", "comeback")
-DECISION_STYLE = {  # status: (marker, colour, label)
+DECISION_STYLE = {  # who decided (decision_who): (marker, colour, label)
     "approved": ("o", "tab:green", "approved by the operator"),
+    "approved-timeout": ("o", "tab:olive", "approved by the timeout (approval_timeout_s)"),
     "vetoed": ("X", "tab:red", "vetoed by the operator"),
+    "vetoed-timeout": ("X", "tab:purple", "vetoed by the timeout (approval_timeout_s)"),
+    "vetoed-engine": ("X", "tab:brown", "vetoed by the engine"),
     "pending": ("s", "tab:orange", "waiting for the operator"),
     "auto": (".", "0.55", "automatic"),
     "dropped": ("x", "0.3", "dropped (superseded)"),
 }
-UNMEASURED_STYLE = {  # status: (marker, colour, label): what the instrument did instead of measuring
+BY_OPERATOR = ("approved", "vetoed")
+UNMEASURED_STYLE = {  # unmeasured_kind: (marker, colour, label): what the instrument did instead of measuring
     "failed": ("x", "tab:red", "failed (indented, no value)"),
-    "unverified": ("D", "tab:orange", "unverified (export refused)"),
+    "unverified-refused": ("D", "tab:orange", "unverified: made, its export refused"),
+    "unverified-no-export": ("d", "tab:purple", "unverified: started, no export at all"),
     "not_run": ("o", "tab:blue", "never indented (not run)"),
 }
+
+
+def decision_who(d: Any, resolved_by: dict[int, str]) -> str:
+    """A decision's status with who took it where it was not the operator: an approval the timeout took is
+    not the operator's (``approval_timeout_s``), nor a veto the engine made."""
+    who = resolved_by.get(int(d.decision_id), "")
+    if d.status in ("approved", "vetoed") and who in ("timeout", "engine"):
+        return f"{d.status}-{who}"
+    return str(d.status)
+
+
+def unmeasured_kind(r: Any) -> str:
+    """An unverified indent's kind: made with its export refused (the note says so), or a confirmed start
+    with no export at all (drivers.kla.array_run's two cases)."""
+    if r.status != "unverified":
+        return str(r.status)
+    return "unverified-refused" if "refused" in (r.note or "") else "unverified-no-export"
 
 
 @dataclass
@@ -65,6 +87,7 @@ class RunData:
     fits: list[tuple[int, tuple[float, ...], bool]] = field(default_factory=list)
     warnings: list[tuple[float, str]] = field(default_factory=list)  # (t_s, text) of the run's warn events
     commands: list[dict[str, Any]] = field(default_factory=list)
+    resolved_by: dict[int, str] = field(default_factory=dict)  # decision_id: operator's name, timeout, engine
     stop_reason: str = ""
     recorded_mape_pct: float | None = None
     final_maps: Any | None = None  # aeni_console.finalmaps.FinalMaps: both maps rebuilt from the journal
@@ -108,6 +131,9 @@ def read_run(path: str | Path) -> RunData:
                 fits.append((bid, scales, bool(summ.get("collapse_alarm", False))))
             final_map = mf
         warnings = [(e.t_s, e.text) for e in r.events() if e.level in ("warn", "error")]
+        d_cols, d_rows = r.table("decisions")
+        i_did, i_by = d_cols.index("decision_id"), d_cols.index("resolved_by")
+        resolved_by = {int(x[i_did]): str(x[i_by]) for x in d_rows if x[i_by] is not None}
         cal = meta.get("calibration") or {}
         corners: list[Any] = [cal.get(k) for k in ("tl", "tr", "br", "bl")]
         if all(isinstance(c, dict) for c in corners):
@@ -142,6 +168,7 @@ def read_run(path: str | Path) -> RunData:
             fits=fits,
             warnings=warnings,
             commands=r.commands(),
+            resolved_by=resolved_by,
             stop_reason=str(row.get("stop_reason") or ""),
             recorded_mape_pct=recorded,
         )
@@ -230,7 +257,7 @@ def _overlay(ax: Any, data: RunData, indents: bool = True, vetoes: bool = True) 
         ys = [r.actual_y_um for r in measured]
         ax.scatter(xs, ys, s=4, c="white", edgecolors="black", linewidths=0.3, label="indents", zorder=3)
     for status, style in UNMEASURED_STYLE.items():
-        rs = [r for r in data.indents if r.status == status]
+        rs = [r for r in data.indents if unmeasured_kind(r) == status]
         if not indents or not rs:
             continue
         # where the tip went when the instrument said so, else where it was sent
@@ -269,19 +296,21 @@ def _overlay(ax: Any, data: RunData, indents: bool = True, vetoes: bool = True) 
         ax_x, ax_y = zip(*data.avoid_centers_um, strict=True)
         ax.scatter(ax_x, ax_y, s=60, marker="x", c="tab:red", label="excluded centres", zorder=4)
     if vetoes:
-        _vetoes(ax, data, DECISION_STYLE["vetoed"][2])
+        for who in ("vetoed", "vetoed-timeout", "vetoed-engine"):
+            _vetoes(ax, data, DECISION_STYLE[who][2], who)
 
 
-def _vetoes(ax: Any, data: RunData, label: str) -> int:
-    """Vetoed proposals where they were proposed; several at one centre are one marker with their count."""
+def _vetoes(ax: Any, data: RunData, label: str, who: str = "vetoed") -> int:
+    """Vetoed proposals (``who``: the DECISION_STYLE key of who vetoed) where they were proposed; several at
+    one centre are one marker with their count."""
     at: dict[tuple[float, float], int] = defaultdict(int)
     for d in data.decisions:
-        if d.status == "vetoed":
+        if decision_who(d, data.resolved_by) == who:
             at[(round(d.decision.block.center_x_um, 1), round(d.decision.block.center_y_um, 1))] += 1
     if not at:
         return 0
     total = sum(at.values())
-    marker, colour, _ = DECISION_STYLE["vetoed"]
+    marker, colour, _ = DECISION_STYLE[who]
     ax.scatter(
         [p[0] for p in at],
         [p[1] for p in at],
@@ -470,13 +499,13 @@ def _decision_figure(plt: Any, data: RunData, out: Path) -> Path:
     fig, (ax_map, ax_t) = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True)
     by_status: dict[str, list[Any]] = defaultdict(list)
     for d in data.decisions:
-        by_status[d.status].append(d)
+        by_status[decision_who(d, data.resolved_by)].append(d)
     rows = [s for s in DECISION_STYLE if by_status.get(s)]
     for s in rows:
         marker, colour, label = DECISION_STYLE[s]
         ds = by_status[s]
-        if s == "vetoed":
-            _vetoes(ax_map, data, label)
+        if s.startswith("vetoed"):
+            _vetoes(ax_map, data, label, s)
         else:
             ax_map.scatter(
                 [d.decision.block.center_x_um for d in ds],
@@ -500,10 +529,10 @@ def _decision_figure(plt: Any, data: RunData, out: Path) -> Path:
     ax_map.set_title("decisions on the sample")
     if rows:
         ax_map.legend(loc="upper left", fontsize=7, framealpha=0.8)
-    ax_t.set_yticks(range(len(rows)), rows)
+    ax_t.set_yticks(range(len(rows)), [r.replace("-", " by ") for r in rows])
     ax_t.set_ylim(-0.5, max(len(rows), 1) - 0.5)
     ax_t.set_xlabel("instrument time (h)")
-    n_op = len(by_status.get("approved", ())) + len(by_status.get("vetoed", ()))
+    n_op = sum(len(by_status.get(s, ())) for s in BY_OPERATOR)
     ax_t.set_title(f"operator decisions: {n_op} of {len(data.decisions)}")
     return _save(fig, plt, out / "decisions.png")
 
@@ -527,10 +556,24 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
     hard = [r.hardness_gpa for r in data.indents if r.measured]
     n_failed = sum(1 for r in data.indents if r.status == "failed")
     n_not_run = sum(1 for r in data.indents if r.status == "not_run")
+    unverified = [r for r in data.indents if r.status == "unverified"]
+    n_refused = sum(1 for r in unverified if unmeasured_kind(r) == "unverified-refused")
     ops = [c for c in data.commands if c.get("kind") in ("approve", "veto", "adjust")]
     counts: dict[str, int] = defaultdict(int)
     for d in data.decisions:
-        counts[d.status] += 1
+        counts[decision_who(d, data.resolved_by)] += 1
+    unmeasured_text = ""
+    if n_failed + len(unverified) + n_not_run:
+        unmeasured_text = (
+            f"{n_failed} failed"
+            + (
+                f", {len(unverified)} unverified ({n_refused} made with their export refused, "
+                f"{len(unverified) - n_refused} started with no export at all)"
+                if unverified
+                else ""
+            )
+            + f" and {n_not_run} not run"
+        )
     lines = [
         f"# Run report: {data.name}",
         "",
@@ -542,11 +585,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         f"- instrument time {data.instrument_s:,.0f} s ({data.instrument_s / 3600:.2f} h)"
         + (f"; the grid baseline would take {data.grid_baseline_s:,.0f} s" if data.grid_baseline_s else ""),
         f"- {len(hard)} indents measured in {len({r.block_id for r in data.indents})} blocks"
-        + (
-            f"; {n_failed} failed and {n_not_run} not run (no value, never learnt from)"
-            if n_failed + n_not_run
-            else ""
-        ),
+        + (f"; {unmeasured_text} (no value, never learnt from)" if unmeasured_text else ""),
     ]
     if hard:
         lines.append(
@@ -570,7 +609,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         )
     lines.append(
         f"- decisions: {len(data.decisions)} ("
-        + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+        + ", ".join(f"{counts[s]} {DECISION_STYLE[s][2]}" for s in DECISION_STYLE if counts.get(s))
         + f"); {len(ops)} operator commands that steer (approve, veto, adjust)"
     )
     if data.driver == "sim":
@@ -589,6 +628,27 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
             )
     else:
         lines.append("- map error: not known (a real sample has no ground truth)")
+    if unverified:
+        lines += [
+            "",
+            "## Unverified indents",
+            "",
+            f"Made, or maybe made, with no value: {n_refused} whose export was refused (the tip went where the "
+            f"refused export says), {len(unverified) - n_refused} of arrays confirmed started for which no export "
+            "came (taken at the planned place). Never learnt from; their places are kept clear.",
+            "",
+            "| block | indent | kind | x (µm) | y (µm) | note |",
+            "|---:|---:|---|---:|---:|---|",
+        ]
+        for r in unverified:
+            x, y = (
+                (r.actual_x_um, r.actual_y_um)
+                if math.isfinite(r.actual_x_um) and math.isfinite(r.actual_y_um)
+                else (r.commanded_x_um, r.commanded_y_um)
+            )
+            kind = "export refused" if unmeasured_kind(r) == "unverified-refused" else "no export"
+            note = (r.note or "").replace("|", "/")
+            lines.append(f"| {r.block_id} | {r.indent_index} | {kind} | {x:.1f} | {y:.1f} | {note} |")
     lines += ["", "## Figures", ""]
     captions = {
         "maps.png": "mean and total sd maps in stage µm as the sample is seen, with the indents and exclusions",
@@ -596,7 +656,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         "time.png": "instrument time by category",
         "uncertainty.png": "the model's uncertainty over time",
         "drift.png": "drift readings and the holds used",
-        "decisions.png": "decisions, and which the operator approved or vetoed",
+        "decisions.png": "decisions, and who took them: the operator, the approval timeout or the engine",
     }
     for f in figures:
         lines.append(f"- {captions.get(f.name, f.name)}: ![{f.stem}]({f.name})")

@@ -40,7 +40,7 @@ from core.policies.base import (
 from core.policies.registry import RECOMMENDED, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
-from core.sample import Sample, grid_baseline_s, sample_from_dict
+from core.sample import Sample, check_avoided_centres, grid_baseline_s, sample_from_dict
 from core.settings import (
     adjust_settings,
     check_hold_in_force,
@@ -149,6 +149,7 @@ class Campaign:
         self._needs_covariance = parts.needs_covariance
         self.settings = config.settings
         check_holds(self.settings, self.profile.allowed_holds_s)
+        check_avoided_centres(sample, self.settings.avoid_centers_um)
         if self.settings.fixed_hold_s is None:
             self.settings = dataclasses.replace(self.settings, fixed_hold_s=self.profile.default_hold_s)
         if self.settings.budget_s is None and self.settings.indent_budget is None:

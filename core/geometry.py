@@ -575,3 +575,97 @@ def edge_penalty(uv: ArrayLike, strength: float = 0.5, width_uv: float = 0.1) ->
     t = np.clip(d / width_uv, 0.0, 1.0)
     smooth = t * t * (3.0 - 2.0 * t)
     return np.asarray(1.0 - strength * (1.0 - smooth), dtype=float)
+
+
+def _segments_cross(p: FloatArray, q: FloatArray, r: FloatArray, s: FloatArray, tol: float) -> bool:
+    """Whether segments pq and rs meet (crossing or touching), to within ``tol`` of area."""
+
+    def orient(a: FloatArray, b: FloatArray, c: FloatArray) -> int:
+        v = float((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+        return 0 if abs(v) <= tol else (1 if v > 0 else -1)
+
+    def on(a: FloatArray, b: FloatArray, c: FloatArray) -> bool:  # c on segment ab, given collinear
+        return bool(min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(a[1], b[1]))
+
+    o1, o2, o3, o4 = orient(p, q, r), orient(p, q, s), orient(r, s, p), orient(r, s, q)
+    if o1 != o2 and o3 != o4 and 0 not in (o1, o2, o3, o4):
+        return True
+    return (
+        (o1 == 0 and on(p, q, r))
+        or (o2 == 0 and on(p, q, s))
+        or (o3 == 0 and on(r, s, p))
+        or (o4 == 0 and on(r, s, q))
+    )
+
+
+def polygon_self_crossing(vertices_um: ArrayLike) -> tuple[int, int] | None:
+    """The first two edges (edge k joins vertex k to vertex k+1) of a closed outline that cross or touch,
+    or None for a simple polygon. A crossing outline (a "bow-tie") is vertices typed out of order."""
+    v = np.asarray(vertices_um, dtype=float).reshape(-1, 2)
+    n = len(v)
+    tol = 1e-12 * max(float(np.ptp(v)), 1.0) ** 2
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue  # neighbours through the closing vertex
+            if _segments_cross(v[i], v[(i + 1) % n], v[j], v[(j + 1) % n], tol):
+                return i, j
+    return None
+
+
+def polygon_meets_polygon(a_um: ArrayLike, b_um: ArrayLike) -> bool:
+    """Whether two simple polygons share any point (overlap, touch, or one holds the other)."""
+    a = np.asarray(a_um, dtype=float).reshape(-1, 2)
+    b = np.asarray(b_um, dtype=float).reshape(-1, 2)
+    tol = 1e-12 * max(float(np.ptp(np.vstack([a, b]))), 1.0) ** 2
+    for i in range(len(a)):
+        for j in range(len(b)):
+            if _segments_cross(a[i], a[(i + 1) % len(a)], b[j], b[(j + 1) % len(b)], tol):
+                return True
+    return _point_in_polygon(a[0], b) or _point_in_polygon(b[0], a)
+
+
+def _point_in_polygon(p: FloatArray, poly: FloatArray) -> bool:
+    inside = False
+    for k in range(len(poly)):
+        (x1, y1), (x2, y2) = poly[k], poly[(k + 1) % len(poly)]
+        if (y1 > p[1]) != (y2 > p[1]) and p[0] < x1 + (p[1] - y1) * (x2 - x1) / (y2 - y1):
+            inside = not inside
+    return inside
+
+
+def mm_typed(points_um: ArrayLike, bounds_um: tuple[float, float, float, float]) -> bool:
+    """Whether stage coordinates were typed in mm: every point lies far off the area (more than its span
+    beyond ``bounds_um`` = x0, x1, y0, y1) while every point × 1000 lies near it (within its span).
+
+    The rule is the same for exclusions, earlier indents and avoided centres: one coordinate list, all of it
+    implausible in µm and all of it plausible once read as mm. A list that is only partly off is a typo of
+    another kind, left to the other checks.
+    """
+    pts = np.asarray(points_um, dtype=float).reshape(-1, 2)
+    if not len(pts):
+        return False
+    x0, x1, y0, y1 = bounds_um
+    span = max(x1 - x0, y1 - y0)
+
+    def near(q: FloatArray) -> BoolArray:
+        return np.asarray(
+            (q[:, 0] >= x0 - span) & (q[:, 0] <= x1 + span) & (q[:, 1] >= y0 - span) & (q[:, 1] <= y1 + span),
+            dtype=bool,
+        )
+
+    return bool((~near(pts)).all() and near(pts * 1000.0).all())
+
+
+def distance_to_polygon_um(x_um: float, y_um: float, polygon_um: ArrayLike) -> float:
+    """How far a point lies from a simple polygon (0 inside or on it)."""
+    poly = np.asarray(polygon_um, dtype=float).reshape(-1, 2)
+    p = np.array([x_um, y_um], dtype=float)
+    if _point_in_polygon(p, poly):
+        return 0.0
+    a, b = poly, np.roll(poly, -1, axis=0)
+    ab = b - a
+    t = np.clip(
+        np.einsum("ki,ki->k", p - a, ab) / np.maximum(np.einsum("ki,ki->k", ab, ab), 1e-300), 0.0, 1.0
+    )
+    return float(np.min(np.hypot(*(p - (a + t[:, None] * ab)).T)))

@@ -75,6 +75,58 @@ def read_urls_file(path: str | Path) -> tuple[str, ...]:
     return tuple(ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#"))
 
 
+def import_apprise() -> Any:
+    """apprise, imported without its DeprecationWarning (the stdlib's imghdr), which would be a second line
+    under a one-line error and noise in an engine's log. Its plugins load lazily: wrap their first use too."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import apprise
+    return apprise
+
+
+def check_alert_url(url: str, field: str) -> None:
+    """Refuse at start a URL apprise cannot send to (a typo in the scheme would lose every alert of the run).
+
+    apprise itself decides (``Apprise().add``), so every scheme it knows is accepted and nothing else; the
+    message names the scheme, never the URL (it may hold a token)."""
+    import logging
+    import warnings
+
+    apprise = import_apprise()
+    from apprise.manager_plugins import NotificationManager
+
+    scheme, sep, _ = url.partition("://")
+    if not sep or not scheme:
+        # the URL itself is not repeated: it may hold a token
+        raise InputError(field, "an entry is not a URL (expected SCHEME://...; see apprise's list)")
+    log = logging.getLogger("apprise")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)  # apprise's own words could name the host or the token
+    try:
+        with warnings.catch_warnings():  # its plugins load here, one with the stdlib's deprecated imghdr
+            warnings.simplefilter("ignore", DeprecationWarning)
+            if apprise.Apprise().add(url):
+                return
+            known = sorted(NotificationManager().schemas())
+    finally:
+        log.setLevel(level)
+    low = scheme.lower()
+    if low not in known:
+        import difflib
+
+        near = difflib.get_close_matches(low, known, n=1)
+        hint = f" (did you mean {near[0]}://?)" if near else ""
+        raise InputError(
+            field, f"scheme {scheme}:// is not one apprise knows{hint}: no alert of the run could be sent"
+        )
+    raise InputError(
+        field,
+        f"apprise cannot use this {low}:// URL (a host, user or token missing?); see apprise's page for {low}://",
+    )
+
+
 def make_notify_config(
     urls: Sequence[str],
     urls_file: str | None,
@@ -88,12 +140,10 @@ def make_notify_config(
         if base_dir is not None and not file.is_absolute():
             file = base_dir / file
         found += read_urls_file(file)
-    for u in found:
-        if "://" not in u:
-            # the URL itself is not repeated: it may hold a token
-            raise InputError(
-                "notify.urls", "an entry is not a URL (expected SCHEME://...; see apprise's list)"
-            )
+    for k, u in enumerate(found):
+        check_alert_url(
+            u, f"notify.urls[{k}]" if k < len(urls) else f"notify.urls_file, URL {k - len(urls) + 1}"
+        )
     return NotifyConfig(tuple(found), float(instrument_silence_s), float(repeat_s))
 
 

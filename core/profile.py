@@ -121,6 +121,10 @@ class InstrumentProfile:
     # steepest sample plane the stage can follow (µm of height per mm of travel): a sample file whose corner
     # heights imply more is refused (mis-read z, or a sample not lying flat)
     max_tilt_um_per_mm: float = 50.0
+    # the stage's XY travel from its origin (µm): a position beyond it cannot be on this stage (a flag in mm that
+    # is beyond it was typed in µm). Assumption to check against the stage's manual: the paper mounts a 100 mm
+    # wafer on the iMicro (SPEC §IV's film), so the travel is at least that; 150 mm leaves room for the holder.
+    stage_travel_um: float = 150_000.0
     # drift readings below this are the meter's noise, not drift: the correction leaves them alone
     drift_noise_floor_nm_s: float = DRIFT_READING_FLOOR_NM_S
     # the test method's drift segment (s): the time over which Eq. 7's drift displaces the measured depth
@@ -165,6 +169,20 @@ class InstrumentProfile:
 
     def indent_s(self, hold_s: float) -> float:
         return self.indent_base_s + hold_s
+
+    def check_stage_mm(self, value_mm: float, flag: str) -> float:
+        """A stage coordinate given in mm (``aeni kla check --x-mm``): refused beyond the stage's travel."""
+        if not math.isfinite(value_mm):
+            raise InputError(flag, f"{value_mm!r} is not a stage position in mm")
+        travel_mm = self.stage_travel_um / 1000.0
+        if abs(value_mm) <= travel_mm:
+            return value_mm
+        hint = f"; it looks like µm: {value_mm / 1000.0:g} mm?" if abs(value_mm) / 1000.0 <= travel_mm else ""
+        raise InputError(
+            flag,
+            f"{value_mm:g} mm is beyond the stage's {travel_mm:g} mm travel (profile {self.name}, "
+            f"stage.travel_um){hint}",
+        )
 
     def check_hold(self, hold_s: float, source: str = "hold_s") -> float:
         if not any(math.isclose(hold_s, h) for h in self.allowed_holds_s):
@@ -276,9 +294,10 @@ def _apply(base: InstrumentProfile, data: dict[str, Any], source: str) -> Instru
     if not isinstance(stage, dict):
         raise InputError(source, "[stage] must be a table")
     for key, value in stage.items():
-        if key != "max_tilt_um_per_mm":
-            raise InputError(source, f"unknown field stage.{key} (allowed: max_tilt_um_per_mm)")
-        updates[key] = _number(source, f"stage.{key}", value, positive=True)
+        if key not in ("max_tilt_um_per_mm", "travel_um"):
+            raise InputError(source, f"unknown field stage.{key} (allowed: max_tilt_um_per_mm, travel_um)")
+        name = "stage_travel_um" if key == "travel_um" else str(key)
+        updates[name] = _number(source, f"stage.{key}", value, positive=True)
     drift = data.get("drift", {})
     if not isinstance(drift, dict):
         raise InputError(source, "[drift] must be a table")
@@ -414,7 +433,7 @@ def load_profile(name_or_path: str | Path | None = None) -> InstrumentProfile:
         if not path.is_file():
             raise InputError(key, f"no such profile file (built-in profiles: {', '.join(BUILTIN_PROFILES)})")
         try:
-            text = path.read_text(encoding="utf-8")
+            text = path.read_text(encoding="utf-8-sig")
         except (OSError, UnicodeDecodeError) as exc:
             raise InputError(key, f"cannot read profile ({exc})") from None
         data = _read_toml(text, key)

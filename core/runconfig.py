@@ -274,12 +274,13 @@ def parse_run_config(
         truth_csv = str((base_dir / truth_csv).resolve())  # relative to the config file
     sample = None
     if rf.sample.file is not None:
-        from core.sample import load_sample
+        from core.sample import check_avoided_centres, load_sample
 
         file = Path(rf.sample.file)
         if base_dir is not None and not file.is_absolute() and (overrides or {}).get("sample.file") is None:
             file = base_dir / file  # relative to the config file (a --sample flag: to the working directory)
         sample = load_sample(file)
+        check_avoided_centres(sample, settings.avoid_centers_um, source)
     # the simulated instrument's truth: which scenario (or CSV) it lays onto the sample
     driver_options: dict[str, Any] = {"scenario": c.scenario}
     for key, value in (
@@ -331,7 +332,12 @@ def parse_run_config(
         operator=rf.operator.availability() if "operator" in rf.model_fields_set else None,
     )
     n = rf.notify
-    notify = make_notify_config(n.urls, n.urls_file, n.instrument_silence_s, n.repeat_s, base_dir)
+    try:
+        notify = make_notify_config(n.urls, n.urls_file, n.instrument_silence_s, n.repeat_s, base_dir)
+    except InputError as exc:
+        if not exc.source.startswith("notify."):
+            raise  # the urls file's own errors name that file
+        raise InputError(source, f"field {exc.source}: {exc.problem}") from None
     return RunConfig(campaign=campaign, options=options, notify=notify)
 
 
@@ -361,7 +367,7 @@ def load_run_config(path: str | Path | None = None, overrides: dict[str, Any] | 
     p = Path(path)
     src = str(p)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")  # a byte-order mark (Notepad's UTF-8) is not TOML's concern
     except FileNotFoundError:
         raise InputError(src, "no such config file") from None
     except IsADirectoryError:

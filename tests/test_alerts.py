@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -18,6 +19,7 @@ import pytest
 from aeni_console.alerts import AlertWatcher
 from aeni_console.cli import main
 from core.errors import InputError
+from core.journal import append_event
 from core.notifyconfig import NotifyConfig, notify_path_for
 from core.runconfig import RunOptions, load_run_config, make_campaign_config
 
@@ -234,3 +236,136 @@ def test_a_supervised_run_nobody_answers_goes_on_after_the_timeout_and_alerts(
     assert any("waits for approval" in b for b in bodies), bodies
     assert any("timed out" in b for b in bodies), bodies
     assert any("run ended" in b for b in bodies), bodies
+
+
+def test_every_alert_carries_apprises_severity_and_names_its_cause(
+    receiver: Receiver, tmp_path: Path
+) -> None:
+    """Issue 38: the severity is apprise's NotifyType, chosen by what happened; the title names the cause."""
+    from aeni_console.alerts import Severity, send
+    from aeni_console.commands.run import run_engine
+
+    cfg = make_campaign_config("sev", policy="cost-aware", lattice_n=30, settings={"indent_budget": 25})
+    path = tmp_path / "sev.sqlite"
+    run_engine(path, create=(cfg, RunOptions()), quiet=True)
+    w = AlertWatcher(path, NotifyConfig(urls=(receiver.url,)))
+    w._alert("failed", "run failed: the engine died (signal 9)")
+    w._alert("interlock", "safety interlock refused block 3: too close to an exclusion")
+    w._alert("ended", "run ended: indent budget reached")
+    assert send((receiver.url,), "the engine died (SIGKILL)", Severity.FAILURE, "the engine died")[0]
+    _wait(lambda: len(receiver.got) == 4)
+    got = [(m["type"], m["title"]) for m in receiver.got]
+    assert got == [
+        ("failure", "AE-NI failure: the run failed"),
+        ("warning", "AE-NI warning: the safety interlock refused a block"),
+        ("info", "AE-NI info: the run ended"),
+        ("failure", "AE-NI failure: the engine died"),
+    ]
+    assert w.severities == [Severity.FAILURE, Severity.WARNING, Severity.INFO]
+    assert "too close to an exclusion" in receiver.bodies()[1]
+
+
+def test_a_refused_export_is_alerted_once_as_refused_not_as_a_silent_instrument(
+    receiver: Receiver, tmp_path: Path
+) -> None:
+    """A flipped-Y export of a cut block is refused; the engine then waits for a corrected export until the
+    deadline. One `warning` alert names the refusal and its reason; no "has not answered" follows it."""
+    from dataclasses import replace
+
+    from aeni_console.commands.run import run_engine
+    from core.campaign import CampaignConfig
+    from core.plan import PlannerSettings
+    from core.profile import load_profile
+    from drivers.kla.fake_inview import FakeInView, parse_fault
+    from drivers.sim.scenarios import make_scenario
+
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    profile_file = tmp_path / "fast.toml"
+    profile_file.write_text(
+        'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.05\ndeadline_margin_s = 8.0\n'
+    )
+    profile = load_profile(str(profile_file))
+    fake = FakeInView(
+        exchange,
+        profile,
+        make_scenario("ternary", 0).make_emulator,
+        speed=1e6,
+        faults=(parse_fault("flipped-y@0"),),
+        invalid_rate=0.0,
+        write_s=0.02,
+        log=lambda _line: None,
+    )
+    stop = threading.Event()
+    server = threading.Thread(target=fake.serve_forever, kwargs={"poll_s": 0.02, "stop": stop.is_set})
+    server.start()
+    cfg = CampaignConfig(
+        name="flip",
+        policy="cost-aware",
+        profile=str(profile_file),
+        settings=PlannerSettings(budget_s=2500.0),  # cuts block 0 to 16 sites: flipped is no permutation
+        driver_options={"scenario": "ternary"},
+    )
+    notify = replace(NotifyConfig(urls=(receiver.url,)), instrument_silence_s=1.0, repeat_s=0.0)
+    try:
+        code = run_engine(
+            tmp_path / "flip.sqlite",
+            create=(cfg, RunOptions(driver="kla", exchange=str(exchange), speed=1e6)),
+            quiet=True,
+            notify=notify,
+        )
+    finally:
+        stop.set()
+        server.join()
+    assert code == 0
+    _wait(lambda: any("run ended" in b for b in receiver.bodies()))
+    titles = [str(m["title"]) for m in receiver.got]
+    refused = [m for m in receiver.got if m["title"] == "AE-NI warning: an export was refused"]
+    assert len(refused) == 1, titles
+    assert "Y axis is flipped" in str(refused[0]["message"]) and refused[0]["type"] == "warning"
+    after = titles[titles.index("AE-NI warning: an export was refused") :]
+    assert "AE-NI warning: the instrument is silent" not in after, titles
+    # a night's wait for a corrected export lasts hours: the watcher on a clock of its own, the same journal
+    # put back in the wait, the refusal journaled; then hours of silence say nothing more
+    journal = tmp_path / "flip.sqlite"
+    with sqlite3.connect(journal) as conn:
+        conn.execute("UPDATE engine_state SET state = 'waiting-for-instrument', completed = 0")
+    conn.close()
+    receiver.got.clear()
+    now = [0.0]
+    w = AlertWatcher(journal, notify, clock=lambda: now[0])
+    w.check()
+    append_event(journal, "warn", refused[0]["message"].split(": ", 1)[1], "inbox")
+    w.check()
+    for hour in range(1, 6):
+        now[0] = 3600.0 * hour
+        w.check()
+    assert [k for k, _ in w.sent] == ["refused"]
+    # news from the instrument ends it: a later silence is alerted again
+    append_event(journal, "info", "block 0: instrument: started", "instrument")
+    now[0] += 1.0
+    w.check()
+    with sqlite3.connect(journal) as conn:
+        conn.execute("UPDATE engine_state SET state = 'running'")
+    now[0] += 1.0
+    w.check()
+    with sqlite3.connect(journal) as conn:
+        conn.execute("UPDATE engine_state SET state = 'waiting-for-instrument'")
+    now[0] += 1.0
+    w.check()
+    now[0] += 3600.0
+    w.check()
+    assert [k for k, _ in w.sent] == ["refused", "silence"]
+
+
+def test_the_alert_kinds_in_docs_are_the_code_s() -> None:
+    """docs/alerts.md's table lists every kind with its severity and cause, as aeni_console.alerts.KINDS has it."""
+    from aeni_console.alerts import KINDS
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "alerts.md").read_text(encoding="utf-8")
+    rows = {
+        ln.split("|")[1].strip().strip("`"): ln.split("|") for ln in doc.splitlines() if ln.startswith("| `")
+    }
+    assert set(rows) == set(KINDS)
+    for kind, what in KINDS.items():
+        assert rows[kind][2].strip().startswith(what.severity.value) and rows[kind][3].strip() == what.cause

@@ -8,6 +8,7 @@ what they were. The table is the point; add a row for each new way to get it wro
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +31,8 @@ class Case:
 
 SAMPLE = 'name = "s"\n[corners]\ntl = { x_um = 0.0, y_um = 1000.0, z_um = 10.0 }\ntr = { x_um = 1000.0, y_um = 1000.0, z_um = 10.0 }\nbr = { x_um = 1000.0, y_um = 0.0, z_um = 10.0 }\nbl = { x_um = 0.0, y_um = 0.0, z_um = 10.0 }\n'
 SAMPLE_FAR = 'name = "s"\n[corners]\ntl = { x_um = 30000.0, y_um = 21000.0, z_um = 10.0 }\ntr = { x_um = 31000.0, y_um = 21000.0, z_um = 10.0 }\nbr = { x_um = 31000.0, y_um = 20000.0, z_um = 10.0 }\nbl = { x_um = 30000.0, y_um = 20000.0, z_um = 10.0 }\n'
+BOWTIE_ASYMMETRIC = "[[30100.0, 20100.0], [30400.0, 20400.0], [30400.0, 20100.0], [30100.0, 20300.0]]"
+BOWTIE_SYMMETRIC = "[[30100.0, 20100.0], [30400.0, 20400.0], [30400.0, 20100.0], [30100.0, 20400.0]]"
 LATTICE_CSV = "x_um,y_um,hardness_gpa\n0,0,3\n1000,0,4\n0,1000,5\n1000,1000,6\n500,500,4.5\n"
 
 CASES: tuple[Case, ...] = (
@@ -357,6 +360,101 @@ CASES: tuple[Case, ...] = (
     Case("kla-missing", ("kla", "read", "{t}/e.xls"), ("e.xls",)),
     Case("kla-empty", ("kla", "read", "{t}/e.xls"), ("e.xls",), {"e.xls": b""}),
     Case("kla-folder", ("kla", "read", "{t}/e.xlsx"), ("e.xlsx", "is a folder"), {"e.xlsx": DIR}),
+    # ---- issue 38: inputs that passed silently, answers that were unclear -------------------------
+    Case(
+        "exclusion-circle-off-sample",  # a clamp typed wrong would be left unprotected
+        ("sample", "check", "{t}/s.toml"),
+        (
+            "s.toml: field exclusions[0].circle_um = [5000.0, 5000.0, 100.0] lies entirely off the sample "
+            "(29,055 µm from its edge), so it protects nothing: check its centre and radius (stage µm)",
+        ),
+        {"s.toml": SAMPLE_FAR + "[[exclusions]]\ncircle_um = [5000.0, 5000.0, 100.0]\n"},
+    ),
+    Case(
+        "exclusion-bowtie-asymmetric",
+        ("sample", "check", "{t}/s.toml"),
+        (
+            "s.toml: field exclusions[0].polygon_um crosses itself (its edge from vertex 0 to 1 meets the edge "
+            "from vertex 2 to 3): list the vertices in order around the outline",
+        ),
+        {"s.toml": SAMPLE_FAR + f"[[exclusions]]\npolygon_um = {BOWTIE_ASYMMETRIC}\n"},
+    ),
+    Case(
+        "exclusion-bowtie-symmetric",  # was "has no area (its vertices lie on one line)"
+        ("sample", "check", "{t}/s.toml"),
+        (
+            "s.toml: field exclusions[0].polygon_um crosses itself (its edge from vertex 0 to 1 meets the edge "
+            "from vertex 2 to 3): list the vertices in order around the outline",
+        ),
+        {"s.toml": SAMPLE_FAR + f"[[exclusions]]\npolygon_um = {BOWTIE_SYMMETRIC}\n"},
+    ),
+    Case(
+        "exclusion-polygon-off-sample",
+        ("sample", "check", "{t}/s.toml"),
+        (
+            "s.toml: field exclusions[0].polygon_um lies entirely off the sample, so it protects nothing: "
+            "check its vertices (stage µm)",
+        ),
+        {"s.toml": SAMPLE_FAR + "[[exclusions]]\npolygon_um = [[0.0, 0.0], [500.0, 0.0], [0.0, 500.0]]\n"},
+    ),
+    Case(
+        "avoid-centers-in-mm",
+        ("run", "{t}/r.toml", "--journal", "{t}/j.sqlite"),
+        (
+            "r.toml: field planner.avoid_centers_um = [(30.5, 20.5), (30.2, 20.7)] lie far off sample 's' but "
+            "on it when read as mm: these look like mm, but stage coordinates are µm (multiply by 1000)",
+        ),
+        {
+            "s.toml": SAMPLE_FAR,
+            "r.toml": '[sample]\nfile = "s.toml"\n[planner]\navoid_centers_um = [[30.5, 20.5], [30.2, 20.7]]\n',
+        },
+    ),
+    Case(
+        "kla-check-x-in-um",
+        ("kla", "check", "--exchange", "{t}/x", "--x-mm", "30500", "--y-mm", "20.5"),
+        (
+            "--x-mm: 30500 mm is beyond the stage's 150 mm travel (profile kla-imicro, stage.travel_um); "
+            "it looks like µm: 30.5 mm?",
+        ),
+        {"x": DIR},
+    ),
+    Case(
+        "notify-url-typo",  # every alert of the night would have been lost
+        ("run", "{t}/r.toml", "--journal", "{t}/j.sqlite"),
+        (
+            "r.toml: field notify.urls[0]: scheme jsn:// is not one apprise knows (did you mean json://?): no "
+            "alert of the run could be sent",
+        ),
+        {"r.toml": '[notify]\nurls = ["jsn://127.0.0.1:8080/token"]\n'},
+    ),
+    Case(
+        "earlier-csv-semicolons",
+        ("sample", "check", "{t}/s.toml"),
+        (
+            "uses ';' as the separator (Excel in a decimal-comma locale); save it as comma-separated with '.' "
+            "decimals",
+            "earlier.indents_csv",
+            "e.csv",
+        ),
+        {
+            "s.toml": SAMPLE_FAR + '[earlier]\nindents_csv = "e.csv"\n',
+            "e.csv": "x_um;y_um\r\n30100,5;20100,25\r\n",
+        },
+    ),
+    Case(
+        "send-finished-confirm",  # was "start it with `aeni resume`", which then had nothing to resume
+        ("send", "{run}", "confirm", "ACDEF"),
+        (
+            "done.sqlite: no engine is running this journal: the run is finished (indent budget",
+            "so it takes no more commands and there is nothing to resume",
+        ),
+    ),
+    Case(
+        "exchange-is-a-file",  # was "exchange folder does not exist"
+        ("run", "--driver", "kla", "--exchange", "{t}/x", "--journal", "{t}/j.sqlite"),
+        ("x: is a file, not a folder (the exchange folder is a folder shared with InView)",),
+        {"x": "a file"},
+    ),
     # ---- the command line itself ----------------------------------------------------------------
     Case("no-command", (), ("COMMAND",)),
     Case("unknown-command", ("indent",), ("indent",)),
@@ -464,3 +562,96 @@ def test_bad_input(
         assert needle in err, f"{needle!r} not in {err!r}"
     assert _tree(tmp_path) == before, "something was written"
     assert _tree(finished_run.parent) == run_before, "the run's journal changed"
+
+
+# ---- issue 38: files that are right, saved by Windows tools; checks that belong at start -------------------
+
+
+def test_an_excel_csv_utf8_with_bom_and_crlf_is_accepted(tmp_path: Path) -> None:
+    """Excel's "CSV UTF-8" starts with a byte-order mark and ends lines with CRLF: both are read."""
+    from core.sample import load_sample
+
+    (tmp_path / "e.csv").write_bytes(b"\xef\xbb\xbfx_um,y_um\r\n30100.5,20100.25\r\n30200,20300\r\n")
+    (tmp_path / "s.toml").write_text(SAMPLE_FAR + '[earlier]\nindents_csv = "e.csv"\n', encoding="utf-8")
+    assert load_sample(tmp_path / "s.toml").earlier_indents_um == ((30100.5, 20100.25), (30200.0, 20300.0))
+
+
+def test_a_run_file_and_a_sample_file_with_a_bom_are_accepted(tmp_path: Path) -> None:
+    from core.runconfig import load_run_config
+
+    bom = b"\xef\xbb\xbf"
+    (tmp_path / "s.toml").write_bytes(bom + SAMPLE_FAR.replace("\n", "\r\n").encode())
+    (tmp_path / "r.toml").write_bytes(bom + b'name = "bom"\r\n[sample]\r\nfile = "s.toml"\r\n')
+    rc = load_run_config(tmp_path / "r.toml")
+    assert rc.campaign.name == "bom" and rc.campaign.sample is not None
+    assert rc.campaign.sample.calibration.bounds_um == (30000.0, 31000.0, 20000.0, 21000.0)
+
+
+def _refused(argv: list[str], capsys: pytest.CaptureFixture[str], root: Path) -> str:
+    before = _tree(root)
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "" and "Traceback" not in err, (code, out, err)
+    assert err.count("\n") == 1 and err.startswith("aeni: error: "), err
+    assert _tree(root) == before, "something was written"
+    return err.removeprefix("aeni: error: ").rstrip("\n")
+
+
+def test_a_journal_of_a_newer_schema_is_called_newer(
+    finished_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import shutil
+    import sqlite3
+
+    from core.journal.schema import SCHEMA_VERSION
+
+    path = tmp_path / "newer.sqlite"
+    shutil.copy(finished_run, path)
+    with sqlite3.connect(path) as conn:
+        conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION + 1,))
+    conn.close()
+    err = _refused(["status", str(path)], capsys, tmp_path)
+    assert err == (
+        f"{path}: journal schema version {SCHEMA_VERSION + 1} is not supported: it was written by a newer release "
+        f"(schema {SCHEMA_VERSION + 1} > {SCHEMA_VERSION}, the newest this program reads); open it with that release "
+        "or a later one"
+    )
+
+
+@pytest.fixture
+def read_only_share(tmp_path: Path) -> Iterator[Path]:
+    """A share the instrument PC exports read-only, its outbox and inbox already there (the run used to wait
+    silently on it): a read-only bind mount, since root writes through any chmod."""
+    import subprocess
+
+    share = tmp_path / "share"
+    (share / "outbox").mkdir(parents=True)
+    (share / "inbox").mkdir()
+
+    def mount(*argv: str) -> subprocess.CompletedProcess[bytes]:
+        return subprocess.run(["mount", *argv], capture_output=True, check=False)
+
+    bound = mount("--bind", str(share), str(share))
+    if bound.returncode != 0:
+        pytest.skip(f"cannot bind-mount here ({bound.stderr.decode().strip() or 'no mount'})")
+    try:
+        if mount("-o", "remount,bind,ro", str(share)).returncode != 0:
+            pytest.skip("cannot remount a bind mount read-only here")
+        yield share
+    finally:
+        subprocess.run(["umount", str(share)], check=False)
+
+
+def test_a_read_only_exchange_share_is_refused_at_start(
+    read_only_share: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    journal = tmp_path / "j.sqlite"
+    argv = ["run", "--driver", "kla", "--exchange", str(read_only_share), "--journal", str(journal)]
+    err = _refused(argv, capsys, tmp_path)
+    assert err == (
+        f"{read_only_share}: exchange folder is not writable (Read-only file system): the run could not publish "
+        "a block; mount the share read-write"
+    )

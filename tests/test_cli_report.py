@@ -217,3 +217,63 @@ def test_report_figures_read_without_help(demo_run: Path) -> None:
     )
     notes = dict(uncertainty_jumps(jumped))
     assert 1 in notes and "sd ×3.0" in notes[1] and "refit: ℓ" in notes[1]
+
+
+def test_approvals_the_timeout_took_are_not_shown_as_the_operators(tmp_path: Path) -> None:
+    """Issue 38: supervised, nobody at the keys, approval_timeout_s: every approval is the timeout's."""
+    import matplotlib.pyplot as plt
+
+    from aeni_console.commands.run import run_engine
+    from aeni_console.runreport import _decision_figure, decision_who, read_run, summary_markdown
+    from core.runconfig import RunOptions, make_campaign_config
+
+    cfg = make_campaign_config("alone", policy="cost-aware", lattice_n=30, settings={"indent_budget": 40})
+    path = tmp_path / "alone.sqlite"
+    opts = RunOptions(supervision="supervised", approval_timeout_s=0.2, on_timeout="approve")
+    assert run_engine(path, create=(cfg, opts), quiet=True) == 0
+    data = read_run(path)
+    approved = [d for d in data.decisions if d.status == "approved"]
+    assert approved and {decision_who(d, data.resolved_by) for d in approved} == {"approved-timeout"}
+    text = summary_markdown(data, [], None)
+    assert f"{len(approved)} approved by the timeout (approval_timeout_s)" in text, text
+    assert "approved by the operator" not in text
+    fig_path = _decision_figure(plt, data, tmp_path)
+    assert fig_path.exists()
+    plt.close("all")
+
+
+def test_unverified_indents_are_counted_and_listed_and_their_two_kinds_told_apart(demo_run: Path) -> None:
+    """Issue 38: a refused export and no export at all are two things; summary.md counts and lists both."""
+    import dataclasses
+
+    import matplotlib.pyplot as plt
+
+    from aeni_console.runreport import _overlay, read_run, summary_markdown
+    from core.plan import IndentResult, IndentSpec
+
+    data = read_run(demo_run)
+    spec = IndentSpec(data.indents[0].commanded_x_um, data.indents[0].commanded_y_um, 5.0)
+    refused = "export r-099-export.xlsx refused: the Y axis is flipped; made, not learnt from"
+    no_export = (
+        "no export by the deadline: the array was confirmed started, so the tip may have indented here"
+    )
+    extra = [
+        IndentResult.unmeasured(99, 0, spec, 1.0, "unverified", refused),
+        IndentResult.unmeasured(99, 1, spec, 1.0, "unverified", refused),
+        IndentResult.unmeasured(99, 2, spec, 1.0, "unverified", no_export),
+    ]
+    data = dataclasses.replace(data, indents=[*data.indents, *extra])
+    text = summary_markdown(data, [], None)
+    assert (
+        "0 failed, 3 unverified (2 made with their export refused, 1 started with no export at all) and 0 not run"
+        in text
+    ), text
+    assert "## Unverified indents" in text
+    rows = [ln for ln in text.splitlines() if ln.startswith("| 99 |")]
+    assert [r.split(" | ")[2] for r in rows] == ["export refused", "export refused", "no export"], rows
+    fig, ax = plt.subplots()
+    _overlay(ax, data)
+    labels = _legend_labels(fig)
+    assert "unverified: made, its export refused (2)" in labels, labels
+    assert "unverified: started, no export at all (1)" in labels, labels
+    plt.close("all")

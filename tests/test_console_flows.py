@@ -451,3 +451,108 @@ async def test_collapse_alarm_is_shown_until_acknowledged(live_run: LiveRunFacto
         await pilot.press("a")
         await wait_until(pilot, lambda: bool(canned.sent), what="approve sent")
         assert canned.sent[0].kind is CommandKind.APPROVE
+
+
+async def test_adjust_at_the_first_proposal_of_the_aeni_policy_applies(live_run: LiveRunFactory) -> None:
+    """Issue 38: the form hides `fixed hold (s)` for `aeni` (it picks every hold) and must not require it."""
+    run = live_run(policy="aeni")
+    first = run.until_awaiting().pending
+    assert first is not None and shown_policy(run) == "aeni"
+    async with attached(run.source(), (80, 24)) as (app, pilot):
+        await pilot.press("e")
+        await wait_until(pilot, lambda: isinstance(app.screen, AdjustScreen), what="adjust form")
+        form = app.screen
+        assert not form.query("#f-fixed_hold_s")  # not shown: the policy's holds
+        form.query_one("#f-edge_penalty").value = "0.3"
+        await pilot.pause()
+        assert widget_text(form.query_one("#adjust-error")).strip() == ""
+        await pilot.press("ctrl+s")
+        await wait_until(pilot, lambda: not isinstance(app.screen, AdjustScreen), what="form closes")
+        await wait_until(pilot, lambda: shown(app).settings.edge_penalty == 0.3, what="the engine took it")
+        adjust = commands(run)[-1]
+        assert adjust["kind"] == "adjust" and adjust["outcome"] == "accepted"
+        assert adjust["payload"] == {"edge_penalty": 0.3}
+
+
+def shown_policy(run: LiveRun) -> str:
+    return run.snapshot().policy
+
+
+@pytest.mark.parametrize("size", SIZES)
+async def test_away_until_is_in_the_footer_and_in_help(
+    live_run: LiveRunFactory, size: tuple[int, int]
+) -> None:
+    """Issue 38: `w` (away until a time: the run plans for nobody until then) is shown, not a hidden key."""
+    run = live_run()
+    run.until_awaiting()
+    async with attached(run.source(), size) as (app, pilot):
+        assert "away_until" in footer_keys(app)
+        keys = [k for k in app.query("FooterKey") if k.display]
+        shown_keys = ["".join(widget_text(k).split()) for k in keys]  # "w Away", or "wAway" at 80 columns
+        assert "wAway" in shown_keys and shown_keys[-1] == "qLeave", shown_keys
+        assert all(k.region.right <= size[0] for k in keys), [
+            (t, k.region) for t, k in zip(shown_keys, keys, strict=True)
+        ]
+        await pilot.press("question_mark")
+        await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
+    from rich.console import Console
+
+    from aeni_console.widgets.help import help_text
+
+    console = Console(width=90, record=True)
+    console.print(help_text())
+    assert any(ln.split()[:2] == ["w", "away"] for ln in console.export_text().splitlines()), "w not in help"
+
+
+@pytest.mark.parametrize("size", SIZES)
+async def test_the_approval_pop_up_leaves_the_log_and_the_decision_visible(
+    live_run: LiveRunFactory, size: tuple[int, int]
+) -> None:
+    """Issue 38: the AWAITING APPROVAL notification sat over the log; it goes over the cost panel now."""
+    from textual.widgets._toast import Toast, ToastRack
+
+    run = live_run()
+    run.until_awaiting()
+    source = run.source()
+    app = make_app(source)
+    try:
+        async with app.run_test(size=size, notifications=True) as pilot:
+            # no settle first: a pop-up lives 5 s of wall time, and a busy machine can take longer to settle
+            rack = app.screen.get_child_by_type(ToastRack)
+            await wait_until(pilot, lambda: any(rack.walk_children(Toast)), what="the approval pop-up")
+            await pilot.pause()
+            toasts = list(rack.walk_children(Toast))
+            assert any("AWAITING APPROVAL" in widget_text(t) for t in toasts)
+            for toast in toasts:
+                for panel in (app.log_panel, app.decision_panel, app.queue_panel):
+                    assert not toast.region.overlaps(panel.region), (toast.region, panel.id, panel.region)
+                assert toast.region.right <= app.cost_panel.region.right
+    finally:
+        source.close()
+
+
+async def test_the_next_best_coordinates_fit_at_80x24(live_run: LiveRunFactory) -> None:
+    """Issue 38: on a real stage (five-digit µm) the next best's coordinates wrapped and were cut at 80×24."""
+    from core.sample import parse_sample
+
+    corners = {
+        k: {"x_um": x, "y_um": y, "z_um": 10.0}
+        for k, x, y in (
+            ("tl", 30000.0, 22000.0),
+            ("tr", 32000.0, 22000.0),
+            ("br", 32000.0, 20000.0),
+            ("bl", 30000.0, 20000.0),
+        )
+    }
+    run = live_run(sample=parse_sample({"name": "far", "corners": corners}))
+    while run.until_awaiting().n_blocks < 3:
+        run.send(Command(CommandKind.APPROVE, "script"))
+    pending = run.snapshot().pending
+    assert pending is not None and pending.alternatives
+    best = pending.alternatives[0]
+    async with attached(run.source(), (80, 24)) as (app, _pilot):
+        text = widget_text(app.decision_panel)
+        assert f"({best.center_x_um:.0f}, {best.center_y_um:.0f})" in text, text
+        import re
+
+        assert re.search(r"#\d+ around \(3\d{4}, 2\d{4}\) µm", text), text  # the proposal's own place, whole

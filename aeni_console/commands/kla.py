@@ -166,11 +166,11 @@ def _fake_inview(args: argparse.Namespace) -> int:
     import signal
 
     from core.profile import load_profile
+    from drivers.kla.exchange import check_exchange_dir
     from drivers.kla.fake_inview import FakeInView, parse_fault
     from drivers.sim.scenarios import make_scenario
 
-    if not args.exchange.is_dir():
-        raise InputError(str(args.exchange), "exchange folder does not exist")
+    check_exchange_dir(args.exchange)
     if not 0.0 <= args.invalid_rate <= 1.0:
         raise InputError("--invalid-rate", f"must be from 0 to 1, got {args.invalid_rate}")
     faults = tuple(parse_fault(f) for f in args.fault)
@@ -218,6 +218,8 @@ def _check(args: argparse.Namespace) -> int:
     from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
 
     profile = load_profile(args.profile)
+    profile.check_stage_mm(args.x_mm, "--x-mm")
+    profile.check_stage_mm(args.y_mm, "--y-mm")
     hold = profile.check_hold(args.hold_s, "--hold-s") if args.hold_s is not None else profile.default_hold_s
     run = args.run or datetime.now(UTC).strftime("check-%Y%m%dT%H%M%SZ")
     folder = ExchangeFolder(args.exchange, run, profile.inview)

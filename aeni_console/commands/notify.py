@@ -9,7 +9,7 @@ from core.errors import InputError
 
 
 def _cmd_test(args: argparse.Namespace) -> int:
-    from aeni_console.alerts import send
+    from aeni_console.alerts import Severity, send
     from core.notifyconfig import load_run_notify, notify_path_for
     from core.runconfig import load_run_config
 
@@ -25,7 +25,9 @@ def _cmd_test(args: argparse.Namespace) -> int:
         where = str(notify_path_for(run))
     if not notify.enabled:
         raise InputError(str(target), "has no alert URLs ([notify] urls or urls_file)")
-    ok, how = send(notify.urls, f"test alert from AE-NI ({target.name}): alerts reach you")
+    ok, how = send(
+        notify.urls, f"test alert from AE-NI ({target.name}): alerts reach you", Severity.INFO, "a test alert"
+    )
     if not ok:
         raise InputError(where, f"the test alert was not sent: {how}")
     print(f"test alert {how}")

@@ -244,10 +244,9 @@ def run_engine(
     if create is not None:
         config, options = create
         if options.driver == "kla":
-            if not (options.exchange and Path(options.exchange).is_dir()):
-                raise InputError(
-                    str(options.exchange), "exchange folder does not exist"
-                )  # before any journal
+            from drivers.kla.exchange import check_exchange_dir
+
+            check_exchange_dir(options.exchange or "")  # before any journal
             opts = {**config.driver_options, "exchange": str(Path(options.exchange).resolve())}
             config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
         campaign = campaign_for(options.driver, config)

@@ -76,11 +76,13 @@ def parse_adjust(
     supervision: str | None = None,
     current_supervision: str | None = None,
     allowed_holds_s: Sequence[float] | None = None,
+    fields: Sequence[SettingRule] = FIELDS,
 ) -> tuple[dict[str, object], list[str]]:
-    """The changed settings and the errors, from the form's raw texts. Unchanged fields are left out."""
+    """The changed settings and the errors, from the form's raw texts. Unchanged fields are left out; only
+    ``fields`` (those the form shows) are read: a hidden one is not the operator's to fill in."""
     changes: dict[str, object] = {}
     errors: list[str] = []
-    for rule in FIELDS:
+    for rule in fields:
         raw = values.get(rule.name, _fmt(getattr(current, rule.name)))
         value, error = parse_field(rule, raw, allowed_holds_s)
         if error:
@@ -185,7 +187,7 @@ class AdjustScreen(ModalScreen[dict[str, object] | None]):
     def validate_form(self) -> tuple[dict[str, object], list[str]]:
         values, hold, sup = self._values()
         changes, errors = parse_adjust(
-            values, hold, self.settings, sup, self.supervision, self.allowed_holds_s
+            values, hold, self.settings, sup, self.supervision, self.allowed_holds_s, self.fields
         )
         bad = {e.split(":", 1)[0] for e in errors}
         for rule in self.fields:

@@ -91,7 +91,8 @@ def decision_renderable(
     if due is not None:
         parts.append(due)
     where = Text(no_wrap=True, overflow="ellipsis")
-    where.append(f"#{b.block_id} " + " ".join(p for p in (words.extent, words.where) if p))
+    # where first: at 80 columns the line is cut, and the coordinates are what the operator checks
+    where.append(f"#{b.block_id} " + " ".join(p for p in (words.where, words.extent) if p))
     parts.append(where)
     sc = Text(no_wrap=True, overflow="ellipsis")
     sc.append(f"{words.hold} · ")
@@ -117,15 +118,28 @@ def decision_renderable(
     if d.reason:
         parts.append(Text(d.reason, style="italic", no_wrap=True, overflow="ellipsis"))
     if d.alternatives:
-        table = Table(box=None, padding=(0, 1), show_edge=False, expand=False, header_style="bold dim")
-        table.add_column("next best")
-        table.add_column("kind")
-        table.add_column("score", justify="right")
-        table.add_column("cost", justify="right")
-        for alt in d.alternatives[:3]:
-            table.add_row(
-                xy(alt.center_x_um, alt.center_y_um), alt.kind, num(alt.score), short_duration(alt.cost_s)
-            )
+        alts = d.alternatives[:3]
+        places = [xy(a.center_x_um, a.center_y_um) for a in alts]
+        # whole coordinates on one line, always: the score column goes first when the panel is narrow
+        # (the alternatives come in score order, and the proposal's own score is shown above)
+        with_score = width >= max(len(p) for p in places) + 6 + 7 + 8 + 3
+        table = Table(
+            box=None,
+            padding=(0, 1),
+            collapse_padding=True,
+            pad_edge=False,
+            show_edge=False,
+            expand=False,
+            header_style="bold dim",
+        )
+        table.add_column("next best", no_wrap=True)
+        table.add_column("kind", no_wrap=True, overflow="ellipsis")
+        if with_score:
+            table.add_column("score", justify="right", no_wrap=True)
+        table.add_column("cost", justify="right", no_wrap=True)
+        for alt, place in zip(alts, places, strict=True):
+            row = [place, alt.kind, num(alt.score)] if with_score else [place, alt.kind]
+            table.add_row(*row, short_duration(alt.cost_s))
         parts.append(table)
     return Group(*parts)  # type: ignore[arg-type]
 

@@ -20,6 +20,7 @@ KEYS: tuple[tuple[str, str], ...] = (
     ("s", "step: switch to step mode, run one block, then wait again"),
     ("b", "stop after the current block"),
     ("x", "abort now (asks first)"),
+    ("w", "away until a time (08:00, 'Mon 09:00'): the run plans for nobody until then, then for you again"),
     ("m", "cycle the map: mean → epistemic sd → noise sd → total sd"),
     ("← →  , .", "replay: one block back / forward (home / end: first / last)"),
     ("ctrl+p", "command palette (every action, searchable)"),

@@ -224,6 +224,12 @@ def _check_schema(conn: sqlite3.Connection, src: str) -> None:
         raise InputError(src, f"journal is corrupt ({exc}); nothing was changed") from None
     if row is None:
         raise InputError(src, "journal has no schema version (it was never fully created)")
+    if int(row[0]) > SCHEMA_VERSION:
+        raise InputError(
+            src,
+            f"journal schema version {row[0]} is not supported: it was written by a newer release (schema "
+            f"{row[0]} > {SCHEMA_VERSION}, the newest this program reads); open it with that release or a later one",
+        )
     if int(row[0]) not in READABLE_VERSIONS:
         raise InputError(
             src,

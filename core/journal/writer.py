@@ -612,6 +612,23 @@ def append_event(journal_path: str | Path, level: str, text: str, category: str)
         conn.close()
 
 
+def _why_no_engine(p: Path) -> str:
+    """What `aeni resume` would do with this journal, so `aeni send` and `aeni resume` say the same."""
+    try:
+        conn = sqlite3.connect(f"file:{p}?mode=ro", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+        try:
+            row = conn.execute("SELECT state, stop_reason, completed FROM engine_state").fetchone()
+        finally:
+            conn.close()
+    except sqlite3.Error:
+        row = None
+    if row is not None and row[2]:
+        return f"the run is finished ({row[1] or 'done'}), so it takes no more commands and there is nothing to resume"
+    if row is not None and row[0] == "stopped":
+        return f"the run was stopped ({row[1] or 'by the operator'}); `aeni resume --continue {p}` resumes it"
+    return "start it again with `aeni resume`"
+
+
 def send_command(journal_path: str | Path, command: Command, *, uid: int | None = None) -> int:
     """Queue an operator command for the engine running this journal; returns the command id.
 
@@ -629,7 +646,7 @@ def send_command(journal_path: str | Path, command: Command, *, uid: int | None 
             f"{p}: only the run's owner {user_name(owner)} may command it; {user_name(me)} may watch"
         )
     if not engine_running(p):
-        raise InputError(str(p), "no engine is running this journal (start it with `aeni resume`)")
+        raise InputError(str(p), f"no engine is running this journal: {_why_no_engine(p)}")
     kind = CommandKind(command.kind)
     conn = sqlite3.connect(str(p), isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
     try:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from core.sample.load import load_sample, parse_sample
+from core.sample.load import check_avoided_centres, load_sample, parse_sample
 from core.sample.model import (
     CircleExclusion,
     Exclusion,
@@ -19,6 +19,7 @@ __all__ = [
     "Exclusion",
     "PolygonExclusion",
     "Sample",
+    "check_avoided_centres",
     "grid_baseline_s",
     "load_sample",
     "parse_sample",

@@ -17,7 +17,17 @@ from typing import Any
 import numpy as np
 
 from core.errors import InputError
-from core.geometry import CORNER_NAMES, PARALLELOGRAM_WARN_FRACTION, Calibration, Corner, _validate_corners
+from core.geometry import (
+    CORNER_NAMES,
+    PARALLELOGRAM_WARN_FRACTION,
+    Calibration,
+    Corner,
+    _validate_corners,
+    distance_to_polygon_um,
+    mm_typed,
+    polygon_meets_polygon,
+    polygon_self_crossing,
+)
 from core.profile import InstrumentProfile, load_profile
 from core.sample.model import (
     UNLIMITED_STAGE_UM,
@@ -165,56 +175,61 @@ def _tilt_um_per_mm(cal: Calibration) -> float:
     return 1000.0 * cal.plane.slope
 
 
-def _exclusion(source: str, i: int, item: Any, xy_bounds: tuple[float, float, float, float]) -> Exclusion:
+def _exclusion(source: str, i: int, item: Any, cal: Calibration) -> Exclusion:
     name = f"exclusions[{i}]"
     if not isinstance(item, Mapping) or len(item) != 1 or next(iter(item)) not in ("circle_um", "polygon_um"):
         raise InputError(source, f"field {name} must have exactly one of circle_um or polygon_um")
     key, value = next(iter(item.items()))
-    x0, x1, y0, y1 = xy_bounds
-    span = max(x1 - x0, y1 - y0)
-
-    def mm_like(pts: np.ndarray) -> bool:
-        far = ~(
-            (pts[:, 0] >= x0 - span)
-            & (pts[:, 0] <= x1 + span)
-            & (pts[:, 1] >= y0 - span)
-            & (pts[:, 1] <= y1 + span)
-        )
-        scaled = pts * 1000.0
-        near = (
-            (scaled[:, 0] >= x0 - span)
-            & (scaled[:, 0] <= x1 + span)
-            & (scaled[:, 1] >= y0 - span)
-            & (scaled[:, 1] <= y1 + span)
-        )
-        return bool(far.all() and near.all())
-
+    area = cal.corners_xy_um
     if key == "circle_um":
         x, y, r = _point(source, f"{name}.circle_um", value, 3)
         if not r > 0:
             raise InputError(source, f"field {name}.circle_um: the radius must be > 0, got {r:g}")
-        if mm_like(np.array([[x, y]])):
+        if mm_typed([[x, y]], cal.bounds_um):
             raise InputError(
                 source,
                 f"field {name}.circle_um = {list(value)!r} looks like mm, but stage coordinates are µm",
+            )
+        gap = distance_to_polygon_um(x, y, area) - r
+        if gap > 0:
+            raise InputError(
+                source,
+                f"field {name}.circle_um = {list(value)!r} lies entirely off the sample ({gap:,.0f} µm from its "
+                "edge), so it protects nothing: check its centre and radius (stage µm)",
             )
         return CircleExclusion(x, y, r)
     if not isinstance(value, Sequence) or isinstance(value, str) or len(value) < 3:
         raise InputError(source, f"field {name}.polygon_um must list at least 3 [x_um, y_um] vertices")
     verts = tuple(_point(source, f"{name}.polygon_um[{k}]", v, 2) for k, v in enumerate(value))
     pts = np.array(verts)
-    area = 0.5 * float(np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1]))
-    if abs(area) <= 1e-9 * max(float(np.ptp(pts)), 1.0) ** 2:
+    crossing = polygon_self_crossing(pts)
+    if crossing is not None:
+        a, b = crossing
+        n = len(verts)
+        raise InputError(
+            source,
+            f"field {name}.polygon_um crosses itself (its edge from vertex {a} to {(a + 1) % n} meets the edge "
+            f"from vertex {b} to {(b + 1) % n}): list the vertices in order around the outline",
+        )
+    signed = 0.5 * float(np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1]))
+    if abs(signed) <= 1e-9 * max(float(np.ptp(pts)), 1.0) ** 2:
         raise InputError(source, f"field {name}.polygon_um has no area (its vertices lie on one line)")
-    if mm_like(pts):
+    if mm_typed(pts, cal.bounds_um):
         raise InputError(source, f"field {name}.polygon_um looks like mm, but stage coordinates are µm")
+    if not polygon_meets_polygon(pts, area):
+        raise InputError(
+            source,
+            f"field {name}.polygon_um lies entirely off the sample, so it protects nothing: check its "
+            "vertices (stage µm)",
+        )
     return PolygonExclusion(tuple((float(a), float(b)) for a, b in verts))
 
 
 def _read_indents_csv(source: str, path: Path) -> list[tuple[float, float]]:
     name = f"earlier.indents_csv ({path})"
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark; newline="" reads CRLF lines too
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except FileNotFoundError:
         raise InputError(source, f"field {name}: no such file") from None
@@ -225,6 +240,13 @@ def _read_indents_csv(source: str, path: Path) -> list[tuple[float, float]]:
         return []
     header = [c.strip().lower() for c in rows[0]]
     if "x_um" not in header or "y_um" not in header:
+        if len(rows[0]) == 1 and ";" in rows[0][0]:
+            # Excel in a decimal-comma locale: its "1,5" cannot be told from two columns, so ask, never guess
+            raise InputError(
+                source,
+                f"field {name}: uses ';' as the separator (Excel in a decimal-comma locale); save it as "
+                "comma-separated with '.' decimals",
+            )
         raise InputError(source, f"field {name}: the header must name the columns x_um and y_um")
     ix, iy = header.index("x_um"), header.index("y_um")
     out = []
@@ -348,30 +370,14 @@ def parse_sample(data: Mapping[str, Any], source: str = "sample", base_dir: Path
     raw_excl = data.get("exclusions", [])
     if not isinstance(raw_excl, list):
         raise InputError(source, "field exclusions must be a list of [[exclusions]] tables")
-    exclusions = tuple(_exclusion(source, i, e, cal.bounds_um) for i, e in enumerate(raw_excl))
+    exclusions = tuple(_exclusion(source, i, e, cal) for i, e in enumerate(raw_excl))
 
     earlier_table = _table(source, data, "earlier", _EARLIER)
     earlier = _earlier(source, earlier_table, base_dir)
-    if earlier:
-        pts = np.asarray(earlier, dtype=float)
-        span = max(bx1 - bx0, by1 - by0)
-        near = (
-            (pts[:, 0] >= bx0 - span)
-            & (pts[:, 0] <= bx1 + span)
-            & (pts[:, 1] >= by0 - span)
-            & (pts[:, 1] <= by1 + span)
+    if mm_typed(earlier, cal.bounds_um):
+        raise InputError(
+            source, "field earlier: the earlier indents look like mm, but stage coordinates are µm"
         )
-        if not near.any():
-            s = pts * 1000.0
-            if (
-                (s[:, 0] >= bx0 - span)
-                & (s[:, 0] <= bx1 + span)
-                & (s[:, 1] >= by0 - span)
-                & (s[:, 1] <= by1 + span)
-            ).any():
-                raise InputError(
-                    source, "field earlier: the earlier indents look like mm, but stage coordinates are µm"
-                )
 
     sample = Sample(
         name=name.strip(),
@@ -411,12 +417,25 @@ def _check_room(source: str, sample: Sample) -> None:
             raise InputError(source, "field earlier: earlier indents leave no candidate centre on the sample")
 
 
+def check_avoided_centres(sample: Sample, centres_um: Sequence[Sequence[float]], source: str = "") -> None:
+    """``planner.avoid_centers_um`` typed in mm: refused by the rule the sample's own coordinates follow."""
+    if mm_typed(centres_um, sample.calibration.bounds_um):
+        shown = ", ".join(f"({x:g}, {y:g})" for x, y in list(centres_um)[:3])
+        field = "field planner.avoid_centers_um"
+        raise InputError(
+            source or field,
+            (f"{field} = " if source else "")
+            + f"[{shown}{', ...' if len(centres_um) > 3 else ''}] lie far off sample {sample.name!r} but on it when "
+            "read as mm: these look like mm, but stage coordinates are µm (multiply by 1000)",
+        )
+
+
 def load_sample(path: str | Path) -> Sample:
     """Read and validate a sample file; relative paths inside it are relative to the file."""
     p = Path(path)
     src = str(p)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")  # a byte-order mark (Windows editors) is not TOML's concern
     except FileNotFoundError:
         raise InputError(src, "no such sample file") from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -30,6 +30,7 @@ from drivers.kla.exchange import (
     ExchangeFolder,
     ReportKind,
     Ticket,
+    check_exchange_dir,
     make_ticket,
     stretch_line,
     ticket_panel,
@@ -64,9 +65,7 @@ def make_kla_driver(
             exchange = str(json.loads(where.read_text(encoding="utf-8"))["exchange"])
         except (OSError, ValueError, KeyError) as exc:
             raise InputError(str(where), f"cannot tell this run's exchange folder ({exc})") from None
-    folder = Path(exchange).resolve()
-    if not folder.is_dir():
-        raise InputError(str(exchange), "exchange folder does not exist")
+    folder = check_exchange_dir(exchange).resolve()
     run = Path(journal).name.removesuffix(".sqlite")
     driver = KlaDriver(profile, folder, run, archive, start_um=start_um, speed=speed)
     if not where.exists():

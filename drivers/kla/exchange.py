@@ -422,13 +422,38 @@ def write_atomic(path: Path, text: str) -> None:
         raise
 
 
+def check_exchange_dir(root: str | Path) -> Path:
+    """The exchange folder as a run starts: it exists, is a folder, and this process can write in it (and in
+    its outbox and inbox). Written to, not asked: a share mounted read-only passes ``os.access`` for root and
+    some network filesystems answer it wrongly, so a probe file is made and removed."""
+    p = Path(root)
+    if p.is_file():
+        raise InputError(
+            str(root), "is a file, not a folder (the exchange folder is a folder shared with InView)"
+        )
+    if not p.is_dir():
+        raise InputError(str(root), "exchange folder does not exist")
+    for sub in (p, p / "outbox", p / "inbox"):
+        if sub is not p and not sub.is_dir():
+            continue
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".aeni-write-check-", dir=sub)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise InputError(
+                str(sub),
+                f"exchange folder is not writable ({exc.strerror or exc}): the run could not publish a block; "
+                "mount the share read-write",
+            ) from None
+    return p
+
+
 class ExchangeFolder:
     """The outbox and inbox of one run in an exchange folder shared with the instrument PC."""
 
     def __init__(self, root: str | Path, run: str, settings: InViewSettings) -> None:
-        self.root = Path(root)
-        if not self.root.is_dir():
-            raise InputError(str(root), "exchange folder does not exist")
+        self.root = check_exchange_dir(root)
         if not _RUN_NAME.match(run):
             raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
         self.run = run

@@ -36,7 +36,9 @@ RECOMMENDED = "aeni"
 
 POLICY_DESCRIPTIONS: dict[str, str] = {
     "aeni": "recommended: space-filling start, then scattered single indents placed where the map is least "
-    "known (weighted to its structure), blocks ordered for travel, Student-t noise, drift-aware hold",
+    "known (weighted to its structure), blocks ordered for travel, Student-t noise, drift-aware hold; reads "
+    "the run: stretches to the operator's next visit with a calendar, programs priced over their life where "
+    "the profile's program change is dear",
     "grid": "fixed 9×9 blocks of 5×5 (the paper's baseline)",
     "uncertainty": "jump to the highest-σ centre after every block, fixed 5×5, cost ignored",
     "cost-aware": "σ/cost with staying engaged priced against a global jump, fixed 5×5",

@@ -63,8 +63,8 @@ MEANINGS: dict[str, str] = {
     "over the sample's measurable area falls below this",
     "planner.avoid_centers_um": "stage (x, y) centres the planner must not choose, e.g. [[120.0, 340.0]]",
     "planner.map_weights": "how much each map's relative error counts when the planner chooses indents, "
-    "e.g. { hardness = 1.0, modulus = 1.0 }; 0 drops a map (default: hardness only, { hardness = 1.0, "
-    "modulus = 0.0 }; policy aeni plans for both, the replicate-grid policies for hardness only)",
+    "e.g. { hardness = 1.0, modulus = 0.5 }; 0 drops a map (default: both, { hardness = 1.0, "
+    "modulus = 1.0 }; policy aeni plans for both, the replicate-grid policies for hardness only)",
     "run.driver": "the instrument driver",
     "run.supervision": "auto: every decision approved; supervised: global jumps wait; step: every block waits",
     "run.journal": "journal path (default: a new file in runs_dir)",

@@ -37,7 +37,7 @@ from core.policies.base import (
     PlansStretches,
     base_mask,
 )
-from core.policies.registry import RECOMMENDED, make_policy
+from core.policies.registry import RECOMMENDED, RunFacts, make_policy
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
 from core.sample import Sample, check_avoided_centres, grid_baseline_s, sample_from_dict
@@ -143,7 +143,7 @@ class Campaign:
         # where a sub-grid may go at all on this sample: off the edge band, the exclusions and the stage limits
         self.placement_mask = sample.placement_mask(self.lattice.xy_um, 2 * DEFAULT_PITCH_UM)
         self.placement_mask.flags.writeable = False
-        self.policy = make_policy(config.policy)
+        self.policy = make_policy(config.policy, RunFacts.of(self.profile))
         parts = self.policy.parts
         self.noise = parts.noise
         self._needs_covariance = parts.needs_covariance
@@ -189,8 +189,21 @@ class Campaign:
         self.refit_every = 1  # the bench's grid: refit only after every so many blocks
         # how long the next load runs before anyone comes again (a simulated operator, core.visits); None:
         # the run is planned as if someone were always there
-        self.unattended: Callable[[float], LoadWindow | None] | None = None
+        self._unattended: Callable[[float], LoadWindow | None] | None = None
         self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
+
+    @property
+    def unattended(self) -> Callable[[float], LoadWindow | None] | None:
+        return self._unattended
+
+    @unattended.setter
+    def unattended(self, window: Callable[[float], LoadWindow | None] | None) -> None:
+        """A calendar is a fact of the run that ``aeni`` reads (registry.run_recipe): the policy is made
+        again from it (planners keep no state of their own; their block design is all that changes)."""
+        had = self._unattended is not None
+        self._unattended = window
+        if had != (window is not None):
+            self.policy = make_policy(self.config.policy, RunFacts.of(self.profile, window is not None))
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property

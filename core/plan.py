@@ -191,10 +191,11 @@ MAPS: tuple[str, ...] = ("hardness", "modulus")
 class MapWeights:
     """How much each map's relative error counts in the acquisition; a weight of 0 drops that map.
 
-    Hardness-only by default this version: the published figures were measured so (issue 27)."""
+    Both maps by default (issue 37): on the ternary, aiming at both brought the hardness map to the grid's
+    error no later than aiming at it alone (docs/benchmarks.md, "Both maps by default")."""
 
     hardness: float = 1.0
-    modulus: float = 0.0
+    modulus: float = 1.0
 
     def __post_init__(self) -> None:
         for name in MAPS:

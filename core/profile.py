@@ -143,6 +143,11 @@ class InstrumentProfile:
         """Fixed seconds a new program costs, excluding moves (what a global jump pays)."""
         if self.global_jump_s is not None:
             return self.global_jump_s
+        return self.itemised_program_s
+
+    @property
+    def itemised_program_s(self) -> float:
+        """A new program's fixed steps added up: comeback, setup, lens travel, lift, engage, drift settle."""
         return (
             self.comeback_s
             + self.setup_s

@@ -532,9 +532,10 @@ def test_merged_full_runs_keep_the_full_scenarios() -> None:
     assert len(records) == 5
 
 
-def test_with_map_weights_the_bench_scores_both_maps_and_without_it_writes_what_it_wrote() -> None:
-    """``--map-weights``: every run scores the modulus map too, the grid's final modulus MAPE is the others'
-    second target, and the report gains the both-maps table; a hardness-only run keeps results.json as it was."""
+def test_the_bench_scores_both_maps_and_a_hardness_only_run_writes_what_it_wrote() -> None:
+    """Both maps (the default since issue 37): every run scores the modulus map too, the grid's final modulus
+    MAPE is the others' second target, and the report gains the both-maps table; a hardness-only run
+    (``--map-weights hardness=1,modulus=0``) keeps results.json as it was."""
     from dataclasses import replace
 
     from aeni_console.bench.harness import RunSpec, records_to_json, run_one
@@ -567,8 +568,9 @@ def test_with_map_weights_the_bench_scores_both_maps_and_without_it_writes_what_
     assert "## Both maps: hardness and modulus" in table and "| ternary | aeni |" in table
     data = records_to_json([grid, aeni], config, 1.0)
     assert all("trajectory_modulus" in r for r in data["runs"])
-    # hardness only: no modulus is scored, and nothing of it is written
-    plain = run_one(replace(spec, map_weights=None, target_mape_modulus_pct=None))
+    # hardness only (modulus=0): no modulus is scored, and nothing of it is written
+    hardness_only = {"hardness": 1.0, "modulus": 0.0}
+    plain = run_one(replace(spec, map_weights=hardness_only, target_mape_modulus_pct=None))
     assert plain.trajectory_modulus == [] and plain.final_mape_modulus_pct is None
     run = records_to_json([plain], config, 1.0)["runs"][0]
     assert not any("modulus" in k for k in run) and two_maps_table([plain]) == []

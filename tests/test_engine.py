@@ -19,7 +19,7 @@ import pytest
 from core.errors import InputError
 from core.journal import Journal, JournalReader, NotOwnerError, send_command
 from core.metrics import MapScore
-from core.plan import Block, Decision, IndentResult, PlannerSettings, local_grid
+from core.plan import Block, Decision, IndentResult, MapWeights, PlannerSettings, local_grid
 from core.profile import load_profile
 from core.run.engine import Engine
 from core.runview import Command, CommandKind, EngineState, MapFields
@@ -51,7 +51,7 @@ class FakeCampaign:
     def __init__(self, n_blocks: int = 5, collapse_at: int | None = None) -> None:
         self.n_blocks = n_blocks
         self.collapse_at = collapse_at
-        self.settings = PlannerSettings()
+        self.settings = PlannerSettings(map_weights=MapWeights(modulus=0.0))  # no modulus map here
         self.profile = load_profile("kla-imicro")
         self.calibration = make_scenario("ternary", 1).calibration  # the 1000 µm square
         self.observed: list[tuple[Block, list[IndentResult]]] = []

@@ -35,3 +35,39 @@ def test_core_and_drivers_never_import_the_ui() -> None:
         if pattern.search(p.read_text(encoding="utf-8"))
     ]
     assert offenders == []
+
+
+def _aeni_commands(text: str) -> list[str]:
+    """Every ``aeni ...`` command the README shows: the lines of its bash blocks and its inline code."""
+    lines = [ln.split("  #", 1)[0].strip() for block in _bash_blocks(text) for ln in block.splitlines()]
+    inline = re.findall(r"`(aeni [^`]+)`", text)
+    return [c for c in dict.fromkeys([*lines, *inline]) if c.startswith("aeni ")]
+
+
+def test_every_aeni_command_in_the_readme_parses() -> None:
+    """A newcomer copies these: each must be a command the CLI knows, with flags it takes (parsed, not run:
+    argparse is the dry form; a placeholder such as RUN or DIR stands where a user's path goes)."""
+    import shlex
+
+    from aeni_console.cli import build_parser
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    commands = _aeni_commands(readme)
+    assert len(commands) >= 15, commands
+    parser = build_parser()
+    for cmd in commands:
+        argv = shlex.split(cmd)[1:]
+        if argv == ["COMMAND", "--help"]:
+            continue  # the README's pointer to every command's help, not a command
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # argparse refuses with exit 2
+            raise AssertionError(f"README command does not parse: {cmd}") from exc
+        assert callable(getattr(args, "func", None)), f"README command runs nothing: {cmd}"
+
+
+def test_the_readme_stays_a_guide() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) <= 250
+    for link in re.findall(r"\]\((docs/[^)#]+)", readme):
+        assert (ROOT / link).exists(), f"README links to a missing {link}"

@@ -206,10 +206,10 @@ async def test_the_adjust_form_shows_only_the_hold_settings_in_force() -> None:
             assert changes == {} and errors == []
 
 
-def test_map_weights_default_to_hardness_only_and_refuse_bad_tables() -> None:
+def test_map_weights_default_to_both_maps_and_refuse_bad_tables() -> None:
     from core.plan import MapWeights
 
-    assert PlannerSettings().map_weights == MapWeights(1.0, 0.0)
+    assert PlannerSettings().map_weights == MapWeights(1.0, 1.0)  # both maps by default (issue 37)
     both = parse_run_config({"planner": {"map_weights": {"hardness": 1.0, "modulus": 0.5}}}).campaign.settings
     assert both.map_weights == MapWeights(1.0, 0.5) and both.map_weights.maps_modulus
     only_e = settings_from_dict({"map_weights": {"hardness": 0, "modulus": 1}}).map_weights

@@ -64,8 +64,11 @@ def test_every_policy_keeps_the_json_contract(policy: str, capsys: pytest.Captur
     assert times == sorted(times) and all(math.isfinite(p["mape_pct"]) for p in traj)
     assert data["final_mape_pct"] == pytest.approx(traj[-1]["mape_pct"], rel=1e-6)
     assert 0 < float(data["max_found_gpa"]) <= float(data["true_max_gpa"]) + 1e-9
-    # hardness only by default: the modulus map is fitted once from the same indents and scored at the end
-    assert data["map_weights"] == {"hardness": 1.0, "modulus": 0.0} and data["trajectory_modulus"] == []
+    # both maps by default (issue 37), and both read the same way for every policy, the grid included:
+    # every trajectory point carries the modulus map's MAPE after the same refit
+    assert data["map_weights"] == {"hardness": 1.0, "modulus": 1.0}
+    assert all(math.isfinite(p["mape_modulus_pct"]) for p in traj)
+    assert data["final_mape_modulus_pct"] == pytest.approx(traj[-1]["mape_modulus_pct"], rel=1e-6)
     assert 0 < float(data["final_mape_modulus_pct"]) < 10.0
 
 

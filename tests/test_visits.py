@@ -116,7 +116,7 @@ def _simulate(policy: str, start: str, budget_s: float) -> dict[str, object]:
 
 
 def test_simulate_puts_every_trajectory_point_on_the_calendar() -> None:
-    out = _simulate("aeni", "Mon 09:00", 3000.0)
+    out = _simulate("aeni+attended", "Mon 09:00", 3000.0)  # the ablation: no stretches
     traj = out["trajectory"]
     assert isinstance(traj, list) and traj
     visits = [p["operator_visits"] for p in traj]
@@ -217,16 +217,47 @@ def test_a_stretch_fills_the_evening_with_arrays_loaded_in_one_visit() -> None:
     assert out["wall_clock_h"] >= out["instrument_s"] / 3600 + 10 / 60 - 1e-9
 
 
-def test_program_life_and_stretch_modifiers_are_options_not_the_default() -> None:
+def test_aeni_reads_the_run_its_calendar_and_its_profile() -> None:
+    """One rule in one home (registry.run_recipe): a calendar makes every load a stretch to the next visit;
+    a program change the profile prices above its own itemised steps is priced over the program's life.
+    The modifiers stay as ablations of the same recipe."""
     from core.policies.blocks import ScatteredSingles
-    from core.policies.registry import policy_parts
+    from core.policies.registry import RunFacts, policy_parts
+    from core.profile import load_profile
 
-    default = policy_parts("aeni").blocks
-    assert isinstance(default, ScatteredSingles)
-    assert default.stretch_min_s is None and not default.program_life
-    tuned = policy_parts("aeni+stretch+program-life").blocks
-    assert isinstance(tuned, ScatteredSingles)
-    assert tuned.stretch_min_s == 3 * 3600 and tuned.program_life
+    def blocks(name: str, facts: RunFacts | None) -> ScatteredSingles:
+        b = policy_parts(name, facts).blocks
+        assert isinstance(b, ScatteredSingles)
+        return b
+
+    imicro, film, blitz = (load_profile(n) for n in ("kla-imicro", "kla-imicro-film", "kla-nanoblitz"))
+    assert film.global_overhead_s == 520.0 and film.itemised_program_s == imicro.global_overhead_s == 470.0
+    plain = blocks("aeni", RunFacts.of(imicro))
+    assert plain.stretch_min_s is None and not plain.program_life
+    assert not blocks("aeni", RunFacts.of(blitz)).program_life
+    on_film = blocks("aeni", RunFacts.of(film, has_calendar=True))
+    assert on_film.stretch_min_s == 0.0 and on_film.program_life
+    assert blocks("aeni", RunFacts.of(imicro, has_calendar=True)) == blocks("aeni+stretch-visits", None)
+    assert blocks("aeni", RunFacts.of(film)) == blocks("aeni+program-life", None)
+    # the ablations turn each rule off again
+    off = blocks("aeni+attended+first-block", RunFacts.of(film, has_calendar=True))
+    assert off.stretch_min_s is None and not off.program_life
+    assert blocks("aeni+stretch", RunFacts.of(imicro, has_calendar=True)).stretch_min_s == 3 * 3600
+
+
+def test_a_campaign_makes_its_policy_again_when_it_learns_of_a_calendar() -> None:
+    from core.campaign import Campaign
+    from core.runconfig import make_campaign_config
+    from drivers.registry import sim_scenario
+
+    config = make_campaign_config(scenario="ternary", policy="aeni", seed=0, lattice_n=12)
+    campaign = Campaign(config, sim_scenario(config.driver_options, 0, None).sample)
+    assert campaign.policy.parts.blocks.stretch_min_s is None  # type: ignore[union-attr]
+    cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start("Mon 17:00"))
+    campaign.unattended = cal.operator().unattended
+    assert campaign.policy.parts.blocks.stretch_min_s == 0.0  # type: ignore[union-attr]
+    campaign.unattended = None
+    assert campaign.policy.parts.blocks.stretch_min_s is None  # type: ignore[union-attr]
 
 
 def test_a_stretch_before_the_last_visit_of_the_day_does_not_leave_the_night_idle() -> None:
@@ -237,9 +268,7 @@ def test_a_stretch_before_the_last_visit_of_the_day_does_not_leave_the_night_idl
     from aeni_console.commands.simulate import run_simulation
 
     cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 1800.0), parse_start("Mon 17:00"))
-    out = run_simulation(
-        "aeni+stretch-visits", 0, scenario="film", lattice_n=24, budget_s=3 * 3600, calendar=cal
-    )
+    out = run_simulation("aeni", 0, scenario="film", lattice_n=24, budget_s=3 * 3600, calendar=cal)
     idle_h = out["wall_clock_h"] - out["instrument_s"] / 3600
     # the first load waits 10 min; every later request is answered within the hours or after a full stretch
     assert idle_h < 1.0, f"{idle_h:.2f} h idle"

@@ -166,7 +166,8 @@ class BenchConfig:
     scenarios: tuple[BenchScenario, ...] = FULL_SCENARIOS
     # the simulated instrument fails like a real one (drivers.sim.failures); 0: never
     failure_rate: float = REALISTIC_FAILURE_RATE
-    # the planner's [planner] map_weights (issue 27); None: hardness only, and no modulus is scored
+    # the planner's [planner] map_weights (issue 27); None: the product's default (both maps, issue 37). The
+    # modulus map is scored wherever the planner aims at it
     map_weights: dict[str, float] | None = None
     calendar: OperatorCalendar | None = (
         None  # a simulated operator loads the blocks (core.visits); None: none
@@ -243,7 +244,7 @@ class RunSpec:
     max_centres: int = MAX_CENTRES
     keep_maps: bool = False
     failure_rate: float = 0.0
-    map_weights: dict[str, float] | None = None  # None: hardness only, no modulus scored
+    map_weights: dict[str, float] | None = None  # None: the default (both); modulus scored where aimed at
     target_mape_modulus_pct: float | None = None  # None: the grid run that defines it (or no modulus)
     calendar: OperatorCalendar | None = None
 
@@ -369,6 +370,7 @@ def run_one(spec: RunSpec) -> RunRecord:
     sim = _scenario(spec, cfg.driver_options)
     campaign = Campaign(cfg, sim.sample)
     is_grid = spec.policy == "grid"
+    maps_modulus = campaign.settings.map_weights.maps_modulus  # scored where the planner aims at it
     campaign.refit_every = GRID_REFIT_EVERY if is_grid else 1
     budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
     driver = sim.make_driver(campaign.profile)
@@ -402,7 +404,7 @@ def run_one(spec: RunSpec) -> RunRecord:
                 self.results.append(event.result)
                 self.failed += int(event.result.status != "measured")
             elif isinstance(event, Observed):
-                if spec.map_weights is not None and event.fit.fitted:
+                if maps_modulus and event.fit.fitted:
                     mape_e = evaluator.score_modulus(campaign)
                     if mape_e is not None:
                         modulus.append((event.t_s, mape_e))
@@ -469,7 +471,7 @@ def run_one(spec: RunSpec) -> RunRecord:
         t_hit = next(t for t, m in trajectory if m <= final)
     final_e: float | None = None
     t_hit_e: float | None = hit_e[0] if hit_e else None
-    if spec.map_weights is not None:
+    if maps_modulus:
         if (
             is_grid
             and (not modulus or modulus[-1][0] < result.instrument_s - 1.0)

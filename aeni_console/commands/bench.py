@@ -170,7 +170,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="hardness=W,modulus=W",
         help="the planner's map_weights, and score the modulus map too: each policy's time to both grids' "
-        "final MAPEs (default: hardness only, no modulus scored)",
+        "final MAPEs (default: hardness=1,modulus=1, the product's; modulus=0: hardness only, no modulus scored)",
     )
     from aeni_console.commands.common import add_operator_args
 

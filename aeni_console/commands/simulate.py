@@ -100,8 +100,8 @@ def run_simulation(
     modulus: list[tuple[float, float]] = []
 
     class ModulusScore(RunTally):
-        """The modulus map's MAPE after every refit, where the planner keeps that map fitted (map_weights);
-        a hardness-only run scores its modulus map once, at the end."""
+        """The modulus map's MAPE after every refit, for every policy (a run that does not aim at the modulus,
+        the grid among them, has its modulus map fitted from the same indents to be scored)."""
 
         def emit(self, event: RunEvent) -> None:
             if isinstance(event, Observed) and event.fit.fitted:
@@ -109,7 +109,7 @@ def run_simulation(
                 if mape is not None:
                     modulus.append((event.t_s, mape))
 
-    watch = [ModulusScore()] if campaign.settings.map_weights.maps_modulus else []
+    watch = [ModulusScore()]
     operator = calendar.operator() if calendar is not None else None
     if operator is not None:
         campaign.unattended = operator.unattended
@@ -127,7 +127,10 @@ def run_simulation(
     if progress:
         sys.stderr.write("\n")
     score = evaluator.score(campaign)
-    trajectory: list[dict[str, Any]] = [{"t_s": t, "mape_pct": m} for t, m in result.trajectory]
+    modulus_at = dict(modulus)  # both maps read the same way: each point carries the modulus MAPE too
+    trajectory: list[dict[str, Any]] = [
+        {"t_s": t, "mape_pct": m, "mape_modulus_pct": modulus_at.get(t)} for t, m in result.trajectory
+    ]
     calendar_keys: dict[str, Any] = {}
     if operator is not None:
         for point in trajectory:
@@ -168,9 +171,8 @@ def run_simulation(
 
 
 def _handler(args: argparse.Namespace) -> int:
-    stretch = {"absences": "+stretch", "visits": "+stretch-visits", None: ""}[args.stretches]
     out = run_simulation(
-        policy=args.policy + stretch,
+        policy=args.policy,
         seed=args.seed,
         scenario=args.scenario,
         truth=args.truth,
@@ -248,15 +250,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=map_weights_arg,
         default=None,
         metavar="hardness=W,modulus=W",
-        help="how much each map's relative error counts in the planner's aim (default hardness=1,modulus=0)",
+        help="how much each map's relative error counts in the planner's aim (default hardness=1,modulus=1)",
     )
     add_operator_args(p)
-    p.add_argument(
-        "--stretches",
-        choices=("absences", "visits"),
-        default=None,
-        help="plan a stretch of arrays before every absence of the operator (absences: > 3 h unattended), "
-        "or at every load until the next visit (visits); default: none, blocks stay adaptive",
-    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_handler)

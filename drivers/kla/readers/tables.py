@@ -96,6 +96,11 @@ def split_table(raw: pd.DataFrame, header_aliases: Iterable[str]) -> Table | Non
     return Table(tuple(headers), tuple(norm_key(h) for h in headers), tuple(units), data, tuple(ranges))
 
 
+def twin_columns(table: Table, col: int) -> list[int]:
+    """The other columns with the very same name as ``col`` (an export with a duplicated header)."""
+    return [i for i, key in enumerate(table.keys) if i != col and key == table.keys[col]]
+
+
 def numeric(series: pd.Series) -> np.ndarray:
     values = np.array(pd.to_numeric(series, errors="coerce"), dtype=float)
     values[np.abs(values) >= INVALID_THRESHOLD] = np.nan

@@ -321,3 +321,18 @@ def test_two_columns_of_one_name_that_disagree_are_refused_not_guessed(
     code, out, err = _aeni(capsys, "kla", "read", str(differ))
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "differ.csv" in err and "two 'Hardness' columns" in err and "disagree" in err
+
+
+def test_a_folder_mixing_a_results_summary_with_per_test_records_is_refused_saying_so(tmp_path: Path) -> None:
+    truth = _record(tmp_path, "Test 001.csv", RecordStyle())
+    (tmp_path / "Results.csv").write_text(f"Test,Hardness,Modulus\n,GPa,GPa\n1,{truth['H']},{truth['E']}\n")
+    with pytest.raises(InputError, match=r"test 1 is also in Results\.csv") as refused:
+        read_kla_export(tmp_path)
+    assert "results summary beside per-test records" in refused.value.problem
+
+
+def test_vickers_style_pressure_units_are_converted(tmp_path: Path) -> None:
+    path = tmp_path / "hv.csv"
+    path.write_text("Test,X,Y,Hardness,Modulus\n,µm,µm,kgf/mm²,GPa\n1,1,2,950,72\n")
+    (only,) = read_kla_export(path).indents
+    assert only.hardness_gpa == pytest.approx(950 * 9.80665e-3)

@@ -97,8 +97,10 @@ def split_table(raw: pd.DataFrame, header_aliases: Iterable[str]) -> Table | Non
 
 
 def twin_columns(table: Table, col: int) -> list[int]:
-    """The other columns with the very same name as ``col`` (an export with a duplicated header)."""
-    return [i for i, key in enumerate(table.keys) if i != col and key == table.keys[col]]
+    """The other columns with the very same name as ``col``, as written (an export with a duplicated
+    header); case counts: 'H' (hardness) and 'h' (a depth) are not twins."""
+    name = " ".join(table.headers[col].split())
+    return [i for i, h in enumerate(table.headers) if i != col and " ".join(h.split()) == name]
 
 
 def numeric(series: pd.Series) -> np.ndarray:

@@ -43,12 +43,13 @@ def exchange(tmp_path: Path) -> Path:
     return root
 
 
-def running_fake(exchange: Path, *faults: str, rate: float = 0.0) -> Iterator[FakeInView]:
+def running_fake(exchange: Path, *faults: str, rate: float = 0.0, fmt: str = "xlsx") -> Iterator[FakeInView]:
     fake = FakeInView(
         exchange,
         PROFILE,
         make_scenario("ternary", SEED).make_emulator,
         faults=tuple(parse_fault(f) for f in faults),
+        fmt=fmt,
         invalid_rate=rate,
         write_s=0.02,
         log=lambda _line: None,
@@ -125,6 +126,26 @@ def test_normal_block_measures_what_the_sim_measures(exchange: Path, tmp_path: P
     # the clock is the cost model's: the same steps and seconds the sim driver would have charged
     assert d.clock_s() == pytest.approx(sum(s.seconds for s in steps)) and d.program_open()
     assert d.position_um() == (b.indents[-1].x_um, b.indents[-1].y_um)
+
+
+def test_a_block_exported_as_a_folder_of_per_test_records_measures_what_the_sim_measures(
+    exchange: Path, tmp_path: Path
+) -> None:
+    """The fake InView exports the block as InView's one CSV per test; the driver takes the folder whole."""
+    d = driver(exchange, tmp_path)
+    b = block(0)
+    for _ in running_fake(exchange, rate=0.25, fmt="records"):
+        results, _, waits = run_block(d, b)
+    check_invariants(b, results)
+    assert {r.status for r in results} == {"measured", "failed"}
+    for r, h in zip(results, sim_hardness(b), strict=True):
+        if r.measured:
+            assert r.hardness_gpa == pytest.approx(h)
+            assert r.depth_at_max_load_nm == pytest.approx(100.0)
+    assert waits[-1].waiting.startswith("export r1-000-export accepted")
+    archive = tmp_path / "r1.sqlite.exports"
+    (kept,) = [p for p in archive.iterdir() if p.is_dir() and p.name.endswith("-r1-000-export")]
+    assert len(list(kept.glob("Test *.csv"))) == b.n_indents  # archived whole
 
 
 def test_fault_aborted_keeps_the_rows_present_rest_not_run(exchange: Path, tmp_path: Path) -> None:

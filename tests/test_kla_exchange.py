@@ -344,7 +344,7 @@ def served(
     return t, f
 
 
-@pytest.mark.parametrize("fmt", ["xlsx", "csv"])
+@pytest.mark.parametrize("fmt", ["xlsx", "csv", "records"])
 def test_fake_inview_measures_what_the_sim_driver_measures(
     exchange: ExchangeFolder, watcher: InboxWatcher, fmt: str
 ) -> None:

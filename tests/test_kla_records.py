@@ -222,3 +222,117 @@ def test_fused_silica_says_which_area_function_and_frame_compliance_it_used(kla_
     assert "frame compliance 0.881 nm/mN" in export.analysis
     # checked against the file's own analysis and its cycles (the ideal tip passes: 5-9 % drift)
     assert "Cycles-GroupedByCycle" in export.analysis and "median drift 8 %" in export.analysis
+
+
+# ------------------------------------------------------------ a review with other labs' files (reader2)
+
+
+def test_a_record_with_metadata_lines_reordered_columns_and_other_units_reads_right(tmp_path: Path) -> None:
+    """µN, µm, MPa and mm in the units row, columns in another order, sample/method lines above the header."""
+    rec = indent(SILICA, Tip(), FS_PEAKS, seed=1, points=25)
+    rows, truth = record_rows(rec, SILICA, 1234.5, -567.0, RecordStyle())
+    header, units, data = rows[0], rows[1], rows[2:]
+    scale = {"Displacement": ("um", 1e-3), "DEPTH": ("um", 1e-3), "Force": ("uN", 1e3), "LOAD": ("uN", 1e3)}
+    scale |= {"HARDNESS": ("MPa", 1e3), "MODULUS": ("MPa", 1e3)}
+    scale |= {"X Axis Position": ("mm", 1e-3), "Y Axis Position": ("mm", 1e-3)}
+    order = [3, 7, 8, 12, 13, 0, 5, 4, 1, 2, 6, 9, 10, 11]
+
+    def cell(row: list[object], i: int) -> object:
+        v = row[i]
+        return v * scale[header[i]][1] if isinstance(v, float) and header[i] in scale else v
+
+    out: list[list[object]] = [
+        ["Sample Name:", "Fused Silica ref 2"],
+        ["Method:", "G-Series XP CSM Standard Hardness, Modulus, and Tip Cal.mth"],
+        ["Test Number:", 12.0],
+        ["Poisson's Ratio:", 0.18],
+        ["Target Load", 50.0, "mN"],
+        [],
+        [header[i] for i in order],
+        [scale[header[i]][0] if header[i] in scale else units[i] for i in order],
+    ]
+    out += [[cell(r, i) for i in order] for r in data]
+    write_record(str(tmp_path / "Sample A - Test 12.txt"), out, RecordStyle(crlf=True))
+    (only,) = read_kla_export(tmp_path / "Sample A - Test 12.txt").indents
+    assert only.test_id == "12"
+    assert only.hardness_gpa == pytest.approx(truth["H"], rel=0.02)
+    assert only.modulus_gpa == pytest.approx(truth["E"], rel=0.02)
+    assert (only.x_um, only.y_um) == pytest.approx((1234.5, -567.0))
+
+
+def test_a_record_cut_short_while_written_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Killed mid-write: the markers on top point past the last sample, or (markers inline) the record never
+    unloads. Taking the last sample's HARDNESS as the test's would be silently wrong."""
+    for name, style in (("Test 9.csv", RecordStyle()), ("Test 17.csv", RecordStyle(markers="inline"))):
+        rec = indent(SILICA, Tip(), FS_PEAKS, seed=4, points=25)
+        rows, _ = record_rows(rec, SILICA, 0.0, 0.0, style)
+        write_record(str(tmp_path / name), rows, style)
+        text = (tmp_path / name).read_text()
+        (tmp_path / name).write_text(text[: len(text) * 2 // 5])
+        code, out, err = _aeni(capsys, "kla", "read", str(tmp_path / name))
+        assert code == 2 and out == "" and "Traceback" not in err
+        error = [ln for ln in err.splitlines() if ln.startswith("aeni: error:")]
+        assert len(error) == 1 and name in error[0]
+        assert "cut short" in error[0]
+
+
+def test_a_results_csv_cut_mid_line_never_gives_the_cut_number(tmp_path: Path) -> None:
+    """'9.35' cut to '9' at the end of a file without its last line break: missing (failed), never 9 GPa."""
+    lines = ["Test,X Position,Y Position,Modulus,Hardness", ",µm,µm,GPa,GPa"]
+    lines += [f"{n},{10.0 * n},0.0,72.0,9.35" for n in range(1, 11)]
+    path = tmp_path / "results.csv"
+    path.write_text("\n".join(lines)[:-3])
+    with pytest.warns(UserWarning, match="ends mid-line"):
+        export = read_kla_export(path)
+    assert len(export.indents) == 10
+    *whole, last = export.indents
+    assert all(i.hardness_gpa == 9.35 for i in whole)
+    assert last.failed and last.hardness_gpa is None and "cut off" in str(last.failure)
+    assert last.modulus_gpa == 72.0  # the cells before the cut are whole
+
+
+def test_a_german_locale_csv_with_digit_grouping_reads_its_positions(tmp_path: Path) -> None:
+    lines = ["Test;X Position;Y Position;Hardness;Modulus", ";µm;µm;GPa;GPa"]
+    lines += [f"{n};12.34{n},678;-1.000,5;9,3{n};72,1" for n in range(1, 10)]
+    path = tmp_path / "german.csv"
+    path.write_bytes(("\r\n".join(lines) + "\r\n").encode("cp1252"))
+    first = read_kla_export(path).indents[0]
+    assert (first.x_um, first.y_um) == pytest.approx((12341.678, -1000.5))
+    assert (first.hardness_gpa, first.modulus_gpa) == pytest.approx((9.31, 72.1))
+
+
+def test_two_columns_of_one_name_that_disagree_are_refused_not_guessed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    head = "Test,X Position,Y Position,Hardness,Modulus,Hardness"
+    same = tmp_path / "same.csv"
+    same.write_text(
+        "\n".join([head, ",µm,µm,GPa,GPa,MPa", *(f"{n},{n},0,9.3,72,9300" for n in range(1, 6))]) + "\n"
+    )
+    assert [i.hardness_gpa for i in read_kla_export(same).indents] == [
+        9.3
+    ] * 5  # copies that agree: one value
+    differ = tmp_path / "differ.csv"
+    differ.write_text(
+        "\n".join([head, ",µm,µm,GPa,GPa,GPa", *(f"{n},{n},0,9.3,72,11.0" for n in range(1, 6))]) + "\n"
+    )
+    code, out, err = _aeni(capsys, "kla", "read", str(differ))
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "differ.csv" in err and "two 'Hardness' columns" in err and "disagree" in err
+
+
+def test_a_folder_mixing_a_results_summary_with_per_test_records_is_refused_saying_so(tmp_path: Path) -> None:
+    truth = _record(tmp_path, "Test 001.csv", RecordStyle())
+    (tmp_path / "Results.csv").write_text(f"Test,Hardness,Modulus\n,GPa,GPa\n1,{truth['H']},{truth['E']}\n")
+    with pytest.raises(InputError, match=r"test 1 is also in Results\.csv") as refused:
+        read_kla_export(tmp_path)
+    assert "results summary beside per-test records" in refused.value.problem
+
+
+def test_vickers_style_pressure_units_are_converted(tmp_path: Path) -> None:
+    path = tmp_path / "hv.csv"
+    path.write_text("Test,X,Y,Hardness,Modulus\n,µm,µm,kgf/mm²,GPa\n1,1,2,950,72\n")
+    (only,) = read_kla_export(path).indents
+    assert only.hardness_gpa == pytest.approx(950 * 9.80665e-3)

@@ -60,7 +60,13 @@ def register(subparsers: Any) -> None:
         "--sample", default=None, metavar="FILE", help="the run's sample file: the scenario is laid onto it"
     )
     fake.add_argument("--profile", default=None, help="instrument profile (default: the scenario's)")
-    fake.add_argument("--format", dest="fmt", choices=("xlsx", "csv"), default="xlsx", help="export format")
+    fake.add_argument(
+        "--format",
+        dest="fmt",
+        choices=("xlsx", "csv", "records"),
+        default="xlsx",
+        help="export format ('records': a folder of per-test record CSVs, one per test, as InView can write)",
+    )
     fake.add_argument(
         "--invalid-rate", type=float, default=0.03, help="share of indents exported as 1.797e308 (0-1)"
     )

@@ -122,17 +122,23 @@ def read_kla_exports(
     if len(files) == 1:
         return read_kla_export(files[0], frame_compliance_nm_mn=frame_compliance_nm_mn)
     parts = [read_kla_export(f, frame_compliance_nm_mn=frame_compliance_nm_mn) for f in files]
-    seen: dict[str, str] = {}
+    seen: dict[str, tuple[str, str]] = {}
     indents: list[KlaIndent] = []
     notes: list[str] = []
     for f, part in zip(files, parts, strict=True):
         for indent in part.indents:
             if indent.test_id in seen:
-                raise InputError(
-                    str(f),
-                    f"test {indent.test_id} is also in {seen[indent.test_id]}: one export holds each test once",
+                name, kind = seen[indent.test_id]
+                mixed = (
+                    f" ({name} is {kind}, {f.name} is format {part.software}: a results summary beside per-test "
+                    "records? read one or the other)"
+                    if kind != f"format {part.software}"
+                    else ""
                 )
-            seen[indent.test_id] = f.name
+                raise InputError(
+                    str(f), f"test {indent.test_id} is also in {name}: one export holds each test once{mixed}"
+                )
+            seen[indent.test_id] = (f.name, f"format {part.software}")
             indents.append(indent)
         # notes shared by the files are said once; a note about a file's own column names the file
         notes.extend(f"{f.name}: {n}" if "column" in n and f.name not in n else n for n in part.warnings)

@@ -36,6 +36,7 @@ from core.errors import InputError
 from core.plan import Block, IndentResult, IndentSpec
 from core.profile import InstrumentProfile
 from drivers.kla.exchange import ExchangeFolder, Ticket, block_tag, from_array_offset, parse_name, parse_sites
+from drivers.kla.fake_records import record_csv
 from drivers.sim.driver import SimulatedDriver
 
 FAULTS: tuple[str, ...] = (
@@ -91,7 +92,7 @@ class FakeInView:
     make_emulator: Callable[[], Any]
     speed: float | None = None
     faults: tuple[Fault, ...] = ()
-    fmt: str = "xlsx"  # or "csv"
+    fmt: str = "xlsx"  # or "csv", or "records" (a folder of per-test record CSVs, one per test)
     invalid_rate: float = 0.03  # share of indents InView marks invalid (1.797e308)
     write_s: float = 0.6  # wall seconds a slow export write takes
     positions: bool = True  # False: a lab template without X/Y Test Position columns
@@ -103,8 +104,8 @@ class FakeInView:
     _sim: SimulatedDriver | None = None
 
     def __post_init__(self) -> None:
-        if self.fmt not in ("xlsx", "csv"):
-            raise InputError("--format", f"{self.fmt!r} is not allowed: expected xlsx or csv")
+        if self.fmt not in ("xlsx", "csv", "records"):
+            raise InputError("--format", f"{self.fmt!r} is not allowed: expected xlsx, csv or records")
         (self.exchange / "outbox").mkdir(parents=True, exist_ok=True)
         (self.exchange / "inbox").mkdir(exist_ok=True)
 
@@ -213,6 +214,12 @@ class FakeInView:
             self._record(ticket, results, exported=False)
             self.log(f"{tag}: no export (fault)")
             return
+        if self.fmt == "records":
+            target = folder.inbox / ticket.export_stem
+            self._record(ticket, results, exported=True)
+            self._deliver(lambda: self._write_records(target, results, ticket))
+            self.log(f"{tag}: exported {target.name}/ ({len(results)} per-test records)")
+            return
         payload = self._export_bytes(results, ticket)
         target = folder.inbox / f"{ticket.export_stem}.{self.fmt}"
         self._record(ticket, results, exported=True)
@@ -293,6 +300,28 @@ class FakeInView:
         if not self.positions:  # the template has no X/Y Test Position columns
             rows = [[c for k, c in enumerate(row) if k not in (1, 2)] for row in rows]
         return rows
+
+    def _write_records(self, target: Path, results: list[IndentResult], ticket: Ticket) -> None:
+        """InView's one CSV per test, 'Test N.csv', in the block's export folder. Written in a hidden
+        folder first and renamed whole: the inbox never sees a folder with some of its tests."""
+        staging = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        staging.mkdir(parents=True, exist_ok=True)
+        scale = 1e-3 if self._fault("mm-um", ticket.block_id) else 1.0
+        for n, r in enumerate(results, start=1):
+            depth_nm = 100.0 if r.depth_at_max_load_nm is None else r.depth_at_max_load_nm
+            failed = self._invalid(ticket, r.indent_index)
+            payload = record_csv(
+                r.commanded_x_um * scale,
+                r.commanded_y_um * scale,
+                None if failed else r.hardness_gpa,
+                None if failed else r.modulus_gpa,
+                r.drift_rate_nm_s,
+                depth_nm,
+                r.hardness_gpa * BERKOVICH_C0 * depth_nm**2 * 1e-6,
+                INVALID,
+            )
+            (staging / f"Test {n}.csv").write_bytes(payload)
+        os.replace(staging, target)
 
     def _export_bytes(self, results: list[IndentResult], ticket: Ticket) -> bytes:
         rows = self._rows(results, ticket)

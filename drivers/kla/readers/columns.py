@@ -238,6 +238,7 @@ LENGTH_NM = {"nm": 1.0, "µm": 1e3, "mm": 1e6, "cm": 1e7, "m": 1e9, "a": 0.1, "�
 
 
 PRESSURE_GPA = {"gpa": 1.0, "mpa": 1e-3, "kpa": 1e-6, "pa": 1e-9, "n/mm²": 1e-3, "n/mm2": 1e-3}
+PRESSURE_GPA |= dict.fromkeys(("kgf/mm²", "kgf/mm2", "kg/mm²", "kg/mm2"), 9.80665e-3)  # Vickers-style units
 
 
 SPEED_NM_S = {"nm/s": 1.0, "µm/s": 1e3, "nm/min": 1.0 / 60.0, "a/s": 0.1}

@@ -166,13 +166,23 @@ def _parse(path: Path, raw: pd.DataFrame, notes: list[str]) -> _Record:
     for row in np.flatnonzero(is_marker):
         label = norm_key(str(labels.iloc[row]))
         t = time[row]
+        end = samples["time"].size - 1
         if math.isfinite(t):  # the marker row carries its sample's values: find that sample by its time
-            index = int(np.clip(np.searchsorted(samples["time"], t), 0, samples["time"].size - 1))
+            index = int(np.searchsorted(samples["time"], t))
+            beyond = t > samples["time"][end] and index > end
         else:  # a marker row that holds only the sample's index
             numbers = [n for n in map(as_number, table.data.iloc[row]) if n is not None]
             if not numbers or not numbers[0].is_integer():
                 continue
-            index = int(np.clip(int(numbers[0]), 0, samples["time"].size - 1))
+            index = int(numbers[0])
+            beyond = index > end
+        if beyond:  # a marker past the last sample: the file was cut, its samples stop short
+            raise InputError(
+                str(path),
+                f"per-test record cut short: its {str(labels.iloc[row]).strip()!r} marker is past its last "
+                f"sample (t = {samples['time'][end]:g} s, {end + 1} samples): export the test again",
+            )
+        index = max(0, min(index, end))
         markers.setdefault(label, (str(labels.iloc[row]).strip(), index))
     cells = (
         np.array(table.data[cols["hardness"]], dtype=object)[order]
@@ -252,6 +262,14 @@ def read_record(path: Path, raw: pd.DataFrame, notes: list[str]) -> tuple[KlaInd
             index, where = end_of_loading[1], f"the {end_of_loading[0]!r} marker"
         else:
             index, where = peak, "the peak load (the record has no End Of Loading marker)"
+            after = load[peak:][np.isfinite(load[peak:])]
+            if after.size and after.min() > 0.9 * load[peak]:
+                raise InputError(
+                    str(path),
+                    f"per-test record that never unloads (its last load {after[-1]:g} mN is its peak's "
+                    f"{after[-1] / load[peak]:.0%}) and has no End Of Loading marker: cut short? "
+                    "export the test again",
+                )
         h = float(hardness[index]) if math.isfinite(hardness[index]) else None
         e = float(modulus[index]) if modulus is not None and math.isfinite(modulus[index]) else None
         if h is None:

@@ -74,6 +74,9 @@ def decode(data: bytes, path: Path, *, partial: bool = False) -> str:
 
 
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+(?:[eE][-+]?\d+)?$")
+# a decimal-comma locale's digit grouping: '12.345,678', '-1.000,5', '12.345' (a '.' there is never a decimal point)
+_GROUPED = re.compile(r"^[-+]?\d{1,3}(?:\.\d{3})+(?:,\d+)?$")
+CUT_OFF = "(cut off: the file ends mid-line)"
 
 
 def _sniff_delimiter(lines: list[str]) -> str:
@@ -95,7 +98,9 @@ def _text_cell(cell: str, decimal_comma: bool) -> object:
     text = cell.strip()
     if not text:
         return None
-    if decimal_comma and _DECIMAL_COMMA.match(text):
+    if decimal_comma and _GROUPED.match(text):
+        text = text.replace(".", "").replace(",", ".")
+    elif decimal_comma and _DECIMAL_COMMA.match(text):
         text = text.replace(",", ".")
     try:
         return float(text)
@@ -104,14 +109,27 @@ def _text_cell(cell: str, decimal_comma: bool) -> object:
 
 
 def read_text(path: Path) -> dict[str, pd.DataFrame]:
-    """A CSV/TSV export as one 'Results' sheet; ';'-separated files may use decimal commas."""
-    lines = decode(path.read_bytes(), path).splitlines()
+    """A CSV/TSV export as one 'Results' sheet; ';'-separated files may use decimal commas (and a locale's
+    digit grouping, '12.345,678').
+
+    A file that ends without a line break may have been cut while it was written: its last cell may be a
+    cut number ('9' of '9.35'), so it is not trusted -- it reads as missing (a failed hardness says why),
+    never as a number. Every exporter ends its last line."""
+    text = decode(path.read_bytes(), path)
+    lines = text.splitlines()
     delimiter = _sniff_delimiter(lines)
     rows = list(csv.reader(lines, delimiter=delimiter))
     decimal_comma = delimiter != "," and any(_DECIMAL_COMMA.match(c.strip()) for r in rows for c in r)
     width = max((len(r) for r in rows), default=0)
     table = [[_text_cell(c, decimal_comma) for c in r] + [None] * (width - len(r)) for r in rows]
-    return {"Results": pd.DataFrame(table, dtype=object)}
+    cut = bool(text.strip()) and not text.endswith(("\n", "\r"))
+    if cut:
+        k = next(k for k in range(len(table) - 1, -1, -1) if any(c is not None for c in table[k]))
+        i = max(i for i, c in enumerate(table[k]) if c is not None)
+        table[k][i] = f"{rows[k][i].strip()} {CUT_OFF}"
+    frame = pd.DataFrame(table, dtype=object)
+    frame.attrs["cut_off"] = cut
+    return {"Results": frame}
 
 
 def read_xlsx(path: Path) -> dict[str, pd.DataFrame]:
@@ -153,6 +171,13 @@ def read_sheets(path: Path, engine: str) -> dict[str, pd.DataFrame]:
     for line in log.getvalue().splitlines():  # kept, as warnings (the CLI prints them on stderr)
         if line.strip():
             warnings.warn(f"{path.name}: {line.strip()}", UserWarning, stacklevel=2)
+    if any(df.attrs.get("cut_off") for df in sheets.values()):
+        warnings.warn(
+            f"{path.name}: ends mid-line, without a line break (cut off while it was written?): "
+            "its last value is not trusted",
+            UserWarning,
+            stacklevel=2,
+        )
     if not sheets or all(df.empty for df in sheets.values()):
         raise InputError(str(path), "workbook has no data")
     return {str(name): df for name, df in sheets.items()}

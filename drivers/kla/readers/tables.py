@@ -96,6 +96,13 @@ def split_table(raw: pd.DataFrame, header_aliases: Iterable[str]) -> Table | Non
     return Table(tuple(headers), tuple(norm_key(h) for h in headers), tuple(units), data, tuple(ranges))
 
 
+def twin_columns(table: Table, col: int) -> list[int]:
+    """The other columns with the very same name as ``col``, as written (an export with a duplicated
+    header); case counts: 'H' (hardness) and 'h' (a depth) are not twins."""
+    name = " ".join(table.headers[col].split())
+    return [i for i, h in enumerate(table.headers) if i != col and " ".join(h.split()) == name]
+
+
 def numeric(series: pd.Series) -> np.ndarray:
     values = np.array(pd.to_numeric(series, errors="coerce"), dtype=float)
     values[np.abs(values) >= INVALID_THRESHOLD] = np.nan

@@ -79,6 +79,7 @@ from drivers.kla.readers.tables import (
     parse_header,
     split_table,
     test_key_of,
+    twin_columns,
 )
 from drivers.kla.readers.test_sheets import curve_sheet_names, results_from_test_sheets
 
@@ -282,6 +283,27 @@ def _pick_value_column(
     return chosen
 
 
+def _refuse_twins(
+    path: Path, sheet: str, table: Table, key: str, col: int, rows: list[int], values: np.ndarray
+) -> None:
+    """Two columns of the same name that disagree on a test: which one is the file's value cannot be told
+    (taking the first would be a guess). Copies that agree are one value."""
+    for twin in twin_columns(table, col):
+        factor = unit_factor(key, table.units[twin], f"{sheet}: {table.headers[twin]}", [])
+        other = numeric(table.data[twin]) * factor
+        mine, theirs = values[rows], other[rows]
+        both = np.isfinite(mine) & np.isfinite(theirs)
+        differ = both & ~np.isclose(mine, theirs, rtol=1e-6, atol=0.0)
+        if differ.any():
+            r = rows[int(np.flatnonzero(differ)[0])]
+            raise InputError(
+                str(path),
+                f"sheet {sheet!r} has two {table.headers[col]!r} columns (columns {col + 1} and {twin + 1}) "
+                f"that disagree ({mine[differ][0]:g} and {theirs[differ][0]:g} on data row {r + 1}): "
+                "which one is the file's value cannot be told; rename or remove one",
+            )
+
+
 def read_workbook(
     path: Path, sheets: dict[str, pd.DataFrame], software: str, frame_compliance_nm_mn: float | None
 ) -> KlaExport:
@@ -321,6 +343,7 @@ def read_workbook(
         if col is not None and key != "test_id":
             factor = unit_factor(key, table.units[col], f"{res_name}: {table.headers[col]}", notes)
             values[key] = numeric(table.data[col]) * factor
+            _refuse_twins(path, res_name, table, key, col, row_index, values[key])
     hardness_column = table.headers[cols["hardness_gpa"]] if cols["hardness_gpa"] is not None else ""
     hardness_range = table.ranges_nm[cols["hardness_gpa"]] if cols["hardness_gpa"] is not None else None
     if hardness_range is not None:

@@ -336,3 +336,26 @@ def test_vickers_style_pressure_units_are_converted(tmp_path: Path) -> None:
     path.write_text("Test,X,Y,Hardness,Modulus\n,µm,µm,kgf/mm²,GPa\n1,1,2,950,72\n")
     (only,) = read_kla_export(path).indents
     assert only.hardness_gpa == pytest.approx(950 * 9.80665e-3)
+
+
+def test_a_whole_last_line_without_its_line_break_is_read_as_it_is(tmp_path: Path) -> None:
+    """Many scripts write a file without the last line break: a last value printed like its column is whole."""
+    lines = ["Test,X Position,Y Position,Modulus,Hardness", ",µm,µm,GPa,GPa"]
+    lines += [f"{n},{10.0 * n},0.0,72.0,9.35" for n in range(1, 11)]
+    path = tmp_path / "results.csv"
+    path.write_text("\n".join(lines))
+    export = read_kla_export(path)
+    assert len(export.indents) == 10
+    assert all(i.hardness_gpa == 9.35 and not i.failed for i in export.indents)
+
+
+def test_a_last_line_short_of_cells_is_cut(tmp_path: Path) -> None:
+    lines = ["Test,X Position,Y Position,Hardness,Modulus", ",µm,µm,GPa,GPa"]
+    lines += [f"{n},{10.0 * n},0.0,9.35,72.0" for n in range(1, 11)]
+    path = tmp_path / "results.csv"
+    path.write_text("\n".join(lines)[:-5])  # '...,9.35,72.0' cut to '...,9.35'
+    with pytest.warns(UserWarning, match="ends mid-line"):
+        export = read_kla_export(path)
+    *whole, last = export.indents
+    assert all(i.hardness_gpa == 9.35 for i in whole)
+    assert last.hardness_gpa is None or last.failed

@@ -73,6 +73,7 @@ def decode(data: bytes, path: Path, *, partial: bool = False) -> str:
         return data.decode("cp1252", errors="replace")
 
 
+_NUMBER = re.compile(r"^[-+]?(?:\d+[.,]?\d*|[.,]\d+)(?:[eE][-+]?\d+)?$")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+(?:[eE][-+]?\d+)?$")
 # a decimal-comma locale's digit grouping: '12.345,678', '-1.000,5', '12.345' (a '.' there is never a decimal point)
 _GROUPED = re.compile(r"^[-+]?\d{1,3}(?:\.\d{3})+(?:,\d+)?$")
@@ -108,13 +109,31 @@ def _text_cell(cell: str, decimal_comma: bool) -> object:
         return text
 
 
+def _decimals(cell: str, mark: str) -> int:
+    """Characters after the decimal mark (an exponent included): a number's printed format."""
+    head, sep, tail = cell.strip().partition(mark)
+    return len(tail) if sep else 0
+
+
+def _shorter_than_its_column(rows: list[list[str]], k: int, i: int, mark: str) -> bool:
+    """Whether cell (k, i) is printed shorter than every other number of its column: a cut number."""
+    siblings = [
+        r[i] for j, r in enumerate(rows) if j != k and i < len(r) and _NUMBER.match(r[i].strip() or "x")
+    ]
+    if not siblings:
+        return False
+    return _decimals(rows[k][i], mark) < min(_decimals(c, mark) for c in siblings)
+
+
 def read_text(path: Path) -> dict[str, pd.DataFrame]:
     """A CSV/TSV export as one 'Results' sheet; ';'-separated files may use decimal commas (and a locale's
     digit grouping, '12.345,678').
 
     A file that ends without a line break may have been cut while it was written: its last cell may be a
-    cut number ('9' of '9.35'), so it is not trusted -- it reads as missing (a failed hardness says why),
-    never as a number. Every exporter ends its last line."""
+    cut number ('9' of '9.35'). It is not trusted -- it reads as missing (a failed hardness says why), never
+    as a number -- when its row is short of cells or the cell is shorter than its column's format (fewer
+    characters after the decimal mark than every other value of the column). A whole last line that only
+    lacks its line break (many scripts write files so) is read as it is."""
     text = decode(path.read_bytes(), path)
     lines = text.splitlines()
     delimiter = _sniff_delimiter(lines)
@@ -122,11 +141,14 @@ def read_text(path: Path) -> dict[str, pd.DataFrame]:
     decimal_comma = delimiter != "," and any(_DECIMAL_COMMA.match(c.strip()) for r in rows for c in r)
     width = max((len(r) for r in rows), default=0)
     table = [[_text_cell(c, decimal_comma) for c in r] + [None] * (width - len(r)) for r in rows]
-    cut = bool(text.strip()) and not text.endswith(("\n", "\r"))
-    if cut:
+    cut = False
+    if text.strip() and not text.endswith(("\n", "\r")):
         k = next(k for k in range(len(table) - 1, -1, -1) if any(c is not None for c in table[k]))
         i = max(i for i, c in enumerate(table[k]) if c is not None)
-        table[k][i] = f"{rows[k][i].strip()} {CUT_OFF}"
+        mark = "," if decimal_comma else "."
+        cut = len(rows[k]) < width or _shorter_than_its_column(rows, k, i, mark)
+        if cut:
+            table[k][i] = f"{rows[k][i].strip()} {CUT_OFF}"
     frame = pd.DataFrame(table, dtype=object)
     frame.attrs["cut_off"] = cut
     return {"Results": frame}

@@ -111,7 +111,7 @@ def _text_cell(cell: str, decimal_comma: bool) -> object:
 
 def _decimals(cell: str, mark: str) -> int:
     """Characters after the decimal mark (an exponent included): a number's printed format."""
-    head, sep, tail = cell.strip().partition(mark)
+    _head, sep, tail = cell.strip().partition(mark)
     return len(tail) if sep else 0
 
 

@@ -33,12 +33,6 @@ class ScatteredSingles:
     # the space-filling start: this many singles on a low-discrepancy sequence before the model places any
     space_filling_indents: int = 64
     min_spacing_um: float = 15.0  # no two indents closer than this (site texture is shared below it)
-    # adaptive placement weighs the map where the model shows structure (its mean's gradient) up to this
-    # factor over flat parts; 0 is pure variance reduction (an even design under a stationary kernel)
-    structure_weight: float = 1.0
-    # where the fitted mean bends (its relative curvature, core.policies.bends) the weight grows by up to this
-    # times the bend cap: the bias a stationary GP leaves there; 0: off (as ``aeni``)
-    bend_weight: float = 0.0
     # a block adds at most this fraction to the indents the model was fitted on: pricing by gain per second
     # sees the program's overhead but not what a refit learns, so early on big blocks run on a model fitted
     # to few points (48 singles at a slow hold after the 64-indent start delayed the ternary's first maps)

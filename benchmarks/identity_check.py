@@ -84,12 +84,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     results: dict[str, Any] = {}
     start = time.monotonic()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     for scen in args.scenarios:
         for seed in args.seeds:
             for policy, row in run_case(scen, seed, tuple(args.policies)).items():
                 results[f"{scen}/{policy}/{seed}"] = row
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+            # after every case: a long sweep that is stopped keeps what it measured
+            tmp = args.out.with_name(f".{args.out.name}.tmp")
+            tmp.write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+            tmp.replace(args.out)
     print(f"wrote {args.out} ({len(results)} runs, {time.monotonic() - start:.0f} s)")
     if args.compare is None:
         return 0

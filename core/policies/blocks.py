@@ -5,6 +5,9 @@
 - ``ScatteredSingles`` (``aeni``): a block is several single indents spread over the area the program can
   reach, ordered for travel; each indent is its own centre. The oracle study finds single indents about
   1.7× more informative per indent than replicate grids, and one program serves many of them.
+
+A design says what a block is; what a candidate is worth is the policy's acquisition
+(``core.policies.acquisition``), which the planner of the design is given.
 """
 
 from __future__ import annotations

@@ -46,6 +46,7 @@ from core.policies.blocks import ScatteredSingles
 from core.policies.greedy import GreedyIvr, GreedyValue, Maximin
 from core.policies.parts import PolicyParts
 from core.policies.singles import BOX_FRACTION, in_box, single_sites, travel_order
+from core.policies.stretch import plan_stretch, stretch_due
 from core.policies.variance import aim_rel_error
 
 PRICED_ALTERNATIVES = 3  # alternatives listed (the decision panel shows three; a veto takes the first)
@@ -157,8 +158,6 @@ class ScatteredPlanner:
     def propose_stretch(self, ctx: PlanContext) -> list[Decision] | None:
         """Before an absence: the arrays of one stretch that fills it (core.policies.stretch); None when no
         stretch is due (the next block is planned adaptively)."""
-        from core.policies.stretch import plan_stretch, stretch_due
-
         if not stretch_due(self, ctx):
             return None
         return plan_stretch(self, ctx) or None

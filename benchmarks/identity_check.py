@@ -27,10 +27,13 @@ POLICIES = ("grid", "cost-aware", "aeni")
 METRICS = ("blocks", "indents", "instrument_s", "final_mape_pct")
 
 
-def run_case(scenario_key: str, seed: int, policies: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+def run_case(
+    scenario_key: str, seed: int, policies: tuple[str, ...], margin: float
+) -> dict[str, dict[str, Any]]:
     """One scenario and seed: the grid first (its MAPE and time are the others' target and budget)."""
     sc = next(s for s in FULL_SCENARIOS if s.key == scenario_key)
-    lattice_n = BenchConfig().lattice_n
+    bench = BenchConfig()
+    lattice_n = bench.lattice_n
     out: dict[str, dict[str, Any]] = {}
     grid = None
     for policy in ("grid", *[p for p in policies if p != "grid"]):
@@ -39,7 +42,17 @@ def run_case(scenario_key: str, seed: int, policies: tuple[str, ...]) -> dict[st
             assert grid is not None
             kw = {"budget_s": grid.instrument_s, "target_mape_pct": grid.final_mape_pct}
         start = time.monotonic()
-        rec = run_one(RunSpec(scenario=sc, policy=policy, seed=seed, lattice_n=lattice_n, **kw))
+        spec = RunSpec(
+            scenario=sc,
+            policy=policy,
+            seed=seed,
+            lattice_n=lattice_n,
+            margin=margin,
+            max_blocks=bench.max_blocks,
+            max_centres=bench.max_centres,
+            **kw,
+        )
+        rec = run_one(spec)
         if policy == "grid":
             grid = rec
         if policy not in policies:
@@ -50,6 +63,7 @@ def run_case(scenario_key: str, seed: int, policies: tuple[str, ...]) -> dict[st
             "instrument_s": rec.instrument_s,
             "final_mape_pct": rec.final_mape_pct,
             "stop_reason": rec.stop_reason,
+            "margin": margin,
             "wall_s": round(time.monotonic() - start, 1),
         }
         print(f"{scenario_key:10s} {policy:11s} seed {seed}: {out[policy]}", flush=True)
@@ -81,13 +95,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--compare", type=Path, default=None)
     ap.add_argument("--tol", type=float, default=1e-6)
+    ap.add_argument(
+        "--margin",
+        type=float,
+        default=BenchConfig().margin,
+        help="run-on after the target (default: the bench's); identity_baseline.json was made with 0.25",
+    )
     args = ap.parse_args(argv)
     results: dict[str, Any] = {}
     start = time.monotonic()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for scen in args.scenarios:
         for seed in args.seeds:
-            for policy, row in run_case(scen, seed, tuple(args.policies)).items():
+            for policy, row in run_case(scen, seed, tuple(args.policies), args.margin).items():
                 results[f"{scen}/{policy}/{seed}"] = row
             # after every case: a long sweep that is stopped keeps what it measured
             tmp = args.out.with_name(f".{args.out.name}.tmp")

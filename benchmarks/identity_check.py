@@ -28,7 +28,7 @@ METRICS = ("blocks", "indents", "instrument_s", "final_mape_pct")
 
 
 def run_case(
-    scenario_key: str, seed: int, policies: tuple[str, ...], margin: float
+    scenario_key: str, seed: int, policies: tuple[str, ...], margin: float, max_blocks: int | None = None
 ) -> dict[str, dict[str, Any]]:
     """One scenario and seed: the grid first (its MAPE and time are the others' target and budget)."""
     sc = next(s for s in FULL_SCENARIOS if s.key == scenario_key)
@@ -48,7 +48,7 @@ def run_case(
             seed=seed,
             lattice_n=lattice_n,
             margin=margin,
-            max_blocks=bench.max_blocks,
+            max_blocks=bench.max_blocks if max_blocks is None or policy == "grid" else max_blocks,
             max_centres=bench.max_centres,
             **kw,
         )
@@ -64,6 +64,7 @@ def run_case(
             "final_mape_pct": rec.final_mape_pct,
             "stop_reason": rec.stop_reason,
             "margin": margin,
+            "max_blocks": spec.max_blocks,
             "wall_s": round(time.monotonic() - start, 1),
         }
         print(f"{scenario_key:10s} {policy:11s} seed {seed}: {out[policy]}", flush=True)
@@ -101,13 +102,21 @@ def main(argv: list[str] | None = None) -> int:
         default=BenchConfig().margin,
         help="run-on after the target (default: the bench's); identity_baseline.json was made with 0.25",
     )
+    ap.add_argument(
+        "--max-blocks",
+        type=int,
+        default=None,
+        help="stop the non-grid runs after this many blocks: a quick check of a long run's first blocks",
+    )
     args = ap.parse_args(argv)
     results: dict[str, Any] = {}
     start = time.monotonic()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for scen in args.scenarios:
         for seed in args.seeds:
-            for policy, row in run_case(scen, seed, tuple(args.policies), args.margin).items():
+            for policy, row in run_case(
+                scen, seed, tuple(args.policies), args.margin, args.max_blocks
+            ).items():
                 results[f"{scen}/{policy}/{seed}"] = row
             # after every case: a long sweep that is stopped keeps what it measured
             tmp = args.out.with_name(f".{args.out.name}.tmp")

@@ -140,8 +140,9 @@ class Campaign:
         if n < 5:
             raise InputError("lattice_n", f"{n} is too small: expected at least 5 candidates per side")
         self.lattice = CandidateLattice.build(self.calibration, n, grid_halfwidth_um=2 * DEFAULT_PITCH_UM)
-        # where a sub-grid may go at all on this sample: off the edge band, the exclusions and the stage limits
-        self.placement_mask = sample.placement_mask(self.lattice.xy_um, 2 * DEFAULT_PITCH_UM)
+        # where a sub-grid may go at all on this sample (its one rule, Sample.allowed); the run's own indents
+        # are avoided as it makes them
+        self.placement_mask = sample.allowed(self.lattice.xy_um, 2 * DEFAULT_PITCH_UM)
         self.placement_mask.flags.writeable = False
         self.policy = make_policy(config.policy, RunFacts.of(self.profile))
         parts = self.policy.parts

@@ -11,9 +11,10 @@ from hypothesis.extra.numpy import arrays
 
 from core.campaign import Campaign, CampaignConfig
 from core.plan import IndentResult, PlannerSettings
+from core.policies.acquisition import CostWeighted, IntegratedVarianceReduction, LatticeSubset
 from core.policies.bends import BEND_CAP, bend_factor, relative_curvature
+from core.policies.greedy import GreedyIvr
 from core.policies.registry import policy_parts
-from core.policies.scattered import _Ivr
 from drivers.sim.scenarios import make_scenario
 
 N = 41
@@ -56,10 +57,14 @@ def test_the_factor_is_at_least_one_capped_and_monotone(kappa: np.ndarray, stren
 
 def test_aeni_bends_changes_one_setting_and_aeni_is_unchanged() -> None:
     aeni = policy_parts("aeni")
-    assert aeni.blocks.bend_weight == 0.0  # type: ignore[union-attr]
+    assert isinstance(aeni.acquisition, CostWeighted)
+    ivr = aeni.acquisition.base
+    assert isinstance(ivr, IntegratedVarianceReduction) and ivr.bend_weight == 0.0
     bends = policy_parts("aeni+bends")
-    assert bends.blocks.bend_weight > 0.0  # type: ignore[union-attr]
-    assert bends == replace(aeni, blocks=replace(aeni.blocks, bend_weight=bends.blocks.bend_weight))  # type: ignore[arg-type]
+    assert isinstance(bends.acquisition, CostWeighted)
+    bent = bends.acquisition.base
+    assert isinstance(bent, IntegratedVarianceReduction) and bent.bend_weight > 0.0
+    assert bends == replace(aeni, acquisition=CostWeighted(replace(ivr, bend_weight=bent.bend_weight)))
 
 
 def test_picks_crowd_where_the_map_bends() -> None:
@@ -89,7 +94,7 @@ def test_picks_crowd_where_the_map_bends() -> None:
     off_crease = np.abs(uv[:, 0] + uv[:, 1] - 1.0) / np.sqrt(2.0)
 
     def picks(bend_weight: float) -> np.ndarray:
-        value = _Ivr(ctx, cand, 1.0, bend_weight)
+        value = GreedyIvr(ctx, cand, IntegratedVarianceReduction(LatticeSubset(), 1.0, bend_weight))
         free = np.ones(len(cand), dtype=bool)
         out = []
         for _ in range(16):

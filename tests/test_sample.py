@@ -176,7 +176,7 @@ def test_placement_mask_keeps_sub_grids_off_edges_and_exclusions() -> None:
     xy = np.array(
         [[12700.0, 8650.0], [12700.0, 8805.0], [12700.0, 8830.0], [12720.0, 9230.0], [12900.0, 8400.0]]
     )
-    assert s.placement_mask(xy, 10.0).tolist() == [False, False, True, False, True]
+    assert s.allowed(xy, 10.0).tolist() == [False, False, True, False, True]
 
 
 def test_a_scenario_laid_onto_a_sample_is_scored_on_the_sample() -> None:
@@ -243,3 +243,25 @@ def test_resuming_a_journal_from_before_samples_says_why_it_cannot(
     assert main(["resume", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"aeni: error: {path}: written before runs had a sample") and err.count("\n") == 1
+
+
+def test_allowed_is_the_one_placement_rule_for_planners_the_check_and_the_map() -> None:
+    """Sample.allowed also keeps r_excl from the indents the sample came with, and the campaign's lattice mask
+    (planners, final maps) and `aeni sample check` are that function, not copies of it."""
+    from dataclasses import replace as dc_replace
+
+    from aeni_console.commands.sample import allowed_lattice
+    from core.campaign import Campaign, CampaignConfig
+    from core.policies.base import DEFAULT_PITCH_UM
+
+    s = parse_sample(template(), "t")
+    xy = np.array([[12700.0, 8830.0], [12700.0, 8845.0], [12700.0, 8900.0]])
+    assert s.allowed(xy).tolist() == [True, True, True]
+    used = dc_replace(s, earlier_indents_um=((12700.0, 8830.0),))
+    assert used.allowed(xy).tolist() == [False, False, True]  # r_excl 20 µm around the earlier indent
+    assert used.allowed(xy, 10.0).tolist() == [False, False, True]
+    lattice_xy, ok = allowed_lattice(used)
+    np.testing.assert_array_equal(ok, used.allowed(lattice_xy, 2 * DEFAULT_PITCH_UM))
+    c = Campaign(CampaignConfig(policy="cost-aware", seed=0), used)
+    np.testing.assert_array_equal(c.placement_mask, used.allowed(c.lattice.xy_um, 2 * DEFAULT_PITCH_UM))
+    assert not c.placement_mask.all() and c.placement_mask.any()

@@ -11,8 +11,9 @@ import pytest
 
 from core.campaign import Campaign, CampaignConfig
 from core.plan import IndentResult, MapWeights, PlannerSettings
+from core.policies.acquisition import IntegratedVarianceReduction, LatticeSubset
 from core.policies.base import ModulusView
-from core.policies.scattered import REFERENCE_N, _Ivr
+from core.policies.greedy import GreedyIvr
 from core.policies.variance import design_rel_error
 from core.runview import Command, CommandKind
 from drivers.sim.scenarios import make_scenario
@@ -75,11 +76,13 @@ def test_the_planner_weighs_each_maps_progress_against_its_own_error() -> None:
     assert ctx.modulus is not None and ctx.gp is not None and ctx.prediction is not None
     cand = np.flatnonzero(c.placement_mask)[::7]
 
-    def ivr(w_h: float, w_e: float, modulus: ModulusView | None = None) -> _Ivr:
-        view = dataclasses.replace(modulus or ctx.modulus, weight_hardness=w_h, weight_modulus=w_e)
-        return _Ivr(dataclasses.replace(ctx, modulus=view), cand, 0.0)
+    even = IntegratedVarianceReduction(LatticeSubset())
 
-    hardness_only = _Ivr(dataclasses.replace(ctx, modulus=None), cand, 0.0).gains()
+    def ivr(w_h: float, w_e: float, modulus: ModulusView | None = None) -> GreedyIvr:
+        view = dataclasses.replace(modulus or ctx.modulus, weight_hardness=w_h, weight_modulus=w_e)
+        return GreedyIvr(dataclasses.replace(ctx, modulus=view), cand, even)
+
+    hardness_only = GreedyIvr(dataclasses.replace(ctx, modulus=None), cand, even).gains()
     assert np.array_equal(ivr(1.0, 0.0).gains(), hardness_only)  # a weight of 0 drops the modulus
     modulus_only = ivr(0.0, 1.0).gains()
     both = ivr(1.0, 1.0)
@@ -106,7 +109,7 @@ def test_the_planner_weighs_each_maps_progress_against_its_own_error() -> None:
     both.take(j)
     assert both.gains()[j] < 0.5 * before
     n = c.lattice.n
-    step = max(1, n // REFERENCE_N)
+    step = max(1, n // LatticeSubset().n)
     rows = np.arange(step // 2, n, step)
     ref = (rows[:, None] * n + rows[None, :]).ravel()
     for (gp, pred, xy, nv), left in zip(

@@ -33,15 +33,12 @@ def _cmd_new(args: argparse.Namespace) -> int:
 
 def allowed_lattice(sample: Any) -> tuple[np.ndarray, np.ndarray]:
     """The campaign's candidate lattice (stage µm) and which centres a run may use on this sample."""
-    from core.geometry import CandidateLattice, exclusion_mask
+    from core.geometry import CandidateLattice
     from core.policies.base import DEFAULT_PITCH_UM
 
     h = 2 * DEFAULT_PITCH_UM
     lattice = CandidateLattice.build(sample.calibration, sample.lattice_n, grid_halfwidth_um=h)
-    ok = sample.placement_mask(lattice.xy_um, h)
-    if len(sample.earlier_indents_um):
-        ok &= exclusion_mask(lattice.xy_um, sample.earlier_xy_um, sample.r_excl_um, h)
-    return lattice.xy_um, ok
+    return lattice.xy_um, sample.allowed(lattice.xy_um, h)
 
 
 def sample_facts(sample: Any) -> list[str]:

@@ -5,6 +5,9 @@
 - ``ScatteredSingles`` (``aeni``): a block is several single indents spread over the area the program can
   reach, ordered for travel; each indent is its own centre. The oracle study finds single indents about
   1.7× more informative per indent than replicate grids, and one program serves many of them.
+
+A design says what a block is; what a candidate is worth is the policy's acquisition
+(``core.policies.acquisition``), which the planner of the design is given.
 """
 
 from __future__ import annotations
@@ -33,12 +36,6 @@ class ScatteredSingles:
     # the space-filling start: this many singles on a low-discrepancy sequence before the model places any
     space_filling_indents: int = 64
     min_spacing_um: float = 15.0  # no two indents closer than this (site texture is shared below it)
-    # adaptive placement weighs the map where the model shows structure (its mean's gradient) up to this
-    # factor over flat parts; 0 is pure variance reduction (an even design under a stationary kernel)
-    structure_weight: float = 1.0
-    # where the fitted mean bends (its relative curvature, core.policies.bends) the weight grows by up to this
-    # times the bend cap: the bias a stationary GP leaves there; 0: off (as ``aeni``)
-    bend_weight: float = 0.0
     # a block adds at most this fraction to the indents the model was fitted on: pricing by gain per second
     # sees the program's overhead but not what a refit learns, so early on big blocks run on a model fitted
     # to few points (48 singles at a slow hold after the 64-indent start delayed the ternary's first maps)

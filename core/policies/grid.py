@@ -67,9 +67,7 @@ def _placeable(ctx: PlanContext, blocks: list[Block]) -> list[Block]:
         return blocks
     xy = np.array([(b.center_x_um, b.center_y_um) for b in blocks])
     h = _halfwidth_um(ctx, blocks[0].grid_g)
-    ok = sample.placement_mask(xy, h)
-    if len(sample.earlier_xy_um):
-        ok &= exclusion_mask(xy, sample.earlier_xy_um, sample.r_excl_um, h)
+    ok = sample.allowed(xy, h)
     return [b for b, keep in zip(blocks, ok, strict=True) if keep]
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from core.policies.acquisition import AcquisitionPart
+from core.policies.acquisition import Acquisition, CostWeighted, UncertaintyExploration
 from core.policies.blocks import BlockDesign, ReplicateGrid
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
@@ -16,7 +16,8 @@ from core.policies.surrogate import SurrogatePart
 class PolicyParts:
     surrogate: SurrogatePart = field(default_factory=SurrogatePart)
     noise: NoiseModel = field(default_factory=NoiseModel)
-    acquisition: AcquisitionPart = field(default_factory=AcquisitionPart)
+    # σ per second of the block's time (the paper's cost-aware rule), unless a recipe says otherwise
+    acquisition: Acquisition = field(default_factory=lambda: CostWeighted(UncertaintyExploration()))
     blocks: BlockDesign = field(default_factory=ReplicateGrid)
     hold: HoldRule = field(default_factory=HoldRule)
     guard: CollapseGuard = field(default_factory=CollapseGuard)
@@ -26,7 +27,7 @@ class PolicyParts:
         """The planner reads the fitted kernel and the tested centres' noise (variance reduction, the
         bias-aware hold's aim, scattered singles' placement)."""
         return (
-            self.acquisition.kind == "ivr"
+            self.acquisition.needs_covariance
             or self.hold.bias_aware
             or not isinstance(self.blocks, ReplicateGrid)
         )

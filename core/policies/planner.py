@@ -13,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.acquisition import ei, ucb, ue
-from core.geometry import edge_penalty
 from core.plan import BlockKind, Decision
+from core.policies.acquisition import UncertaintyExploration, variance_reduction
 from core.policies.base import (
     PlanContext,
     alternatives,
@@ -30,6 +29,12 @@ from core.policies.base import (
 from core.policies.blocks import ReplicateGrid
 from core.policies.hold import choose_hold
 from core.policies.parts import PolicyParts
+from core.policies.variance import (
+    PosteriorCov,
+    aim_rel_error,
+    median_noise_var,
+    nearest_lattice,
+)
 
 __all__ = ["BayesPlanner", "aim_rel_error", "choose_hold", "nearest_lattice"]
 
@@ -58,22 +63,10 @@ class BayesPlanner:
         self.name = name
         self.parts = parts
         self.design: ReplicateGrid = parts.blocks
-
-    # -- acquisition ---------------------------------------------------------------------------
-    def _acquisition(self, ctx: PlanContext) -> np.ndarray:
-        pred = ctx.prediction
-        assert pred is not None
-        if self.parts.acquisition.kind == "ucb":
-            acq = ucb(pred, ctx.settings.beta)
-            acq = acq - float(np.min(acq)) + 1e-9  # shift positive so acquisition / cost ranks sensibly
-        elif self.parts.acquisition.kind == "ei":
-            best = ctx.best_observed_gpa if ctx.best_observed_gpa is not None else float(np.max(pred.mean))
-            acq = ei(pred, best) + 1e-12
-        else:
-            acq = ue(pred)
-        if self.parts.acquisition.edge_penalty and ctx.settings.edge_penalty > 0:
-            acq = acq * edge_penalty(ctx.lattice.uv, strength=ctx.settings.edge_penalty)
-        return np.asarray(acq, dtype=float)
+        self.acquisition = parts.acquisition
+        # with variance reduction a grid's gain depends on its size and on the grids planned before it, so
+        # the design conditions the acquisition's covariance itself
+        self.ivr = variance_reduction(parts.acquisition)
 
     def _grid_sizes(self, ctx: PlanContext) -> np.ndarray:
         n = len(ctx.lattice.xy_um)
@@ -136,30 +129,26 @@ class BayesPlanner:
         if mask.any():
             idx = np.flatnonzero(mask)
             cost[idx] = block_costs_s(ctx, ctx.lattice.xy_um[idx], g[idx], hold, kind)
-            score[idx] = acq[idx] / cost[idx] if self.parts.acquisition.cost_aware else acq[idx]
+            score[idx] = self.acquisition.utility(acq[idx], cost[idx])
         return _Scored(score, acq, cost, g, hold)
 
     # -- scoring: integrated variance reduction (aeni-plus) --------------------------------------
     def _ivr_model(
         self, ctx: PlanContext, allowed: np.ndarray
-    ) -> tuple[object, np.ndarray, np.ndarray] | None:
-        from core.policies.variance import PosteriorCov, median_noise_var, reference_lattice
-
+    ) -> tuple[PosteriorCov, np.ndarray, np.ndarray] | None:
         pred = ctx.prediction
-        if pred is None or ctx.gp is None or ctx.tested_noise_var_gpa2 is None or len(ctx.tested_xy_um) < 2:
+        if (
+            self.ivr is None
+            or pred is None
+            or ctx.gp is None
+            or ctx.tested_noise_var_gpa2 is None
+            or len(ctx.tested_xy_um) < 2
+        ):
             return None
         idx = np.flatnonzero(allowed)
         if len(idx) == 0:
             return None
-        lat = ctx.lattice
-        ref = reference_lattice()
-        nearest = nearest_lattice(lat.uv, ref)
-        mu = np.maximum(np.abs(pred.mean[nearest]), 1e-6)
-        w = 1.0 / mu**2  # relative error: what MAPE counts
-        u, v = ctx.calibration.to_uv(ctx.tested_xy_um[:, 0], ctx.tested_xy_um[:, 1])
-        model = PosteriorCov.build(
-            ctx.gp, np.column_stack([u, v]), ctx.tested_noise_var_gpa2, lat.uv[idx], ref, w
-        )
+        model = self.ivr.covariance(ctx, pred, ctx.gp, ctx.tested_xy_um, ctx.tested_noise_var_gpa2, idx)
         noise_sd = pred.noise_sd[idx]
         # noise variance of a g×g median at every allowed candidate, one row per g
         est = self.parts.noise.centre_estimator
@@ -173,13 +162,10 @@ class BayesPlanner:
         kind: BlockKind,
         mask: np.ndarray,
         hold: float,
-        model: object,
+        model: PosteriorCov,
         idx: np.ndarray,
         nvar: np.ndarray,
     ) -> _Scored:
-        from core.policies.variance import PosteriorCov
-
-        assert isinstance(model, PosteriorCov)
         n = len(mask)
         score = np.full(n, -np.inf)
         acq = np.zeros(n)
@@ -194,7 +180,7 @@ class BayesPlanner:
             for g in g_choices:
                 gain = model.gain(nvar[g - G_MIN])[j]
                 c = block_costs_s(ctx, xy, g, hold, kind)
-                rate = gain / c
+                rate = self.acquisition.utility(gain, c)
                 better = rate > best
                 best = np.where(better, rate, best)
                 acq[idx[j]] = np.where(better, gain, acq[idx[j]])
@@ -207,7 +193,7 @@ class BayesPlanner:
         self,
         ctx: PlanContext,
         glob: _Scored,
-        model: object,
+        model: PosteriorCov,
         idx: np.ndarray,
         nvar: np.ndarray,
         allowed: np.ndarray,
@@ -215,9 +201,6 @@ class BayesPlanner:
     ) -> np.ndarray:
         """Average gain per second of the best few programs: the global grid plus the sub-grids it enables,
         chosen greedily with the posterior conditioned on the earlier picks (a jump's value is its program)."""
-        from core.policies.variance import PosteriorCov
-
-        assert isinstance(model, PosteriorCov)
         f = self.design
         rates = glob.score.copy()
         limit = ctx.settings.local_center_limit if f.local_limit is None else f.local_limit
@@ -288,7 +271,7 @@ class BayesPlanner:
 
         ivr = None
         map_rel_err: float | None = None
-        if self.parts.acquisition.kind == "ivr":
+        if self.ivr is not None:
             ivr = self._ivr_model(ctx, allowed)
         if self.parts.hold.bias_aware:
             # the aim is known once the seeds have shaped a model; the exploratory programs need not hold
@@ -298,7 +281,7 @@ class BayesPlanner:
 
         # where the program may continue, and at which hold (a running program keeps its method)
         may_stay = (
-            self.parts.acquisition.cost_aware
+            self.acquisition.cost_weighted
             and f.stay
             and ctx.program_open
             and ctx.locals_in_program < self._local_limit(ctx)
@@ -317,7 +300,8 @@ class BayesPlanner:
             glob = self._score_ivr(ctx, "global", allowed, hold, model, idx, nvar)
             loc = self._score_ivr(ctx, "local", lmask, prog_hold, model, idx, nvar)
         else:
-            acq = self._acquisition(ctx)
+            # before variance reduction can be priced (fewer than two tested centres) the map's σ stands in
+            acq = (self.acquisition if self.ivr is None else UncertaintyExploration()).values(ctx)
             g = self._grid_sizes(ctx)
             glob = self._score_sigma(ctx, "global", allowed, hold, acq, g)
             loc = self._score_sigma(ctx, "local", lmask, prog_hold, acq, g)
@@ -364,7 +348,7 @@ class BayesPlanner:
             reason = f"stay: local {what}/cost {stay_score:.3g} ≥ jump {jump_score:.3g}"
         elif stay_score is not None:
             reason = f"jump: global {what}/cost {jump_score:.3g} > local {stay_score:.3g}"
-        elif self.parts.acquisition.cost_aware:
+        elif self.acquisition.cost_weighted:
             reason = f"jump: best {what}/cost {jump_score:.3g} (no local centre available)"
         else:
             reason = f"jump to the highest σ ({chosen.acq[pick]:.3g} GPa), cost ignored"
@@ -388,33 +372,3 @@ class BayesPlanner:
             hold_mode=hold_mode if kind == "global" else f"program hold {chosen.hold_s:g} s",
             area_error_pct=err,
         )
-
-
-def aim_rel_error(ctx: PlanContext) -> float | None:
-    """The map precision aimed at: the operator's σ target if set, else what the 9×9 grid of 5×5
-    baseline would reach on this sample (relative RMS error, from the fitted kernel and noise)."""
-    from core.policies.variance import design_rel_error, median_noise_var, reference_lattice
-
-    pred = ctx.prediction
-    if pred is None:
-        return None
-    ref = reference_lattice()
-    near = nearest_lattice(ctx.lattice.uv, ref)
-    mu = np.abs(pred.mean[near])
-    if ctx.settings.sigma_target_gpa is not None:
-        return float(ctx.settings.sigma_target_gpa / max(float(np.mean(mu)), 1e-6))
-    if ctx.gp is None:
-        return None
-    axis = np.arange(1, 10) / 10.0
-    du, dv = np.meshgrid(axis, axis)
-    design = np.column_stack([du.ravel(), dv.ravel()])
-    noise = median_noise_var(pred.noise_sd[nearest_lattice(ctx.lattice.uv, design)], 25)
-    noise = noise + ctx.gp.site_var_gpa2  # the grid's medians carry the site scatter too
-    return design_rel_error(ctx.gp, design, noise, ref, mu)
-
-
-def nearest_lattice(lattice_uv: np.ndarray, pts_uv: np.ndarray) -> np.ndarray:
-    from scipy.spatial import cKDTree
-
-    _, nearest = cKDTree(lattice_uv).query(pts_uv)
-    return np.asarray(nearest, dtype=int)

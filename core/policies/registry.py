@@ -21,7 +21,13 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from core.errors import InputError
-from core.policies.acquisition import AcquisitionPart
+from core.policies.acquisition import (
+    CostWeighted,
+    EdgePenalised,
+    IntegratedVarianceReduction,
+    LatticeSubset,
+    UncertaintyExploration,
+)
 from core.policies.blocks import ReplicateGrid, ScatteredSingles
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
@@ -57,20 +63,20 @@ def _parts() -> dict[str, PolicyParts]:
     return {
         "aeni": PolicyParts(
             noise=NoiseModel(drift_correction=True, outliers="student-t"),
-            acquisition=AcquisitionPart(kind="ivr"),
+            acquisition=CostWeighted(IntegratedVarianceReduction(LatticeSubset(), structure_weight=1.0)),
             blocks=ScatteredSingles(),
             hold=HoldRule(adaptive=True, bias_aware=True),
             guard=CollapseGuard(yield_to_confirmed=True),
         ),
-        "uncertainty": PolicyParts(
-            acquisition=AcquisitionPart(cost_aware=False), blocks=replace(fixed, stay=False)
-        ),
+        "uncertainty": PolicyParts(acquisition=UncertaintyExploration(), blocks=replace(fixed, stay=False)),
         "cost-aware": PolicyParts(blocks=fixed),
         "adaptive-grid": PolicyParts(blocks=ReplicateGrid(stay=False, adaptive_grid=True)),
         "meta-grid": PolicyParts(blocks=ReplicateGrid(adaptive_grid=True, local_hop_um=500.0)),
         "adaptive-hold": PolicyParts(blocks=fixed, hold=HoldRule(adaptive=True)),
         "aeni-paper": PolicyParts(
-            acquisition=AcquisitionPart(edge_penalty=True), blocks=_PAPER_GRID, hold=HoldRule(adaptive=True)
+            acquisition=CostWeighted(EdgePenalised(UncertaintyExploration())),
+            blocks=_PAPER_GRID,
+            hold=HoldRule(adaptive=True),
         ),
     }
 
@@ -106,7 +112,7 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
     "ivr": (
         "integrated variance reduction, programs planned jointly (acquisition, block design)",
         lambda p: _grid(
-            replace(p, acquisition=replace(p.acquisition, kind="ivr", edge_penalty=False)), joint_program=True
+            replace(p, acquisition=CostWeighted(IntegratedVarianceReduction())), joint_program=True
         ),
     ),
     "tight": (
@@ -146,12 +152,12 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
     ),
     "bends": (
         "more indents where the fitted map bends (its relative curvature), the bias a stationary GP leaves "
-        "there (block design)",
-        lambda p: _singles(p, bend_weight=BENDS_WEIGHT),
+        "there (acquisition)",
+        lambda p: _ivr(p, bend_weight=BENDS_WEIGHT),
     ),
     "even": (
-        "no weighting to the map's structure: pure variance reduction (block design)",
-        lambda p: _singles(p, structure_weight=0.0),
+        "no weighting to the map's structure: pure variance reduction (acquisition)",
+        lambda p: _ivr(p, structure_weight=0.0),
     ),
 }
 
@@ -201,6 +207,16 @@ def _singles(parts: PolicyParts, **changes: object) -> PolicyParts:
     if not isinstance(parts.blocks, ScatteredSingles):
         raise InputError("--policy", "this modifier changes scattered singles, and the base has none")
     return replace(parts, blocks=replace(parts.blocks, **changes))  # type: ignore[arg-type]
+
+
+def _ivr(parts: PolicyParts, **changes: object) -> PolicyParts:
+    """One weight of the base's variance reduction changed (the same wrappers around it)."""
+    acq = parts.acquisition
+    if not isinstance(acq, CostWeighted) or not isinstance(acq.base, IntegratedVarianceReduction):
+        raise InputError(
+            "--policy", "this modifier changes variance reduction, and the base ranks by another"
+        )
+    return replace(parts, acquisition=CostWeighted(replace(acq.base, **changes)))  # type: ignore[arg-type]
 
 
 def policy_names() -> tuple[str, ...]:

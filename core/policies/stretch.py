@@ -18,17 +18,43 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from core.cost import block_costs_for
 from core.geometry import far_enough
-from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, Decision
+from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, BlockKind, Decision
 from core.policies.base import PlanContext, reachable_mask
+from core.policies.blocks import ScatteredSingles
+from core.policies.greedy import GreedyValue
+from core.policies.parts import PolicyParts
+from core.policies.singles import BOX_FRACTION, in_box, single_sites
 
-if TYPE_CHECKING:
-    from core.policies.scattered import ScatteredPlanner
+
+class ScatteredPlanner(Protocol):
+    """What a stretch asks of the scattered-singles planner (``core.policies.scattered``): its design, its
+    greedy value and how it picks and orders a block, so that a stretch's arrays are its blocks."""
+
+    name: str
+    parts: PolicyParts
+    design: ScatteredSingles
+
+    def value(self, ctx: PlanContext, cand: np.ndarray) -> tuple[GreedyValue, bool]: ...
+
+    def batch(
+        self, value: GreedyValue, xy: np.ndarray, mask: np.ndarray, first: int | None, ctx: PlanContext
+    ) -> tuple[list[int], list[float]]: ...
+
+    def block(
+        self,
+        ctx: PlanContext,
+        kind: BlockKind,
+        pts: np.ndarray,
+        hold_s: float,
+        centre: tuple[float, float] | None,
+    ) -> Block: ...
+
 
 MAX_ARRAYS = 60  # a weekend is not filled with more (the run's budget stops it earlier anyway)
 
@@ -84,8 +110,6 @@ def _arrays(
     """Arrays (block, cost, gain) until their instrument time fills ``fill_s``, the last one trimmed to the
     singles that fit (at least one program's worth), and none that cannot end by ``end_by_s``; whether they
     are the space-filling start, and the hold's mode."""
-    from core.policies.scattered import BOX_FRACTION, _in_box, _Ivr, _Maximin, _Value, single_sites
-
     d = planner.design
     cand = single_sites(ctx, d)
     if not len(cand):
@@ -93,8 +117,7 @@ def _arrays(
     hold, _, hold_mode = planner.parts.hold.choose(ctx, None, planner.parts.noise.drift_correction)
     # in the space-filling start (no model yet) the stretch is the start itself: its maximin design, which
     # asks nothing of the data, loaded in one visit, and no more of it than the start has left
-    exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
-    value: _Value = _Maximin(ctx, cand) if exploring else _Ivr(ctx, cand, d.structure_weight)
+    value, exploring = planner.value(ctx, cand)
     indents_left = max(d.space_filling_indents - len(ctx.indents_xy_um), 1) if exploring else None
     xy = ctx.lattice.xy_um[cand]
     box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
@@ -108,11 +131,11 @@ def _arrays(
         if first is None:
             break
         anchor = (float(xy[first, 0]), float(xy[first, 1]))
-        band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & _in_box(xy, anchor, box)
+        band = reachable_mask(ctx, anchor, anchor, 0.0, math.inf, idx=cand) & in_box(xy, anchor, box)
         band &= free
         band[first] = True
         # the stretch's value is conditioned on every pick: later arrays see the earlier ones' sites
-        picks, gains = planner._batch(value, xy, band, first, ctx)
+        picks, gains = planner.batch(value, xy, band, first, ctx)
         if indents_left is not None:
             picks, gains = picks[:indents_left], gains[:indents_left]
 
@@ -150,7 +173,7 @@ def _array(
     keep: int,
 ) -> tuple[Block, float]:
     """The array of the first ``keep`` sites, ordered for travel, and its instrument seconds from ``pos``."""
-    block = planner._block(ctx, "global", sites_xy_um[:keep], hold_s, anchor)
+    block = planner.block(ctx, "global", sites_xy_um[:keep], hold_s, anchor)
     return block, block_costs_for(ctx.profile, block, pos, program_open)
 
 

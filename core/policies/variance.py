@@ -15,12 +15,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import sparse
 
 from core.estimators import CentreEstimator, estimator_efficiency
 from core.policies.base import GPSummary
+
+if TYPE_CHECKING:
+    from core.policies.base import PlanContext
 
 REFERENCE_N = 12  # reference lattice per side on which the variance is integrated
 
@@ -251,3 +255,32 @@ def design_rel_error(
     post = posterior(summary, design_uv, design_noise_var)
     var = np.maximum(post.var(post.factor(ref_uv)), 0.0)
     return float(np.sqrt(np.mean(var / np.maximum(ref_mu, 1e-6) ** 2)))
+
+
+def nearest_lattice(lattice_uv: np.ndarray, pts_uv: np.ndarray) -> np.ndarray:
+    """The index of the lattice point nearest each point (u, v)."""
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(lattice_uv).query(pts_uv)
+    return np.asarray(nearest, dtype=int)
+
+
+def aim_rel_error(ctx: PlanContext) -> float | None:
+    """The map precision aimed at: the operator's σ target if set, else what the 9×9 grid of 5×5
+    baseline would reach on this sample (relative RMS error, from the fitted kernel and noise)."""
+    pred = ctx.prediction
+    if pred is None:
+        return None
+    ref = reference_lattice()
+    near = nearest_lattice(ctx.lattice.uv, ref)
+    mu = np.abs(pred.mean[near])
+    if ctx.settings.sigma_target_gpa is not None:
+        return float(ctx.settings.sigma_target_gpa / max(float(np.mean(mu)), 1e-6))
+    if ctx.gp is None:
+        return None
+    axis = np.arange(1, 10) / 10.0
+    du, dv = np.meshgrid(axis, axis)
+    design = np.column_stack([du.ravel(), dv.ravel()])
+    noise = median_noise_var(pred.noise_sd[nearest_lattice(ctx.lattice.uv, design)], 25)
+    noise = noise + ctx.gp.site_var_gpa2  # the grid's medians carry the site scatter too
+    return design_rel_error(ctx.gp, design, noise, ref, mu)

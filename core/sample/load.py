@@ -11,6 +11,7 @@ import csv
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ from core.geometry import (
     CORNER_NAMES,
     PARALLELOGRAM_WARN_FRACTION,
     Calibration,
+    CandidateLattice,
     Corner,
     _validate_corners,
     distance_to_polygon_um,
@@ -398,23 +400,19 @@ def parse_sample(data: Mapping[str, Any], source: str = "sample", base_dir: Path
 
 def _check_room(source: str, sample: Sample) -> None:
     """Refuse a sample where nothing can be indented: exclusions, edge band or earlier indents cover it all."""
-    from core.geometry import CandidateLattice, exclusion_mask
-
     try:
         lattice = CandidateLattice.build(sample.calibration, sample.lattice_n, grid_halfwidth_um=0.0)
     except InputError as exc:
         raise InputError(source, f"field corners: {exc.problem}") from None
-    ok = sample.placement_mask(lattice.xy_um, 0.0)
-    if not ok.any():
-        raise InputError(
-            source,
-            "field exclusions: the exclusion regions and the edge band cover the whole area (no candidate "
-            "centre is left)",
-        )
-    if len(sample.earlier_indents_um):
-        ok &= exclusion_mask(lattice.xy_um, sample.earlier_xy_um, sample.r_excl_um)
-        if not ok.any():
-            raise InputError(source, "field earlier: earlier indents leave no candidate centre on the sample")
+    if sample.allowed(lattice.xy_um).any():
+        return
+    if len(sample.earlier_indents_um) and replace(sample, earlier_indents_um=()).allowed(lattice.xy_um).any():
+        raise InputError(source, "field earlier: earlier indents leave no candidate centre on the sample")
+    raise InputError(
+        source,
+        "field exclusions: the exclusion regions and the edge band cover the whole area (no candidate "
+        "centre is left)",
+    )
 
 
 def check_avoided_centres(sample: Sample, centres_um: Sequence[Sequence[float]], source: str = "") -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InputError
-from core.geometry import Calibration
+from core.geometry import Calibration, exclusion_mask
 from core.profile import InstrumentProfile
 
 FloatArray = NDArray[np.float64]
@@ -106,10 +106,14 @@ class Sample:
             out = np.minimum(out, region.clearance_um(x, y))
         return out
 
-    def placement_mask(self, xy_um: FloatArray, grid_halfwidth_um: float) -> BoolArray:
-        """Centres whose whole square sub-grid (half-width h) stays off the edge band and the exclusions.
+    def allowed(self, xy_um: FloatArray, grid_halfwidth_um: float = 0.0) -> BoolArray:
+        """Where this sample may be indented: centres whose whole square sub-grid (half-width h; 0 for a
+        single indent) stays inside the area off the edge band, clear of the exclusions, within the stage
+        limits and r_excl from the indents the sample came with.
 
-        The planner's static mask; earlier indents are handled with this run's own (core.geometry.exclusion_mask).
+        The one home of this rule: the planners (through the campaign's lattice mask), the grid baseline,
+        ``aeni sample check`` and the maps all ask it. A run's own indents are the run's to avoid
+        (core.geometry.exclusion_mask).
         """
         xy = np.asarray(xy_um, dtype=float).reshape(-1, 2)
         h = max(float(grid_halfwidth_um), 0.0)
@@ -123,7 +127,10 @@ class Sample:
         clear = self.exclusion_clearance_um(xy[:, 0], xy[:, 1]) > reach
         x0, y0, x1, y1 = self.stage_rect_um
         on_stage = (xy[:, 0] - h >= x0) & (xy[:, 0] + h <= x1) & (xy[:, 1] - h >= y0) & (xy[:, 1] + h <= y1)
-        return np.asarray(inside & clear & on_stage, dtype=bool)
+        ok = inside & clear & on_stage
+        if len(self.earlier_indents_um):
+            ok &= exclusion_mask(xy, self.earlier_xy_um, self.r_excl_um, h)
+        return np.asarray(ok, dtype=bool)
 
     def to_dict(self) -> dict[str, Any]:
         """The sample file's own layout, with earlier indents inlined (the journal keeps what the run avoided)."""

@@ -12,7 +12,7 @@ import numpy as np
 
 from core.geometry import Calibration
 from core.metrics import MapScore, ScoredMap, ScoredModulusMap, mape_pct
-from drivers.sim.emulator import FloatArray, TruthField, truth_modulus_gpa, truth_on_lattice
+from drivers.sim.truth import FloatArray, TruthField, truth_modulus_gpa, truth_on_lattice
 
 
 @dataclass

@@ -27,8 +27,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from core.errors import InputError
-from drivers.sim.emulator import FloatArray, SiteTexture, TernaryField, TruthField
+from drivers.sim.fields import SiteTexture, TernaryField
 from drivers.sim.scenarios import Scenario, make_scenario
+from drivers.sim.truth import FloatArray, TruthField
 
 SIDE_UM = 1000.0
 

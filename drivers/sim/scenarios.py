@@ -16,30 +16,31 @@ from core.errors import InputError
 from core.geometry import Calibration
 from core.profile import InstrumentProfile, load_profile
 from core.sample import Sample
+from drivers.sim.drift import DRIFT_SCENARIOS, DriftModel
 from drivers.sim.driver import SimulatedDriver
-from drivers.sim.emulator import (
-    DRIFT_SCENARIOS,
-    Bounds,
-    CsvTruth,
-    DriftModel,
+from drivers.sim.emulator import Emulator
+from drivers.sim.evaluator import TruthEvaluator
+from drivers.sim.failures import FailureModes
+from drivers.sim.fields import (
     EdgeSpotField,
-    Emulator,
-    FloatArray,
-    NoiseOverride,
     PhaseBoundaryField,
     QuaternaryFilm,
     RotatedQuaternaryField,
     RoughField,
     SiteTexture,
     TernaryField,
+)
+from drivers.sim.truth import (
+    Bounds,
+    FloatArray,
+    NoiseOverride,
     TruthField,
-    _check_noise_mode,
-    _check_seed,
+    check_noise_mode,
+    check_seed,
     truth_modulus_gpa,
     truth_modulus_noise_sd_gpa,
 )
-from drivers.sim.evaluator import TruthEvaluator
-from drivers.sim.failures import FailureModes
+from drivers.sim.truth_csv import CsvTruth
 
 # the share of indents a scenario's simulated instrument fails by default (drivers.sim.failures) when a run
 # names no rate: none, so `aeni simulate` repeats `aeni run` of the same seed indent for indent
@@ -219,9 +220,9 @@ def make_scenario(
     instrument's failures, drivers.sim.failures) override its defaults."""
     if name not in SCENARIOS:
         raise InputError("scenario", f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
-    seed = _check_seed(seed)
+    seed = check_seed(seed)
     if noise is not None:
-        _check_noise_mode(noise)
+        check_noise_mode(noise)
     if drift is not None and drift not in DRIFT_SCENARIOS:
         raise InputError("drift", f"unknown drift scenario {drift!r} (known: {', '.join(DRIFT_SCENARIOS)})")
     if lateral_sd_um is not None and not (math.isfinite(lateral_sd_um) and lateral_sd_um >= 0):

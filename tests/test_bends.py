@@ -13,7 +13,7 @@ from core.campaign import Campaign, CampaignConfig
 from core.plan import IndentResult, PlannerSettings
 from core.policies.bends import BEND_CAP, bend_factor, relative_curvature
 from core.policies.registry import policy_parts
-from core.policies.scattered import _Ivr
+from core.policies.singles import _Ivr
 from drivers.sim.scenarios import make_scenario
 
 N = 41

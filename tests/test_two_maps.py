@@ -12,7 +12,7 @@ import pytest
 from core.campaign import Campaign, CampaignConfig
 from core.plan import IndentResult, MapWeights, PlannerSettings
 from core.policies.base import ModulusView
-from core.policies.scattered import REFERENCE_N, _Ivr
+from core.policies.singles import REFERENCE_N, _Ivr
 from core.policies.variance import design_rel_error
 from core.runview import Command, CommandKind
 from drivers.sim.scenarios import make_scenario

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from core.plan import Alternative, Block, Decision, IndentResult, IndentSpec, StepRecord
+from core.run.records import DriverState as DriverState
+from core.run.records import StoredCommand as StoredCommand
 from core.runview import MapFields
 
 
@@ -109,34 +111,12 @@ def utc_now() -> str:
 
 
 @dataclass(frozen=True)
-class StoredCommand:
-    """A command row as the engine sees it (``kind`` stays a string: a bad row must be rejected, not crash)."""
-
-    command_id: int
-    kind: str
-    author: str
-    uid: int
-    payload: dict[str, Any]
-    shown_scores: dict[str, Any]
-    wall_utc: str
-
-
-@dataclass(frozen=True)
 class StoredDecision:
     decision_id: int
     decision: Decision
     status: str
     needs_approval_reason: str
     t_s: float
-
-
-@dataclass(frozen=True)
-class DriverState:
-    clock_s: float
-    physics_clock_s: float | None
-    position_um: tuple[float, float]
-    program_open: bool
-    reason: str
 
 
 @dataclass(frozen=True)

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import fcntl
 import os
-import pwd
 import sqlite3
 from datetime import UTC, datetime
 from pathlib import Path
 
+from core.access import user_name as user_name
 from core.errors import InputError
 from core.runview import EngineState
 
@@ -105,13 +105,6 @@ def default_journal_path(name: str, runs_dir: str | Path = "runs") -> Path:
     safe = "".join(c if c.isalnum() or c in "-_." else "-" for c in name).strip("-.") or "run"
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     return Path(runs_dir) / f"{stamp}-{safe}.sqlite"
-
-
-def user_name(uid: int) -> str:
-    try:
-        return pwd.getpwuid(uid).pw_name
-    except KeyError:
-        return str(uid)
 
 
 def lock_path_for(path: str | Path) -> Path:

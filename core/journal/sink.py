@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from core.journal.codec import (
     APPROVAL_CATEGORY,
@@ -19,6 +19,7 @@ from core.journal.codec import (
     decision_from_dict,
     result_from_row,
 )
+from core.journal.writer import JournalWriter
 from core.plan import StepRecord
 from core.run.events import (
     ApprovalAsked,
@@ -40,9 +41,6 @@ from core.run.events import (
     Waiting,
 )
 from core.run.history import HistoryFold
-
-if TYPE_CHECKING:
-    from core.journal.writer import Journal
 
 
 def _plan(p: Any) -> tuple[int, str, dict[str, Any], Any] | None:
@@ -114,13 +112,13 @@ _WRITERS: dict[type, Callable[[Any, Any], None]] = {
 }
 
 
-def write_event(journal: Journal, event: RunEvent) -> None:
+def write_event(journal: JournalWriter, event: RunEvent) -> None:
     """One event, in one transaction, with the journal's clock set to the event's instrument time."""
     journal.note_clock(event.t_s)
     _WRITERS[type(event)](journal, event)
 
 
-def fold_history(journal: Journal) -> RunHistory | None:
+def fold_history(journal: JournalWriter) -> RunHistory | None:
     """The run so far: the journal's rows fed, kind by kind in the order written, through the fold the
     engine's events go through (core.run.history). None: no engine has run on it yet."""
     if not journal.has_history():
@@ -172,3 +170,16 @@ def fold_history(journal: Journal) -> RunHistory | None:
     if plan is not None:
         fold.planner(*plan)
     return fold.history(queued_commands=len(journal.q.unprocessed_commands()))
+
+
+class Journal(JournalWriter):
+    """A journal as the engine's run record (core.run.events.RunRecord): it takes the engine's events and
+    gives back the history a resume starts from. Create a run with :meth:`create`, reopen it with
+    :meth:`open_writer`."""
+
+    def emit(self, event: RunEvent) -> None:
+        """Write one engine event in one transaction (``write_event`` says which rows each becomes)."""
+        write_event(self, event)
+
+    def history(self) -> RunHistory | None:
+        return fold_history(self)

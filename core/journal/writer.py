@@ -10,7 +10,7 @@ import sqlite3
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Self
 
 from core.access import JOURNAL_MODE, command_channel_problem, protect, protect_side_files
 from core.errors import InputError
@@ -38,9 +38,6 @@ from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import InstrumentProfile, profile_to_dict
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import settings_to_dict
-
-if TYPE_CHECKING:
-    from core.run.events import RunEvent, RunHistory
 
 
 class JournalLockedError(InputError):
@@ -79,7 +76,7 @@ class CommandWatch:
         self.conn.close()
 
 
-class Journal:
+class JournalWriter:
     """The engine's write side. Create a run with :meth:`create`, reopen it with :meth:`open_writer`."""
 
     def __init__(self, path: Path, conn: sqlite3.Connection, lock_fd: int) -> None:
@@ -141,7 +138,7 @@ class Journal:
         name: str | None = None,
         extra: dict[str, Any] | None = None,
         group_gid: int | None = None,
-    ) -> Journal:
+    ) -> Self:
         """A new journal holding the run's configuration; returns the writer (lock held).
 
         The file is created ``0640`` and given ``group_gid`` when set (see core.access): only its owner
@@ -199,7 +196,7 @@ class Journal:
         return cls(p, cls._connect_rw(p), lock_fd)
 
     @classmethod
-    def open_writer(cls, path: str | Path) -> Journal:
+    def open_writer(cls, path: str | Path) -> Self:
         """Reopen a journal for writing (resume). Checks it read-only first and takes the engine lock."""
         p = Path(path)
         check_journal_file(p)
@@ -224,7 +221,7 @@ class Journal:
         os.close(self._lock_fd)
         self._lock_fd = None
 
-    def __enter__(self) -> Journal:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -260,17 +257,6 @@ class Journal:
     @property
     def name(self) -> str:
         return str(self.path)
-
-    def emit(self, event: RunEvent) -> None:
-        """Write one engine event in one transaction (core.journal.sink says which rows each becomes)."""
-        from core.journal.sink import write_event
-
-        write_event(self, event)
-
-    def history(self) -> RunHistory | None:
-        from core.journal.sink import fold_history
-
-        return fold_history(self)
 
     def owner_uid(self) -> int:
         return os.stat(self.path).st_uid

@@ -26,6 +26,7 @@ from core.cost import block_costs_for
 from core.geometry import far_enough
 from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, Decision
 from core.policies.base import PlanContext, reachable_mask
+from core.policies.singles import BOX_FRACTION, _in_box, _Ivr, _Maximin, _Value, single_sites
 
 if TYPE_CHECKING:
     from core.policies.scattered import ScatteredPlanner
@@ -84,8 +85,6 @@ def _arrays(
     """Arrays (block, cost, gain) until their instrument time fills ``fill_s``, the last one trimmed to the
     singles that fit (at least one program's worth), and none that cannot end by ``end_by_s``; whether they
     are the space-filling start, and the hold's mode."""
-    from core.policies.scattered import BOX_FRACTION, _in_box, _Ivr, _Maximin, _Value, single_sites
-
     d = planner.design
     cand = single_sites(ctx, d)
     if not len(cand):

@@ -25,6 +25,7 @@ import traceback
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
+from core.access import user_name
 from core.describe import describe_block
 from core.driver import (
     Driver,
@@ -39,8 +40,6 @@ from core.driver import (
 )
 from core.errors import InputError
 from core.interlock import Interlock
-from core.journal.codec import DriverState
-from core.journal.schema import user_name
 from core.metrics import MapEvaluator, MapScore
 from core.modulus import ModulusMap
 from core.plan import STRETCH_PHASE, Block, Decision, IndentResult, PlannerSettings, StepRecord
@@ -68,6 +67,7 @@ from core.run.events import (
     Waiting,
 )
 from core.run.machine import Machine, Trigger, allowed, refusal
+from core.run.records import DriverState
 from core.runview import CommandKind, EngineState, MapFields
 from core.settings import ON_TIMEOUT, check_veto, coerce_supervision
 

@@ -17,7 +17,16 @@ from typing import Any
 import numpy as np
 
 from core.errors import InputError
-from core.geometry import CORNER_NAMES, PARALLELOGRAM_WARN_FRACTION, Calibration, Corner, _validate_corners
+from core.geometry import (
+    CORNER_NAMES,
+    PARALLELOGRAM_WARN_FRACTION,
+    Calibration,
+    CandidateLattice,
+    Corner,
+    _validate_corners,
+    exclusion_mask,
+)
+from core.journal.reader import JournalReader
 from core.profile import InstrumentProfile, load_profile
 from core.sample.model import (
     UNLIMITED_STAGE_UM,
@@ -240,8 +249,6 @@ def _read_indents_csv(source: str, path: Path) -> list[tuple[float, float]]:
 
 
 def _read_journal_indents(source: str, path: Path) -> list[tuple[float, float]]:
-    from core.journal import JournalReader
-
     try:
         with JournalReader(path) as reader:
             cols, rows = reader.table("indents")
@@ -392,7 +399,6 @@ def parse_sample(data: Mapping[str, Any], source: str = "sample", base_dir: Path
 
 def _check_room(source: str, sample: Sample) -> None:
     """Refuse a sample where nothing can be indented: exclusions, edge band or earlier indents cover it all."""
-    from core.geometry import CandidateLattice, exclusion_mask
 
     try:
         lattice = CandidateLattice.build(sample.calibration, sample.lattice_n, grid_halfwidth_um=0.0)
@@ -428,3 +434,8 @@ def load_sample(path: str | Path) -> Sample:
     data.pop("source", None)
     data["source"] = str(p.resolve())
     return parse_sample(data, src, base_dir=p.parent)
+
+
+def sample_from_dict(data: Mapping[str, Any], source: str = "sample") -> Sample:
+    """Rebuild (and re-validate) a Sample from ``Sample.to_dict`` output or a parsed sample file."""
+    return parse_sample(dict(data), source)

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from core.journal import append_event
 from core.notifyconfig import NotifyConfig
 from core.runview import LogEvent
 
@@ -179,7 +180,6 @@ class AlertWatcher:
             self._journal(f"alert not sent ({kind}): {how}")
 
     def _journal(self, text: str) -> None:
-        from core.journal import append_event
 
         with contextlib.suppress(sqlite3.Error):  # the journal busy or gone: nothing more an alert can do
             append_event(self.journal, "warn", text, "alerts")

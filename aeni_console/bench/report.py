@@ -23,11 +23,14 @@ from aeni_console.bench.harness import (
     BenchConfig,
     PolicySummary,
     RunRecord,
+    flat_mape_pct,
     records_to_json,
     speedup_by_level,
     summarise,
     worst_rise,
 )
+from aeni_console.commands.common import write_atomic
+from core.policies.registry import policy_names
 
 DIVERGED_RISE = 1.5  # a run whose MAPE rises above 1.5× its best so far has diverged
 
@@ -39,7 +42,6 @@ _PALETTE = (
 
 def policy_order(names: Sequence[str]) -> list[str]:
     """The registry's policies in its order (the recommended one first), then any ablations by name."""
-    from core.policies.registry import policy_names
 
     known = [p for p in policy_names() if p in names]
     return known + sorted(set(names) - set(known))
@@ -236,7 +238,6 @@ def _resolved(summaries: Sequence[PolicySummary], key: str, flat: dict[str, floa
 
 def flat_map_errors(config: BenchConfig) -> dict[str, float]:
     """Each scenario's best constant map error, from the simulated truth (``drivers.sim``)."""
-    from aeni_console.bench.harness import flat_mape_pct
 
     out = {}
     for sc in config.scenarios:
@@ -870,7 +871,6 @@ def write_report(
     ``keep_existing_maps``: records read back from results.json carry no maps; the map figures already in
     ``out_dir`` (drawn by the run itself) stay and are referenced.
     """
-    from aeni_console.commands.common import write_atomic
 
     out_dir.mkdir(parents=True, exist_ok=True)
     # the measurements first: a figure or a table that fails to render must not take the numbers with it

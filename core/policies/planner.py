@@ -30,6 +30,7 @@ from core.policies.base import (
 from core.policies.blocks import ReplicateGrid
 from core.policies.hold import choose_hold
 from core.policies.parts import PolicyParts
+from core.policies.variance import PosteriorCov, design_rel_error, median_noise_var, reference_lattice
 
 __all__ = ["BayesPlanner", "aim_rel_error", "choose_hold", "nearest_lattice"]
 
@@ -143,7 +144,6 @@ class BayesPlanner:
     def _ivr_model(
         self, ctx: PlanContext, allowed: np.ndarray
     ) -> tuple[object, np.ndarray, np.ndarray] | None:
-        from core.policies.variance import PosteriorCov, median_noise_var, reference_lattice
 
         pred = ctx.prediction
         if pred is None or ctx.gp is None or ctx.tested_noise_var_gpa2 is None or len(ctx.tested_xy_um) < 2:
@@ -177,7 +177,6 @@ class BayesPlanner:
         idx: np.ndarray,
         nvar: np.ndarray,
     ) -> _Scored:
-        from core.policies.variance import PosteriorCov
 
         assert isinstance(model, PosteriorCov)
         n = len(mask)
@@ -215,7 +214,6 @@ class BayesPlanner:
     ) -> np.ndarray:
         """Average gain per second of the best few programs: the global grid plus the sub-grids it enables,
         chosen greedily with the posterior conditioned on the earlier picks (a jump's value is its program)."""
-        from core.policies.variance import PosteriorCov
 
         assert isinstance(model, PosteriorCov)
         f = self.design
@@ -393,7 +391,6 @@ class BayesPlanner:
 def aim_rel_error(ctx: PlanContext) -> float | None:
     """The map precision aimed at: the operator's σ target if set, else what the 9×9 grid of 5×5
     baseline would reach on this sample (relative RMS error, from the fitted kernel and noise)."""
-    from core.policies.variance import design_rel_error, median_noise_var, reference_lattice
 
     pred = ctx.prediction
     if pred is None:

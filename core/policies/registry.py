@@ -18,10 +18,13 @@ from typing import TYPE_CHECKING
 from core.errors import InputError
 from core.policies.acquisition import AcquisitionPart
 from core.policies.blocks import ReplicateGrid, ScatteredSingles
+from core.policies.grid import GridPolicy
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
 from core.policies.noise import NoiseModel
 from core.policies.parts import PolicyParts
+from core.policies.planner import BayesPlanner
+from core.policies.scattered import ScatteredPlanner
 
 if TYPE_CHECKING:
     from core.policies.base import Policy
@@ -176,9 +179,6 @@ def policy_parts(name: str) -> PolicyParts:
 
 
 def make_policy(name: str) -> Policy:
-    from core.policies.grid import GridPolicy
-    from core.policies.planner import BayesPlanner
-    from core.policies.scattered import ScatteredPlanner
 
     parts = policy_parts(name)
     if name == "grid":

@@ -23,6 +23,8 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import replace
+from datetime import datetime
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from core.access import user_name
@@ -42,6 +44,7 @@ from core.errors import InputError
 from core.interlock import Interlock
 from core.metrics import MapEvaluator, MapScore
 from core.modulus import ModulusMap
+from core.operator import OperatorAvailability, OperatorHours
 from core.plan import STRETCH_PHASE, Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.run.events import (
     ApprovalAsked,
@@ -70,6 +73,7 @@ from core.run.machine import Machine, Trigger, allowed, refusal
 from core.run.records import DriverState
 from core.runview import CommandKind, EngineState, MapFields
 from core.settings import ON_TIMEOUT, check_veto, coerce_supervision
+from core.visits import unattended_after
 
 if TYPE_CHECKING:
     from datetime import datetime
@@ -246,9 +250,6 @@ class Engine:
             self._plan_for_operator()
 
     def _plan_for_operator(self) -> None:
-        from datetime import datetime
-
-        from core.visits import unattended_after
 
         now = self._local_now or datetime.now
         operator = self.operator  # every change of the operator's availability binds these again
@@ -704,10 +705,6 @@ class Engine:
 
     def _away_until(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
         """The operator is away until a local time: nobody answers before it, so the planner plans for nobody."""
-        from dataclasses import replace
-        from datetime import datetime
-
-        from core.operator import OperatorAvailability, OperatorHours
 
         text = str(payload.get("until", ""))
         try:
@@ -1005,10 +1002,6 @@ class Engine:
         """An ``away-until`` the last engine took holds for the resumed one (the absence is not forgotten)."""
         if not isinstance(away_until, str):
             return
-        from dataclasses import replace
-        from datetime import datetime
-
-        from core.operator import OperatorAvailability, OperatorHours
 
         base = self.operator or OperatorAvailability(OperatorHours.parse("always"))
         self.operator = replace(base, away_until=datetime.fromisoformat(away_until))

@@ -23,6 +23,7 @@ from core.journal.codec import (
     to_json,
     utc_now,
 )
+from core.journal.eventlog import rebuild
 from core.journal.reader import Queries
 from core.journal.schema import (
     BUSY_TIMEOUT_MS,
@@ -86,6 +87,7 @@ class JournalWriter:
         self.q = Queries(conn, path)
         self.session_id: int | None = None
         self._t_s = 0.0
+        self._in_tx = False
 
     # -- opening ---------------------------------------------------------------------------------
     @staticmethod
@@ -203,7 +205,7 @@ class JournalWriter:
         lock_fd = cls._take_lock(p, gid=p.stat().st_gid)
         try:
             conn = cls._connect_rw(p)
-            migrate(conn)
+            migrate(conn, rebuild)
         except BaseException:
             os.close(lock_fd)
             raise
@@ -230,13 +232,24 @@ class JournalWriter:
     # -- writing ---------------------------------------------------------------------------------
     @contextlib.contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
+        """One transaction; inside another (an event and the rows it becomes), part of that one."""
+        if self._in_tx:
+            yield self.conn
+            return
         self.conn.execute("BEGIN IMMEDIATE")
+        self._in_tx = True
         try:
             yield self.conn
         except BaseException:
+            self._in_tx = False
             self.conn.execute("ROLLBACK")
             raise
+        self._in_tx = False
         self.conn.execute("COMMIT")
+
+    def transaction(self) -> contextlib.AbstractContextManager[sqlite3.Connection]:
+        """The writer's transaction, for a caller that writes several rows as one (core.journal.sink)."""
+        return self._tx()
 
     def has_history(self) -> bool:
         """Whether an engine has run on this journal before (then the next one resumes it)."""

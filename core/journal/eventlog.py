@@ -243,12 +243,12 @@ def decode(kind: str, t_s: float, body: str) -> RunEvent:
     return _DECODE[kind](t_s, json.loads(body))
 
 
-def append(conn: sqlite3.Connection, event: RunEvent, rebuilt: bool = False) -> None:
-    """One event row (inside the caller's transaction)."""
+def append(conn: sqlite3.Connection, event: RunEvent, wall_utc: str, rebuilt: bool = False) -> None:
+    """One event row (inside the caller's transaction), stamped with the writer's wall clock."""
     kind, t_s, body = encode(event)
     conn.execute(
         "INSERT INTO run_events (kind, t_s, wall_utc, body_json, rebuilt) VALUES (?, ?, ?, ?, ?)",
-        (kind, t_s, utc_now(), body, int(rebuilt)),
+        (kind, t_s, wall_utc, body, int(rebuilt)),
     )
 
 
@@ -362,4 +362,4 @@ def _plans_by_block(conn: sqlite3.Connection) -> dict[tuple[int, str | None], Pl
 def rebuild(conn: sqlite3.Connection) -> None:
     """Fill an empty event log from the tables of a journal made before it (inside the caller's transaction)."""
     for event in events_from_tables(conn):
-        append(conn, event, rebuilt=True)
+        append(conn, event, utc_now(), rebuilt=True)

@@ -9,7 +9,6 @@ module is where each one becomes rows.
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Callable
 from typing import Any
 
@@ -17,7 +16,7 @@ from core.driver import InstrumentWait
 from core.journal.codec import (
     APPROVAL_CATEGORY,
 )
-from core.journal.eventlog import append, read_events
+from core.journal.eventlog import read_events
 from core.journal.writer import JournalWriter
 from core.run.events import (
     ApprovalAsked,
@@ -46,18 +45,18 @@ def _plan(p: Any) -> tuple[int, str, dict[str, Any], Any] | None:
 
 
 def _waiting(j: Any, e: Waiting) -> None:
-    """What the instrument wait says is logged by the engine (Logged events); the wait itself is the state."""
+    """The wait itself is its row in the event log (the console reads it there); what it says for the log
+    panel the engine logs (Logged events)."""
 
 
 def _approval_asked(j: Any, e: ApprovalAsked) -> None:
-    """A log row the console counts down from: its wall time plus ``timeout_s`` is the deadline."""
-    detail = {"decision_id": e.decision_id, "timeout_s": e.timeout_s, "on_timeout": e.on_timeout}
+    """A line for the log panel (the console counts down from the event itself: its wall time plus
+    ``timeout_s``)."""
     j.log(
         "info",
         f"decision {e.decision_id} waits {e.timeout_s:g} s for an answer, then: {e.on_timeout}",
         category=APPROVAL_CATEGORY,
         block_id=e.block_id,
-        detail=json.dumps(detail),
     )
 
 
@@ -114,9 +113,9 @@ def write_event(journal: JournalWriter, event: RunEvent) -> None:
     """One event, in one transaction: its row in the event log and the rows the readers query, with the
     journal's clock set to the event's instrument time."""
     journal.note_clock(event.t_s)
-    with journal.transaction() as conn:
+    with journal.transaction():
         _WRITERS[type(event)](journal, event)
-        append(conn, event)
+        journal.record_event(event)
 
 
 def fold_history(journal: JournalWriter) -> RunHistory | None:

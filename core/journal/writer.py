@@ -23,7 +23,7 @@ from core.journal.codec import (
     to_json,
     utc_now,
 )
-from core.journal.eventlog import rebuild
+from core.journal.eventlog import append, rebuild
 from core.journal.reader import Queries
 from core.journal.schema import (
     BUSY_TIMEOUT_MS,
@@ -37,6 +37,7 @@ from core.journal.schema import (
 )
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import InstrumentProfile, profile_to_dict
+from core.run.events import RunEvent
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import settings_to_dict
 
@@ -250,6 +251,11 @@ class JournalWriter:
     def transaction(self) -> contextlib.AbstractContextManager[sqlite3.Connection]:
         """The writer's transaction, for a caller that writes several rows as one (core.journal.sink)."""
         return self._tx()
+
+    def record_event(self, event: RunEvent) -> None:
+        """The event's row in the event log (core.journal.eventlog)."""
+        with self._tx() as c:
+            append(c, event, utc_now())
 
     def has_history(self) -> bool:
         """Whether an engine has run on this journal before (then the next one resumes it)."""

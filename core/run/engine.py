@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 import os
 import threading
@@ -707,7 +706,6 @@ class Engine:
                 + ("" if wait.started else " (start not confirmed)"),
                 category="instrument",
                 block_id=wait.block_id,
-                detail=json.dumps(dataclasses.asdict(wait)),
             )
         self._checkpoint_while_paused()
 

@@ -23,12 +23,11 @@ from core.cost import indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.geometry import CandidateLattice
-from core.journal.codec import decision_from_dict
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
 from core.operator import LoadWindow
-from core.plan import Block, Decision, IndentResult, PlannerSettings
+from core.plan import Block, Decision, IndentResult, PlannerSettings, decision_from_dict
 from core.policies.base import (
     DEFAULT_PITCH_UM,
     GPSummary,

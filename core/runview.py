@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,9 +18,7 @@ from core.plan import Block, Decision, IndentSpec, PlannerSettings
 # the state machine's names, re-exported for the read side
 from core.run.machine import CommandKind as CommandKind
 from core.run.machine import EngineState as EngineState
-
-if TYPE_CHECKING:  # a snapshot carries the run's Sample; the sample loader reads earlier journals' indents
-    from core.sample.model import Sample
+from core.sample.model import Sample
 
 
 @dataclass(frozen=True)

@@ -143,3 +143,29 @@ def test_a_journal_made_before_the_log_gets_it_rebuilt_once(tmp_path: Path) -> N
         len(history.open_block[1]) if history.open_block else 0
     )
     assert indents == 1  # the old run was stopped after its first indent
+
+
+def test_a_sample_counts_the_indents_of_an_earlier_journal_and_refuses_a_file_that_is_none(
+    tmp_path: Path,
+) -> None:
+    """The sample reads an earlier run's indents from its journal's indents table (the journal's public
+    format: core.sample needs none of the journal's code, so the journal stays the layer above it)."""
+    import tomllib
+
+    from test_engine import run_engine
+
+    from core.errors import InputError
+    from core.journal import JournalReader
+    from core.sample import SAMPLE_TEMPLATE, parse_sample
+
+    _, journal = run_engine(tmp_path, FakeCampaign(n_blocks=2))
+    with JournalReader(journal) as r:
+        made = [(x.actual_x_um, x.actual_y_um) for x in r.results()]
+    data = tomllib.loads(SAMPLE_TEMPLATE)
+    data["earlier"] = {"journals": [journal.name]}
+    sample = parse_sample(data, "s.toml", base_dir=tmp_path)
+    assert len(made) == 8 and sorted(sample.earlier_indents_um) == sorted(made)
+    (tmp_path / "notes.sqlite").write_text("not a journal at all" * 20)
+    data["earlier"] = {"journals": ["notes.sqlite"]}
+    with pytest.raises(InputError, match=r"field earlier\.journals: .*notes\.sqlite: not a readable journal"):
+        parse_sample(data, "s.toml", base_dir=tmp_path)

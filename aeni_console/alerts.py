@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 
+from core.journal import append_event
 from core.notifyconfig import NotifyConfig, import_apprise
 from core.runview import LogEvent
 
@@ -255,7 +256,6 @@ class AlertWatcher:
             self._journal(f"alert not sent ({kind}): {how}")
 
     def _journal(self, text: str) -> None:
-        from core.journal import append_event
 
         with contextlib.suppress(sqlite3.Error):  # the journal busy or gone: nothing more an alert can do
             append_event(self.journal, "warn", text, "alerts")

@@ -12,6 +12,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterable
+from datetime import datetime
 from typing import ClassVar
 
 from textual import work
@@ -35,6 +36,8 @@ from aeni_console.widgets.mapview import MapPanel
 from aeni_console.widgets.queue import QueuePanel
 from aeni_console.widgets.status import StatusBar
 from aeni_console.widgets.ticket import AskScreen, TicketPanel
+from core.errors import InputError
+from core.operator import parse_when
 from core.run.machine import allowed
 from core.runview import Command, CommandKind, EngineState, RunSnapshot
 
@@ -523,10 +526,6 @@ class ConsoleApp(App[None]):
         )
 
     def action_away_until(self) -> None:
-        from datetime import datetime
-
-        from core.errors import InputError
-        from core.operator import parse_when
 
         def send(text: str) -> None:
             try:

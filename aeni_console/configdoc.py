@@ -24,6 +24,12 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 from pydantic_core import PydanticUndefined
 
+from core.errors import InputError
+from core.plan import PlannerSettings
+from core.runconfig import RunFile
+from core.sample import SAMPLE_TEMPLATE, parse_sample
+from core.settings import RULE_BY_NAME
+
 DOC_PATH = Path(__file__).resolve().parents[1] / "docs" / "config.md"
 _REFUSED_PROBE = "\x00not-a-value"
 
@@ -165,14 +171,12 @@ def _default(field: Any) -> str:
 
 
 def _setting_rule(name: str) -> Any | None:
-    from core.settings import RULE_BY_NAME
 
     return RULE_BY_NAME.get(name)
 
 
 def _rule_row(dotted: str, rule: Any, meaning: str) -> tuple[str, str, str, str, str]:
     """A planner knob from its rule (core.settings) and the PlannerSettings default."""
-    from core.plan import PlannerSettings
 
     kind = {"number": "number", "whole": "whole number", "choice": "text", "hold": "number", "clock": "text"}[
         rule.kind
@@ -219,8 +223,6 @@ def _table(rows: list[tuple[str, str, str, str, str]]) -> list[str]:
 
 def _refusal(data: dict[str, Any]) -> str:
     """The sample validator's one line for ``data`` (which must be refused)."""
-    from core.errors import InputError
-    from core.sample import parse_sample
 
     try:
         parse_sample(data, "probe")
@@ -256,7 +258,6 @@ def _template_comments(template: str) -> dict[str, str]:
 
 def sample_rows() -> list[tuple[str, str, str]]:
     """(dotted name, default, meaning) for every field the sample validator accepts."""
-    from core.sample import SAMPLE_TEMPLATE, parse_sample
 
     example = tomllib.loads(SAMPLE_TEMPLATE)
     minimal = {"name": "probe", "corners": example["corners"]}
@@ -292,8 +293,6 @@ def sample_rows() -> list[tuple[str, str, str]]:
 
 def render() -> str:
     """The whole of docs/config.md."""
-    from core.runconfig import RunFile
-    from core.sample import SAMPLE_TEMPLATE
 
     rows = field_rows(RunFile)
     sections: dict[str, list[tuple[str, str, str, str, str]]] = {}

@@ -13,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from core.campaign import Campaign, campaign_config_from_dict
+from core.journal import JournalReader
+
 FINAL_MAP_COLUMNS: tuple[str, ...] = (
     "x_um",
     "y_um",
@@ -52,8 +55,6 @@ class FinalMaps:
 
 def final_maps(path: str | Path) -> FinalMaps | None:
     """Both maps of the run at ``path``, or None when it has no hardness map yet (fewer than 2 centres)."""
-    from core.campaign import Campaign, campaign_config_from_dict
-    from core.journal import JournalReader
 
     with JournalReader(path) as r:
         config = campaign_config_from_dict(dict(r.meta["config"]))

@@ -17,7 +17,7 @@ from pathlib import Path
 from core.errors import InputError
 from core.journal import JournalReader, engine_running, send_command
 from core.runview import Command, IndentMark, MapFields, RunSnapshot
-from core.sample.model import Sample, sample_from_dict
+from core.sample import Sample, sample_from_dict
 
 
 def journal_sample(reader: JournalReader) -> Sample | None:

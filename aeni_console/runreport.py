@@ -17,7 +17,14 @@ from typing import Any
 
 import numpy as np
 
+from aeni_console.commands.common import check_out_folder, write_atomic
+from aeni_console.finalmaps import final_maps
+from core.campaign import campaign_config_from_dict
 from core.errors import InputError
+from core.journal import JournalReader
+from core.sample import sample_from_dict
+from drivers.registry import sim_scenario
+from drivers.sim.emulator import truth_modulus_gpa
 
 FIGURE_DPI = 110
 LEDGER_ORDER = ("setup", "lift", "move", "engage", "drift", "indent", "hold", "reconfigure", "comeback")
@@ -95,7 +102,6 @@ class RunData:
 
 def read_run(path: str | Path) -> RunData:
     """Read a journal read-only into RunData (any state: a running engine keeps writing meanwhile)."""
-    from core.journal import JournalReader
 
     p = Path(path)
     with JournalReader(p) as r:
@@ -172,7 +178,6 @@ def read_run(path: str | Path) -> RunData:
             stop_reason=str(row.get("stop_reason") or ""),
             recorded_mape_pct=recorded,
         )
-    from aeni_console.finalmaps import final_maps
 
     data.final_maps = final_maps(p)
     return data
@@ -180,7 +185,6 @@ def read_run(path: str | Path) -> RunData:
 
 def _sample(meta: dict[str, Any]) -> Any | None:
     """The Sample the run indented, as its journal holds it (None for a journal without one)."""
-    from core.sample import sample_from_dict
 
     raw = (meta.get("config") or {}).get("sample")
     return None if raw is None else sample_from_dict(raw, "journal sample")
@@ -198,8 +202,6 @@ def truth_mape_pct(data: RunData) -> tuple[float, int] | None:
     """
     if data.driver != "sim" or data.final_map is None:
         return None
-    from core.campaign import campaign_config_from_dict
-    from drivers.registry import sim_scenario
 
     cfg = campaign_config_from_dict(data.config)
     scenario = sim_scenario(cfg.driver_options, cfg.seed, cfg.sample)
@@ -381,9 +383,6 @@ def modulus_mape_pct(data: RunData) -> tuple[float, int] | None:
     fm = data.final_maps
     if data.driver != "sim" or fm is None or not np.isfinite(fm.modulus_mean_gpa).any():
         return None
-    from core.campaign import campaign_config_from_dict
-    from drivers.registry import sim_scenario
-    from drivers.sim.emulator import truth_modulus_gpa
 
     cfg = campaign_config_from_dict(data.config)
     scenario = sim_scenario(cfg.driver_options, cfg.seed, cfg.sample)
@@ -672,7 +671,6 @@ def write_report(path: str | Path, out_dir: str | Path) -> list[Path]:
 
 def render_report(data: RunData, out_dir: str | Path) -> list[Path]:
     """The figures and the summary of a run already read."""
-    from aeni_console.commands.common import check_out_folder, write_atomic
 
     plt = _pyplot()
     out = check_out_folder(out_dir)

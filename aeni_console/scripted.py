@@ -13,6 +13,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from aeni_console.commands.run import run_engine
+from core.journal import JournalReader, send_command
+from core.runconfig import load_run_config
+from core.runview import Command, CommandKind, EngineState
+
 
 def run_supervised(
     journal: str | Path,
@@ -21,10 +26,6 @@ def run_supervised(
     timeout_s: float = 300.0,
 ) -> Path:
     """Run ``aeni run`` (with ``overrides`` such as ``planner.budget_s``) supervised to its end; returns the journal."""
-    from aeni_console.commands.run import run_engine
-    from core.journal import JournalReader, send_command
-    from core.runconfig import load_run_config
-    from core.runview import Command, CommandKind, EngineState
 
     path = Path(journal)
     rc = load_run_config(None, {**overrides, "run.supervision": "supervised"})

@@ -81,3 +81,11 @@ def command_channel_problem(journal: str | Path, owner_uid: int) -> str:
                 f"chmod {JOURNAL_MODE:o} it"
             )
     return ""
+
+
+def user_name(uid: int) -> str:
+    """The login name of a uid (the uid itself when the machine has no entry for it)."""
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return str(uid)

@@ -23,12 +23,11 @@ from core.cost import indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
 from core.geometry import CandidateLattice
-from core.journal.codec import decision_from_dict
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
 from core.operator import LoadWindow
-from core.plan import Block, Decision, IndentResult, PlannerSettings
+from core.plan import Block, Decision, IndentResult, PlannerSettings, decision_from_dict
 from core.policies.base import (
     DEFAULT_PITCH_UM,
     GPSummary,
@@ -38,6 +37,8 @@ from core.policies.base import (
     base_mask,
 )
 from core.policies.registry import RECOMMENDED, RunFacts, make_policy
+from core.policies.stretch import renumbered
+from core.policies.variance import median_noise_var
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
 from core.sample import Sample, check_avoided_centres, grid_baseline_s, sample_from_dict
@@ -232,7 +233,6 @@ class Campaign:
         """Noise variance of each centre's value as the model sees it: eff(n)·σ²(x)/n (+ the site scatter)."""
         if self.prediction is None or not self.centres:
             return None
-        from core.policies.variance import median_noise_var
 
         xy = np.array([(c.x_um, c.y_um) for c in self.centres])
         sd = self.predict_stage(xy[:, 0], xy[:, 1]).noise_sd
@@ -249,7 +249,6 @@ class Campaign:
         hyper, scale = m.surrogate.hyperparameters, m.surrogate.outputscale_gpa2
         if hyper is None or scale is None:
             return None
-        from core.policies.variance import median_noise_var
 
         xy = m.xy_um()
         u, v = self.calibration.to_uv(xy[:, 0], xy[:, 1])
@@ -383,8 +382,6 @@ class Campaign:
         if self.last_stop_reason is not None:
             return None
         if self._stretch:  # the next array of a loaded stretch
-            from core.policies.stretch import renumbered
-
             return self._fit_budgets(
                 renumbered(self._stretch.pop(0), block_id), clock_s, position_um, program_open
             )
@@ -396,8 +393,6 @@ class Campaign:
         if ctx.prefer_xy_um is None and isinstance(self.policy, PlansStretches):
             arrays = self.policy.propose_stretch(ctx)
         if arrays:
-            from core.policies.stretch import renumbered
-
             # the arrays run one after another: their block ids are known now, so their tickets can all go
             # out with the first (the operator loads the stretch in one visit)
             self._stretch = [renumbered(a, block_id + k) for k, a in enumerate(arrays[1:], start=1)]

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
-from core.plan import LEDGER_CATEGORIES, Block, IndentSpec, StepRecord
+from core.plan import LEDGER_CATEGORIES, Block, IndentSpec, StepRecord, local_grid
 from core.profile import InstrumentProfile
 
 
@@ -180,7 +180,6 @@ def grid_baseline_blocks(
     origin_um: tuple[float, float] = (0.0, 0.0),
 ) -> list[Block]:
     """The paper's grid baseline: n×n blocks of g×g, centres evenly spaced inside the area, snake order."""
-    from core.plan import local_grid
 
     blocks: list[Block] = []
     step_x = area_x_um / (n_blocks + 1)

@@ -7,8 +7,8 @@ and the console can show it without knowing who made it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Literal
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal
 
 BlockKind = Literal["global", "local"]
 # what became of a commanded indent: only a measured one carries numbers the model may learn from.
@@ -250,3 +250,27 @@ def local_grid(
                 )
             )
     return tuple(out)
+
+
+# -- plans in and out of JSON (the journal, the planner's saved state) ----------------------------------
+def block_from_dict(d: dict[str, Any]) -> Block:
+    return Block(
+        block_id=int(d["block_id"]),
+        kind=d["kind"],
+        center_x_um=float(d["center_x_um"]),
+        center_y_um=float(d["center_y_um"]),
+        grid_g=int(d["grid_g"]),
+        pitch_um=float(d["pitch_um"]),
+        hold_s=float(d["hold_s"]),
+        indents=tuple(
+            IndentSpec(float(s["x_um"]), float(s["y_um"]), float(s["hold_s"])) for s in d["indents"]
+        ),
+    )
+
+
+def decision_from_dict(d: dict[str, Any]) -> Decision:
+    kw = dict(d)
+    kw["block"] = block_from_dict(d["block"])
+    kw["alternatives"] = tuple(Alternative(**a) for a in d.get("alternatives", ()))
+    known = {f.name for f in fields(Decision)}
+    return Decision(**{k: v for k, v in kw.items() if k in known})

@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
+from core.access import journal_gid
+from core.campaign import CampaignConfig
 from core.errors import InputError
 from core.notifyconfig import (
     DEFAULT_INSTRUMENT_SILENCE_S,
@@ -30,6 +32,9 @@ from core.notifyconfig import (
     NotifyConfig,
     make_notify_config,
 )
+from core.operator import OperatorAvailability, OperatorHours
+from core.policies.registry import policy_names, policy_parts
+from core.sample import check_avoided_centres, load_sample
 from core.settings import (
     ADJUSTABLE,
     SUPERVISION_MODES,
@@ -72,8 +77,6 @@ class CampaignSection(_Strict):
     @field_validator("policy")
     @classmethod
     def _policy(cls, v: str) -> str:
-        from core.errors import InputError
-        from core.policies.registry import policy_names, policy_parts
 
         names = policy_names()
         if v.split("+")[0] not in names:
@@ -156,7 +159,6 @@ class OperatorSection(_Strict):
     @field_validator("hours")
     @classmethod
     def _hours(cls, v: str) -> str:
-        from core.operator import OperatorHours
 
         try:
             OperatorHours.parse(v)
@@ -165,7 +167,6 @@ class OperatorSection(_Strict):
         return v
 
     def availability(self) -> OperatorAvailability:
-        from core.operator import OperatorAvailability, OperatorHours
 
         return OperatorAvailability(
             OperatorHours.parse(self.hours), self.response_min * 60.0, self.visit_every_min * 60.0
@@ -253,7 +254,6 @@ def parse_run_config(
     base_dir: Path | None = None,
 ) -> RunConfig:
     """Validate a parsed TOML table (plus dotted-key overrides such as ``campaign.seed``)."""
-    from core.campaign import CampaignConfig
 
     merged = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     for dotted, value in (overrides or {}).items():
@@ -274,8 +274,6 @@ def parse_run_config(
         truth_csv = str((base_dir / truth_csv).resolve())  # relative to the config file
     sample = None
     if rf.sample.file is not None:
-        from core.sample import check_avoided_centres, load_sample
-
         file = Path(rf.sample.file)
         if base_dir is not None and not file.is_absolute() and (overrides or {}).get("sample.file") is None:
             file = base_dir / file  # relative to the config file (a --sample flag: to the working directory)
@@ -315,8 +313,6 @@ def parse_run_config(
         driver_options=driver_options,
     )
     if r.group is not None:
-        from core.access import journal_gid
-
         journal_gid(r.group, f"{source}: field run.group")  # an unusable group is refused before the run
     options = RunOptions(
         driver=r.driver,

@@ -99,7 +99,8 @@ class ApprovalDeadline:
 
     @staticmethod
     def from_record(wall_utc: str, detail: str) -> ApprovalDeadline:
-        """The journal's row of an ApprovalAsked event: the wait began at its wall time."""
+        """An ApprovalAsked event as the journal logs it (its wall time and its fields as JSON): the wait
+        began at its wall time."""
         d = json.loads(detail)
         began = datetime.fromisoformat(wall_utc.replace("Z", "+00:00")).timestamp()
         return ApprovalDeadline(int(d["decision_id"]), began + float(d["timeout_s"]), str(d["on_timeout"]))
@@ -166,10 +167,3 @@ class MapFields:
     # the modulus map (issue 27), where the run learns one: its mean and epistemic sd, GPa
     modulus_mean_gpa: np.ndarray | None = None
     modulus_sd_gpa: np.ndarray | None = None
-
-
-def instrument_wait_from_json(text: str) -> InstrumentWait:
-    """The journal's copy of a driver's InstrumentWait (the engine stores it as JSON)."""
-    d = json.loads(text)
-    d["notes"] = tuple(d.get("notes", ()))
-    return InstrumentWait(**d)

@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 from core.errors import InputError
 from core.plan import MAPS, MapWeights, PlannerSettings
+from core.policies.registry import policy_parts
 
 HOLD_POLICIES: tuple[str, ...] = ("fixed", "adaptive")
 SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
@@ -208,7 +209,6 @@ def policy_hold(policy: str) -> Literal["policy", "fixed", "either"]:
     """Which hold settings a planning policy honours: ``policy`` (it chooses every hold from the drift, so
     neither hold_policy nor fixed_hold_s is in force), ``fixed`` (always fixed_hold_s: the grid) or
     ``either`` (hold_policy picks fixed or adaptive)."""
-    from core.policies.registry import policy_parts  # the registry loads the model: only when asked
 
     if policy == "grid":
         return "fixed"

@@ -287,7 +287,7 @@ def test_unknown_schema_version_is_refused(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(InputError) as info:
         JournalReader(path)
-    assert "schema version 1 is not supported (this program reads version 4" in str(info.value)
+    assert "schema version 1 is not supported (this program reads version 5" in str(info.value)
     assert "docs/journal.md" in str(info.value) and "\n" not in str(info.value)
 
 
@@ -432,7 +432,8 @@ def test_a_corrupt_wal_mode_copy_gets_no_sidecar_files(tmp_path: Path) -> None:
 
 
 def test_a_version_3_journal_is_read_and_converted_on_resume(tmp_path: Path) -> None:
-    """Schema 4 adds the 'unverified' status: a version 3 journal still opens, and a resume converts it."""
+    """Schema 4 adds the 'unverified' status (5 the event log): a version 3 journal still opens, and a resume
+    converts it."""
     path = tmp_path / "v3.sqlite"
     with make_journal(path) as j:
         fill(j, 1)
@@ -442,7 +443,7 @@ def test_a_version_3_journal_is_read_and_converted_on_resume(tmp_path: Path) -> 
     conn.executescript(
         f"PRAGMA foreign_keys = OFF; {v3.replace('CREATE TABLE indents', 'CREATE TABLE old', 1)};"
         "INSERT INTO old SELECT * FROM indents; DROP TABLE indents; ALTER TABLE old RENAME TO indents;"
-        "UPDATE schema_version SET version = 3;"
+        "DROP TABLE run_events; UPDATE schema_version SET version = 3;"  # the event log came with 5
     )
     conn.close()
     assert len(JournalReader(path).results()) == 25
@@ -453,4 +454,4 @@ def test_a_version_3_journal_is_read_and_converted_on_resume(tmp_path: Path) -> 
     reader = JournalReader(path)
     assert [r.status for r in reader.results()].count("unverified") == 1 and len(reader.results()) == 26
     version = sqlite3.connect(path).execute("SELECT version FROM schema_version").fetchone()[0]
-    assert version == 4
+    assert version == 5

@@ -176,11 +176,12 @@ def test_waiting_for_instrument_takes_the_token_by_aeni_send(
         assert "'WRONG' is not block 0's token" in outcomes[0][1] and "already reported" in outcomes[2][1]
         assert outcomes[1][1] == "block 0: array started (token confirmed)"
 
-        # the ticket's text is in the journal for the console (the next poll shows the start), without its token
+        # the ticket's text is in the journal for the console (the next poll shows the start), without its
+        # token: the engine's Waiting events in the journal's event log
         def details() -> list[dict[str, object]]:
             with sqlite3.connect(journal) as conn:
-                q = "SELECT detail FROM events WHERE category = 'instrument' AND detail IS NOT NULL"
-                return [json.loads(d) for (d,) in conn.execute(q)]
+                q = "SELECT body_json FROM run_events WHERE kind = 'Waiting' ORDER BY seq"
+                return [json.loads(d)["wait"] for (d,) in conn.execute(q)]
 
         wait_for(lambda: details()[-1]["started"])
         assert details()[-1]["started"] and token not in str(details()[-1]["ticket"])

@@ -535,7 +535,7 @@ def test_aeni_goes_off_the_spaced_sites_only_when_none_is_left() -> None:
 
 
 def test_travel_order_visits_points_on_a_line_in_order() -> None:
-    from core.policies.scattered import travel_order
+    from core.policies.singles import travel_order
 
     _, ctx = _context_after("aeni", blocks=1)
     xs = np.array([700.0, 100.0, 400.0, 300.0, 600.0, 200.0, 500.0])

@@ -32,11 +32,13 @@ from aeni_console.bench.harness import (
     BenchConfig,
     PolicySummary,
     RunRecord,
+    flat_mape_pct,
     records_to_json,
     speedup_by_level,
     summarise,
     worst_rise,
 )
+from aeni_console.commands.common import write_atomic
 
 DIVERGED_RISE = 1.5  # a run whose MAPE rises above 1.5× its best so far has diverged
 
@@ -212,7 +214,6 @@ def _resolved(summaries: Sequence[PolicySummary], key: str, flat: dict[str, floa
 
 def flat_map_errors(config: BenchConfig) -> dict[str, float]:
     """Each scenario's best constant map error, from the simulated truth (``drivers.sim``)."""
-    from aeni_console.bench.harness import flat_mape_pct
 
     out = {}
     for sc in config.scenarios:
@@ -694,7 +695,6 @@ def write_report(
     ``keep_existing_maps``: records read back from results.json carry no maps; the map figures already in
     ``out_dir`` (drawn by the run itself) stay and are referenced.
     """
-    from aeni_console.commands.common import write_atomic
 
     out_dir.mkdir(parents=True, exist_ok=True)
     # the measurements first: a figure or a table that fails to render must not take the numbers with it

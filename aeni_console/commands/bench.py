@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import json
+import shutil
 import sys
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
-from aeni_console.commands.common import map_weights_arg
+from aeni_console.bench.harness import BenchConfig, RunRecord, merge_results, records_from_json, run_bench
+from aeni_console.bench.report import write_report
+from aeni_console.commands.common import add_operator_args, map_weights_arg, operator_calendar, whole_number
 from core.errors import InputError
+from core.settings import settings_from_dict
+from drivers.sim.failures import FailureModes
 
 
 def _handler(args: argparse.Namespace) -> int:
-    from aeni_console.bench.harness import BenchConfig, RunRecord, run_bench
-    from aeni_console.bench.report import write_report
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -28,16 +32,11 @@ def _handler(args: argparse.Namespace) -> int:
     if args.lattice is not None:
         config = replace(config, lattice_n=args.lattice)
     if args.failure_rate is not None:
-        from drivers.sim.failures import FailureModes
-
         FailureModes.at_rate(args.failure_rate, 0)  # refuse a bad rate before anything runs
         config = replace(config, failure_rate=args.failure_rate)
     if args.map_weights is not None:
-        from core.settings import settings_from_dict
-
         settings_from_dict({"map_weights": args.map_weights})  # refuse bad weights before anything runs
         config = replace(config, map_weights=args.map_weights)
-    from aeni_console.commands.common import operator_calendar
 
     calendar = operator_calendar(args)
     if calendar is not None:
@@ -78,11 +77,6 @@ def _handler(args: argparse.Namespace) -> int:
 def _render(sources: list[Path], out: Path) -> int:
     """The report again from one run's results.json (after a change to the report, or if rendering failed),
     or from several merged (a sweep run in pieces). The map figures of each part are carried over."""
-    import json
-    import shutil
-
-    from aeni_console.bench.harness import merge_results, records_from_json
-    from aeni_console.bench.report import write_report
 
     if not sources:
         raise InputError("--render-from", "name at least one results.json")
@@ -114,7 +108,6 @@ def _render(sources: list[Path], out: Path) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from aeni_console.commands.common import whole_number
 
     p = sub.add_parser(
         "bench", help="benchmark the policies on the emulator (RESULTS.md, results.json, figures)"
@@ -172,7 +165,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the planner's map_weights, and score the modulus map too: each policy's time to both grids' "
         "final MAPEs (default: hardness=1,modulus=1, the product's; modulus=0: hardness only, no modulus scored)",
     )
-    from aeni_console.commands.common import add_operator_args
 
     add_operator_args(p)
     p.add_argument("--out", default="bench-out", help="folder for RESULTS.md, results.json and figures/")

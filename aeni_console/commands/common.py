@@ -19,6 +19,9 @@ from typing import Any
 
 from core.cost import CostLedger
 from core.errors import InputError
+from core.operator import parse_start
+from core.runconfig import load_run_config
+from core.visits import OperatorCalendar
 
 
 def _clean(obj: Any) -> Any:
@@ -233,9 +236,6 @@ def add_operator_args(p: argparse.ArgumentParser) -> None:
 def operator_calendar(args: argparse.Namespace) -> Any:
     """A core.visits.OperatorCalendar from the flags, checked as the run file's [operator] section; None when
     no flag was given (the run is not put on a calendar)."""
-    from core.operator import parse_start
-    from core.runconfig import load_run_config
-    from core.visits import OperatorCalendar
 
     flags = {
         "operator.hours": args.operator_hours,

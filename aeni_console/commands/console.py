@@ -12,24 +12,32 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from aeni_console.app import ConsoleApp
 from aeni_console.commands.common import check_new_journal, positive_float, seed_arg
+from aeni_console.commands.run import _child_env, resolve_run, start_engine_process
+from aeni_console.journal_source import JournalReplay, JournalSource
 from core.errors import InputError
+from core.journal import JournalReader, default_journal_path, engine_running
+from core.runconfig import make_campaign_config
 from core.settings import SUPERVISION_MODES
+from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
 DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min) passes in about 6 s
 
 
 def leave_message(journal: Path, pid: int | None = None) -> str:
     """What to print after the console closes while the engine runs on."""
-    from core.journal import JournalReader
 
     try:
         with JournalReader(journal) as reader:
@@ -51,8 +59,6 @@ def leave_message(journal: Path, pid: int | None = None) -> str:
 def run_console(
     journal: Path, replay: bool = False, pid: int | None = None, *, leave: bool = True, **app_kwargs: Any
 ) -> int:
-    from aeni_console.app import ConsoleApp
-    from aeni_console.journal_source import JournalReplay, JournalSource
 
     source = JournalReplay(journal) if replay else JournalSource(journal)
     try:
@@ -70,11 +76,6 @@ def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
     SIGTERM first; SIGKILL only if it has not ended after ``grace_s`` (every finished indent is already in
     the journal, so even that loses nothing). Returns what happened, in words.
     """
-    import os
-    import signal
-    import time
-
-    from core.journal import engine_running
 
     try:
         os.kill(pid, signal.SIGTERM)
@@ -91,16 +92,11 @@ def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
 
 
 def _cmd_console(args: argparse.Namespace) -> int:
-    from aeni_console.commands.run import resolve_run
 
     return run_console(resolve_run(args.run), replay=args.replay)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from aeni_console.commands.run import start_engine_process
-    from core.journal import default_journal_path
-    from core.runconfig import make_campaign_config
-    from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
     # the simulated instrument fails now and then, as a real one does (a KLA demo's fake InView has its own)
     failure_rate = args.failure_rate
@@ -171,7 +167,6 @@ def kla_demo(
     yields (exchange, engine, fake InView). On leaving, the engine is stopped (its journal keeps every
     measured indent), then the fake InView, and the exchange folder is removed (the accepted exports are
     archived next to the journal)."""
-    from aeni_console.commands.run import _child_env, start_engine_process
 
     options = config.driver_options
     exchange = Path(tempfile.mkdtemp(prefix="aeni-demo-exchange-"))

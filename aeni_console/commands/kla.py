@@ -5,13 +5,25 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import signal
 import sys
+import time
 from dataclasses import replace
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from aeni_console.commands.common import dumps, input_file, positive_float, seed_arg, write_atomic
+from core.cost import block_steps
 from core.errors import InputError
+from core.profile import load_profile
+from core.sample import load_sample
+from drivers.kla.array_run import ArrayRun
+from drivers.kla.exchange import ExchangeFolder, check_block, check_exchange_dir, make_ticket, ticket_text
+from drivers.kla.export import read_kla_exports, records
+from drivers.kla.fake_inview import FakeInView, parse_fault
+from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
+from drivers.sim.scenarios import make_scenario
 
 if TYPE_CHECKING:
     from drivers.kla.export import KlaExport
@@ -109,7 +121,6 @@ def register(subparsers: Any) -> None:
 
 
 def _read(args: argparse.Namespace) -> int:
-    from drivers.kla.export import read_kla_exports, records  # pandas/scipy load only when used
 
     sources = [Path(f) if Path(f).is_dir() else input_file(f, "export file") for f in args.file]
     export = read_kla_exports(sources)
@@ -169,12 +180,6 @@ def format_table(export: KlaExport) -> str:
 
 
 def _fake_inview(args: argparse.Namespace) -> int:
-    import signal
-
-    from core.profile import load_profile
-    from drivers.kla.exchange import check_exchange_dir
-    from drivers.kla.fake_inview import FakeInView, parse_fault
-    from drivers.sim.scenarios import make_scenario
 
     check_exchange_dir(args.exchange)
     if not 0.0 <= args.invalid_rate <= 1.0:
@@ -182,8 +187,6 @@ def _fake_inview(args: argparse.Namespace) -> int:
     faults = tuple(parse_fault(f) for f in args.fault)
     scenario = make_scenario(args.scenario, args.seed, noise=args.noise, drift=args.drift)
     if args.sample is not None:  # the scenario's truth on the run's sample, as the sim driver lays it
-        from core.sample import load_sample
-
         scenario = scenario.on_sample(load_sample(args.sample))
     profile = load_profile(args.profile or scenario.profile_name)
     fake = FakeInView(
@@ -214,14 +217,6 @@ def _fake_inview(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    import time
-    from datetime import UTC, datetime, timedelta
-
-    from core.cost import block_steps
-    from core.profile import load_profile
-    from drivers.kla.array_run import ArrayRun
-    from drivers.kla.exchange import ExchangeFolder, check_block, make_ticket, ticket_text
-    from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
 
     profile = load_profile(args.profile)
     profile.check_stage_mm(args.x_mm, "--x-mm")

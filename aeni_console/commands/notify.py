@@ -5,21 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from aeni_console.alerts import Severity, send
+from aeni_console.commands.run import resolve_run
 from core.errors import InputError
+from core.notifyconfig import load_run_notify, notify_path_for
+from core.runconfig import load_run_config
 
 
 def _cmd_test(args: argparse.Namespace) -> int:
-    from aeni_console.alerts import Severity, send
-    from core.notifyconfig import load_run_notify, notify_path_for
-    from core.runconfig import load_run_config
 
     target = Path(args.target)
     if target.suffix == ".toml":
         notify = load_run_config(target).notify
         where = f"[notify] of {target}"
     else:
-        from aeni_console.commands.run import resolve_run
-
         run = resolve_run(args.target)
         notify = load_run_notify(run)
         where = str(notify_path_for(run))

@@ -6,6 +6,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from aeni_console.commands.run import resolve_run
+from aeni_console.runreport import write_report
+
 
 def default_out(journal: Path) -> Path:
     """``runs/<run>.report/`` beside the journal."""
@@ -13,8 +16,6 @@ def default_out(journal: Path) -> Path:
 
 
 def _handler(args: argparse.Namespace) -> int:
-    from aeni_console.commands.run import resolve_run
-    from aeni_console.runreport import write_report
 
     path = resolve_run(args.run)
     out = args.out if args.out is not None else default_out(path)

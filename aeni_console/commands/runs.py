@@ -15,6 +15,7 @@ from typing import Any
 
 from aeni_console.commands.common import dumps
 from core.errors import InputError
+from core.journal import JournalReader, engine_running, user_name
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,6 @@ def _seconds_since(utc: str | None, now: float) -> float | None:
 
 def run_row(path: Path, now: float | None = None) -> RunRow:
     """Read one journal read-only; an unreadable one becomes a row naming the problem."""
-    from core.journal import JournalReader, engine_running, user_name
 
     now = time.time() if now is None else now
     alive = engine_running(path)

@@ -12,10 +12,13 @@ from typing import Any
 import numpy as np
 
 from core.errors import InputError
+from core.geometry import CandidateLattice
+from core.policies.base import DEFAULT_PITCH_UM
+from core.profile import load_profile
+from core.sample import SAMPLE_TEMPLATE, CircleExclusion, grid_baseline_s, load_sample
 
 
 def _cmd_new(args: argparse.Namespace) -> int:
-    from core.sample import SAMPLE_TEMPLATE
 
     path = Path(args.file)
     if path.exists() and not args.force:
@@ -33,8 +36,6 @@ def _cmd_new(args: argparse.Namespace) -> int:
 
 def allowed_lattice(sample: Any) -> tuple[np.ndarray, np.ndarray]:
     """The campaign's candidate lattice (stage µm) and which centres a run may use on this sample."""
-    from core.geometry import CandidateLattice
-    from core.policies.base import DEFAULT_PITCH_UM
 
     h = 2 * DEFAULT_PITCH_UM
     lattice = CandidateLattice.build(sample.calibration, sample.lattice_n, grid_halfwidth_um=h)
@@ -43,9 +44,6 @@ def allowed_lattice(sample: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def sample_facts(sample: Any) -> list[str]:
     """The lines ``aeni sample check`` prints: what the file says and what it implies."""
-    from core.policies.base import DEFAULT_PITCH_UM
-    from core.profile import load_profile
-    from core.sample import grid_baseline_s
 
     cal = sample.calibration
     profile = load_profile(sample.profile)
@@ -79,9 +77,6 @@ def _outline(points: np.ndarray) -> tuple[list[float], list[float]]:
 def draw_sample(sample: Any, width: int = 100, height: int = 32, color: bool = True) -> str:
     """The outline, exclusions, earlier indents and allowed lattice in stage µm, x reversed per the profile."""
     import plotext as plt
-
-    from core.profile import load_profile
-    from core.sample import CircleExclusion
 
     profile = load_profile(sample.profile)
     flip = -1.0 if profile.reverse_x else 1.0
@@ -132,7 +127,6 @@ def draw_sample(sample: Any, width: int = 100, height: int = 32, color: bool = T
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from core.sample import load_sample
 
     sample = load_sample(args.file)
     print(f"{args.file}: valid")

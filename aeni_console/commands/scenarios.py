@@ -6,11 +6,11 @@ import argparse
 from typing import Any
 
 from aeni_console.commands.common import dumps
+from drivers.sim.scenarios import SCENARIOS
 
 
 def scenario_table() -> list[dict[str, str]]:
     """Every scenario name with its one-line description, in the registry's order."""
-    from drivers.sim.scenarios import SCENARIOS
 
     return [{"name": name, "description": text} for name, text in SCENARIOS.items()]
 

@@ -6,8 +6,8 @@ table, so no network port is ever opened. Every finished indent is committed in 
 so a crash loses at most the indent in flight. See docs/journal.md for the schema.
 
 The package follows the file's seams: ``schema`` (tables, version, opening, the lock), ``codec`` (records
-in and out), ``reader`` (queries and the consoles' view) and ``writer`` (the engine's transactions and
-the console's command row).
+in and out), ``reader`` (queries and the consoles' view), ``writer`` (the engine's transactions and
+the console's command row) and ``sink`` (the journal as the engine's run record: events in, the resume fold out).
 """
 
 from core.journal.codec import (
@@ -32,7 +32,8 @@ from core.journal.schema import (
     lock_path_for,
     user_name,
 )
-from core.journal.writer import Journal, JournalLockedError, NotOwnerError, append_event, send_command
+from core.journal.sink import Journal
+from core.journal.writer import JournalLockedError, NotOwnerError, append_event, send_command
 
 __all__ = [
     "SCHEMA_VERSION",

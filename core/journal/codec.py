@@ -19,7 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from core.plan import Alternative, Block, Decision, IndentResult, IndentSpec, StepRecord
+from core.plan import Block, Decision, IndentResult, StepRecord
+from core.plan import block_from_dict as block_from_dict
+from core.plan import decision_from_dict as decision_from_dict
+from core.run.records import DriverState as DriverState
+from core.run.records import StoredCommand as StoredCommand
 from core.runview import MapFields
 
 
@@ -43,29 +47,6 @@ def to_json(obj: Any) -> str:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         obj = dataclasses.asdict(obj)
     return json.dumps(obj, default=_default, separators=(",", ":"))
-
-
-def block_from_dict(d: dict[str, Any]) -> Block:
-    return Block(
-        block_id=int(d["block_id"]),
-        kind=d["kind"],
-        center_x_um=float(d["center_x_um"]),
-        center_y_um=float(d["center_y_um"]),
-        grid_g=int(d["grid_g"]),
-        pitch_um=float(d["pitch_um"]),
-        hold_s=float(d["hold_s"]),
-        indents=tuple(
-            IndentSpec(float(s["x_um"]), float(s["y_um"]), float(s["hold_s"])) for s in d["indents"]
-        ),
-    )
-
-
-def decision_from_dict(d: dict[str, Any]) -> Decision:
-    kw = dict(d)
-    kw["block"] = block_from_dict(d["block"])
-    kw["alternatives"] = tuple(Alternative(**a) for a in d.get("alternatives", ()))
-    known = {f.name for f in dataclasses.fields(Decision)}
-    return Decision(**{k: v for k, v in kw.items() if k in known})
 
 
 def map_fields_to_bytes(fields: MapFields) -> bytes:
@@ -109,34 +90,12 @@ def utc_now() -> str:
 
 
 @dataclass(frozen=True)
-class StoredCommand:
-    """A command row as the engine sees it (``kind`` stays a string: a bad row must be rejected, not crash)."""
-
-    command_id: int
-    kind: str
-    author: str
-    uid: int
-    payload: dict[str, Any]
-    shown_scores: dict[str, Any]
-    wall_utc: str
-
-
-@dataclass(frozen=True)
 class StoredDecision:
     decision_id: int
     decision: Decision
     status: str
     needs_approval_reason: str
     t_s: float
-
-
-@dataclass(frozen=True)
-class DriverState:
-    clock_s: float
-    physics_clock_s: float | None
-    position_um: tuple[float, float]
-    program_open: bool
-    reason: str
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,8 @@ from typing import Any
 
 from core.cost import indent_steps
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
+from core.driver import InstrumentWait
 from core.journal.codec import (
-    APPROVAL_CATEGORY,
     INDENT_COLS,
     BlockRecord,
     DriverState,
@@ -29,6 +29,7 @@ from core.journal.codec import (
     map_fields_from_bytes,
     result_from_row,
 )
+from core.journal.eventlog import decode
 from core.journal.schema import (
     LOG_TAIL,
     TABLES,
@@ -40,6 +41,7 @@ from core.journal.schema import (
 )
 from core.plan import LEDGER_CATEGORIES, Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import profile_from_dict
+from core.run.events import Waiting
 from core.runview import (
     ApprovalDeadline,
     DriftStatus,
@@ -50,7 +52,6 @@ from core.runview import (
     QueueItem,
     RunSnapshot,
     TestedCenter,
-    instrument_wait_from_json,
 )
 from core.settings import settings_from_dict
 
@@ -206,6 +207,11 @@ class JournalReader:
         self.conn = connect_ro(self.path)
         self.q = Queries(self.conn, self.path)
         self._meta = self.q.meta()
+        self._has_event_log = bool(
+            self.conn.execute(
+                "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'run_events'"
+            ).fetchone()
+        )  # a journal of schema 3 or 4 not yet reopened by an engine has none
         self.profile = profile_from_dict(self._meta["profile"])
         self.owner_uid = self.path.stat().st_uid
         self._tested: dict[int, TestedCenter] = {}
@@ -482,15 +488,16 @@ class JournalReader:
                 (LOG_TAIL,) if upto is None else (t_end + 1e-6, LOG_TAIL),
             ).fetchall()
             first_wall = c.execute("SELECT wall_utc FROM events ORDER BY event_id LIMIT 1").fetchone()
-            wait_row = c.execute(
-                "SELECT detail FROM events WHERE category = 'instrument' AND detail IS NOT NULL "
-                "ORDER BY event_id DESC LIMIT 1"
-            ).fetchone()
-            asked_row = c.execute(
-                "SELECT wall_utc, detail FROM events WHERE category = ? AND detail IS NOT NULL "
-                "ORDER BY event_id DESC LIMIT 1",
-                (APPROVAL_CATEGORY,),
-            ).fetchone()
+            # the instrument's wait and the approval's deadline, as the typed events the engine emitted
+            wait_row, asked_row = None, None
+            if self._has_event_log:
+                wait_row = c.execute(
+                    "SELECT t_s, body_json FROM run_events WHERE kind = 'Waiting' ORDER BY seq DESC LIMIT 1"
+                ).fetchone()
+                asked_row = c.execute(
+                    "SELECT wall_utc, body_json FROM run_events WHERE kind = 'ApprovalAsked' "
+                    "ORDER BY seq DESC LIMIT 1"
+                ).fetchone()
         state, finished = self._effective_state(eng)
         live = upto is None and not finished
         waiting = live and state is EngineState.WAITING_FOR_INSTRUMENT and wait_row is not None
@@ -567,7 +574,7 @@ class JournalReader:
             reverse_x=self.profile.reverse_x,
             finished=finished,
             allowed_holds_s=self.profile.allowed_holds_s,
-            instrument_wait=instrument_wait_from_json(wait_row[0]) if waiting else None,
+            instrument_wait=_wait(wait_row) if waiting and wait_row is not None else None,
             reconfig_threshold_um=self.profile.reconfig_threshold_um,
             position_um=at,
             approval_deadline=deadline,
@@ -581,3 +588,9 @@ def _wall_seconds(a: str, b: str) -> float:
     except ValueError:
         return 0.0
     return max((end - start).total_seconds(), 0.0)
+
+
+def _wait(row: tuple[float, str]) -> InstrumentWait:
+    event = decode("Waiting", row[0], row[1])
+    assert isinstance(event, Waiting)
+    return event.wait

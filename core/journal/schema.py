@@ -9,18 +9,19 @@ from __future__ import annotations
 
 import fcntl
 import os
-import pwd
 import sqlite3
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
+from core.access import user_name as user_name
 from core.errors import InputError
 from core.runview import EngineState
 
 # 2: indents carry a status (measured / failed / not_run) and NULL values when not measured
 # 4: the status may also be 'unverified' (made, but its export was refused); 3 is migrated on resume
-SCHEMA_VERSION = 4
-READABLE_VERSIONS = (3, 4)
+SCHEMA_VERSION = 5
+READABLE_VERSIONS = (3, 4, 5)
 SQLITE_MAGIC = b"SQLite format 3\x00"
 LOG_TAIL = 200
 BUSY_TIMEOUT_MS = 10_000
@@ -81,6 +82,9 @@ CREATE TABLE campaign_states (
 CREATE TABLE events (
     event_id INTEGER PRIMARY KEY, wall_utc TEXT NOT NULL, t_s REAL NOT NULL, level TEXT NOT NULL,
     category TEXT NOT NULL, block_id INTEGER, text TEXT NOT NULL, detail TEXT);
+CREATE TABLE run_events (
+    seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, t_s REAL NOT NULL, wall_utc TEXT NOT NULL,
+    body_json TEXT NOT NULL, rebuilt INTEGER NOT NULL DEFAULT 0);
 """
 
 TABLES = (
@@ -105,13 +109,6 @@ def default_journal_path(name: str, runs_dir: str | Path = "runs") -> Path:
     safe = "".join(c if c.isalnum() or c in "-_." else "-" for c in name).strip("-.") or "run"
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     return Path(runs_dir) / f"{stamp}-{safe}.sqlite"
-
-
-def user_name(uid: int) -> str:
-    try:
-        return pwd.getpwuid(uid).pw_name
-    except KeyError:
-        return str(uid)
 
 
 def lock_path_for(path: str | Path) -> Path:
@@ -183,20 +180,27 @@ def check_journal_file(path: str | Path) -> None:
         conn.close()
 
 
-def migrate(conn: sqlite3.Connection) -> None:
-    """Version 3 -> 4: the indents table's status check gains 'unverified' (SQLite cannot alter a CHECK, so
-    the table is rebuilt from the new definition in one transaction)."""
+def migrate(conn: sqlite3.Connection, rebuild_events: Callable[[sqlite3.Connection], None]) -> None:
+    """Bring a journal of an earlier version to this one, in one transaction.
+
+    3 -> 4: the indents table's status check gains 'unverified' (SQLite cannot alter a CHECK, so the table
+    is rebuilt from the new definition). 4 -> 5: the event log (``run_events``), rebuilt from the tables by
+    ``rebuild_events`` (core.journal.eventlog)."""
     row = conn.execute("SELECT version FROM schema_version").fetchone()
-    if row is None or int(row[0]) != 3:
+    if row is None or int(row[0]) not in (3, 4):
         return
-    start = SCHEMA_SQL.index("CREATE TABLE indents")
-    create = SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)]
     conn.execute("BEGIN IMMEDIATE")
     try:
-        conn.execute(create.replace("CREATE TABLE indents", "CREATE TABLE indents_v4", 1))
-        conn.execute("INSERT INTO indents_v4 SELECT * FROM indents")
-        conn.execute("DROP TABLE indents")
-        conn.execute("ALTER TABLE indents_v4 RENAME TO indents")
+        if int(row[0]) == 3:
+            start = SCHEMA_SQL.index("CREATE TABLE indents")
+            create = SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)]
+            conn.execute(create.replace("CREATE TABLE indents", "CREATE TABLE indents_v4", 1))
+            conn.execute("INSERT INTO indents_v4 SELECT * FROM indents")
+            conn.execute("DROP TABLE indents")
+            conn.execute("ALTER TABLE indents_v4 RENAME TO indents")
+        start = SCHEMA_SQL.index("CREATE TABLE run_events")
+        conn.execute(SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)])
+        rebuild_events(conn)
         conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
         conn.execute("COMMIT")
     except BaseException:
@@ -237,5 +241,7 @@ def _check_schema(conn: sqlite3.Connection, src: str) -> None:
             "journals written by an earlier version are not converted, see docs/journal.md)",
         )
     missing = [t for t in TABLES if t not in names]
+    if int(row[0]) >= 5 and "run_events" not in names:
+        missing.append("run_events")
     if missing:
         raise InputError(src, f"journal is missing tables {', '.join(missing)}")

@@ -8,18 +8,16 @@ module is where each one becomes rows.
 
 from __future__ import annotations
 
-import json
+import dataclasses
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from core.driver import InstrumentWait
 from core.journal.codec import (
     APPROVAL_CATEGORY,
-    INDENT_COLS,
-    block_from_dict,
-    decision_from_dict,
-    result_from_row,
 )
-from core.plan import StepRecord
+from core.journal.eventlog import read_events
+from core.journal.writer import JournalWriter
 from core.run.events import (
     ApprovalAsked,
     BlockEnded,
@@ -41,27 +39,24 @@ from core.run.events import (
 )
 from core.run.history import HistoryFold
 
-if TYPE_CHECKING:
-    from core.journal.writer import Journal
-
 
 def _plan(p: Any) -> tuple[int, str, dict[str, Any], Any] | None:
     return None if p is None else (p.block_id, p.point, p.state, p.settings)
 
 
 def _waiting(j: Any, e: Waiting) -> None:
-    """What the instrument wait says is logged by the engine (Logged events); the wait itself is the state."""
+    """The wait itself is its row in the event log (the console reads it there); what it says for the log
+    panel the engine logs (Logged events)."""
 
 
 def _approval_asked(j: Any, e: ApprovalAsked) -> None:
-    """A log row the console counts down from: its wall time plus ``timeout_s`` is the deadline."""
-    detail = {"decision_id": e.decision_id, "timeout_s": e.timeout_s, "on_timeout": e.on_timeout}
+    """A line for the log panel (the console counts down from the event itself: its wall time plus
+    ``timeout_s``)."""
     j.log(
         "info",
         f"decision {e.decision_id} waits {e.timeout_s:g} s for an answer, then: {e.on_timeout}",
         category=APPROVAL_CATEGORY,
         block_id=e.block_id,
-        detail=json.dumps(detail),
     )
 
 
@@ -114,61 +109,42 @@ _WRITERS: dict[type, Callable[[Any, Any], None]] = {
 }
 
 
-def write_event(journal: Journal, event: RunEvent) -> None:
-    """One event, in one transaction, with the journal's clock set to the event's instrument time."""
+def write_event(journal: JournalWriter, event: RunEvent) -> None:
+    """One event, in one transaction: its row in the event log and the rows the readers query, with the
+    journal's clock set to the event's instrument time."""
     journal.note_clock(event.t_s)
-    _WRITERS[type(event)](journal, event)
+    with journal.transaction():
+        _WRITERS[type(event)](journal, event)
+        journal.record_event(event)
 
 
-def fold_history(journal: Journal) -> RunHistory | None:
-    """The run so far: the journal's rows fed, kind by kind in the order written, through the fold the
-    engine's events go through (core.run.history). None: no engine has run on it yet."""
+def fold_history(journal: JournalWriter) -> RunHistory | None:
+    """The run so far: the journal's event log folded in order (core.run.history), as a record that saw
+    the events live folds them. None: no engine has run on it yet."""
     if not journal.has_history():
         return None
-    c = journal.conn
     fold = HistoryFold()
-    fold.session()
-    row = journal.q.engine_row()
-    fold.state_changed(
-        str(row.get("state", "idle")), bool(row.get("completed")), str(row.get("stop_reason") or "")
-    )
-    # Decided (auto or pending), then what answered it: BlockStarted (approved) or Resolved
-    for did, decision_json, status, why in c.execute(
-        "SELECT decision_id, decision_json, status, needs_approval_reason FROM decisions ORDER BY decision_id"
-    ):
-        fold.decided(
-            int(did),
-            decision_from_dict(json.loads(decision_json)),
-            status if status == "auto" else "pending",
-            why,
-        )
-        if status not in ("auto", "pending"):
-            fold.resolved(int(did))
-    blocks = [
-        (block_from_dict(json.loads(j)), status)
-        for j, status in c.execute("SELECT block_json, status FROM blocks ORDER BY block_id")
-    ]
-    for block, _ in blocks:  # BlockStarted, or the block of an auto decision
-        fold.block_planned(block)
-    for r in c.execute(f"SELECT {INDENT_COLS} FROM indents ORDER BY block_id, indent_index"):  # Indent
-        fold.indent(result_from_row(r))
-    for block, status in blocks:  # BlockEnded; an observed block is Observed's below
-        if status not in ("planned", "running", "observed"):
-            fold.block_status(block.block_id, status)
-    for sid, bid in c.execute(
-        "SELECT snapshot_id, block_id FROM gp_snapshots ORDER BY snapshot_id"
-    ):  # Observed
-        fold.observed(int(bid), int(sid))
-    fold.steps(  # the steps of Indent and Steps
-        StepRecord(cat, sec, bid, idx)
-        for bid, idx, cat, sec in c.execute(
-            "SELECT block_id, indent_index, category, seconds FROM steps ORDER BY step_id"
-        )
-    )
-    driver = journal.q.latest_driver_state()  # the instrument state of the last Indent or Steps
-    if driver is not None:
-        fold.instrument(driver)
-    plan = journal.q.latest_campaign_state()  # the plan of the last event that carried one
-    if plan is not None:
-        fold.planner(*plan)
+    for event in read_events(journal.conn):
+        fold.emit(event)
     return fold.history(queued_commands=len(journal.q.unprocessed_commands()))
+
+
+class Journal(JournalWriter):
+    """A journal as the engine's run record (core.run.events.RunRecord): it takes the engine's events and
+    gives back the history a resume starts from. Create a run with :meth:`create`, reopen it with
+    :meth:`open_writer`."""
+
+    _last_wait: InstrumentWait | None = None  # the last instrument wait written (its countdown aside)
+
+    def emit(self, event: RunEvent) -> None:
+        """Write one engine event in one transaction (``write_event`` says which rows each becomes). The
+        driver reports its wait every poll: the log keeps the ones that say something new."""
+        if isinstance(event, Waiting):
+            seen = dataclasses.replace(event.wait, seconds_left=0.0)
+            if seen == self._last_wait:
+                return
+            self._last_wait = seen
+        write_event(self, event)
+
+    def history(self) -> RunHistory | None:
+        return fold_history(self)

@@ -10,7 +10,7 @@ import sqlite3
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Self
 
 from core.access import JOURNAL_MODE, command_channel_problem, protect, protect_side_files
 from core.errors import InputError
@@ -23,6 +23,7 @@ from core.journal.codec import (
     to_json,
     utc_now,
 )
+from core.journal.eventlog import append, rebuild
 from core.journal.reader import Queries
 from core.journal.schema import (
     BUSY_TIMEOUT_MS,
@@ -36,11 +37,9 @@ from core.journal.schema import (
 )
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import InstrumentProfile, profile_to_dict
+from core.run.events import RunEvent
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import settings_to_dict
-
-if TYPE_CHECKING:
-    from core.run.events import RunEvent, RunHistory
 
 
 class JournalLockedError(InputError):
@@ -79,7 +78,7 @@ class CommandWatch:
         self.conn.close()
 
 
-class Journal:
+class JournalWriter:
     """The engine's write side. Create a run with :meth:`create`, reopen it with :meth:`open_writer`."""
 
     def __init__(self, path: Path, conn: sqlite3.Connection, lock_fd: int) -> None:
@@ -89,6 +88,7 @@ class Journal:
         self.q = Queries(conn, path)
         self.session_id: int | None = None
         self._t_s = 0.0
+        self._in_tx = False
 
     # -- opening ---------------------------------------------------------------------------------
     @staticmethod
@@ -141,7 +141,7 @@ class Journal:
         name: str | None = None,
         extra: dict[str, Any] | None = None,
         group_gid: int | None = None,
-    ) -> Journal:
+    ) -> Self:
         """A new journal holding the run's configuration; returns the writer (lock held).
 
         The file is created ``0640`` and given ``group_gid`` when set (see core.access): only its owner
@@ -199,14 +199,14 @@ class Journal:
         return cls(p, cls._connect_rw(p), lock_fd)
 
     @classmethod
-    def open_writer(cls, path: str | Path) -> Journal:
+    def open_writer(cls, path: str | Path) -> Self:
         """Reopen a journal for writing (resume). Checks it read-only first and takes the engine lock."""
         p = Path(path)
         check_journal_file(p)
         lock_fd = cls._take_lock(p, gid=p.stat().st_gid)
         try:
             conn = cls._connect_rw(p)
-            migrate(conn)
+            migrate(conn, rebuild)
         except BaseException:
             os.close(lock_fd)
             raise
@@ -224,7 +224,7 @@ class Journal:
         os.close(self._lock_fd)
         self._lock_fd = None
 
-    def __enter__(self) -> Journal:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -233,13 +233,29 @@ class Journal:
     # -- writing ---------------------------------------------------------------------------------
     @contextlib.contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
+        """One transaction; inside another (an event and the rows it becomes), part of that one."""
+        if self._in_tx:
+            yield self.conn
+            return
         self.conn.execute("BEGIN IMMEDIATE")
+        self._in_tx = True
         try:
             yield self.conn
         except BaseException:
+            self._in_tx = False
             self.conn.execute("ROLLBACK")
             raise
+        self._in_tx = False
         self.conn.execute("COMMIT")
+
+    def transaction(self) -> contextlib.AbstractContextManager[sqlite3.Connection]:
+        """The writer's transaction, for a caller that writes several rows as one (core.journal.sink)."""
+        return self._tx()
+
+    def record_event(self, event: RunEvent) -> None:
+        """The event's row in the event log (core.journal.eventlog)."""
+        with self._tx() as c:
+            append(c, event, utc_now())
 
     def has_history(self) -> bool:
         """Whether an engine has run on this journal before (then the next one resumes it)."""
@@ -260,17 +276,6 @@ class Journal:
     @property
     def name(self) -> str:
         return str(self.path)
-
-    def emit(self, event: RunEvent) -> None:
-        """Write one engine event in one transaction (core.journal.sink says which rows each becomes)."""
-        from core.journal.sink import write_event
-
-        write_event(self, event)
-
-    def history(self) -> RunHistory | None:
-        from core.journal.sink import fold_history
-
-        return fold_history(self)
 
     def owner_uid(self) -> int:
         return os.stat(self.path).st_uid

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import numpy as np
 
 from core.cost import block_steps
+from core.geometry import SafeBand, exclusion_mask
 from core.operator import LoadWindow
 from core.plan import Alternative, Block, BlockKind, Decision, PlannerSettings, local_grid
 from core.profile import InstrumentProfile
@@ -192,7 +193,6 @@ def block_costs_s(
 
 def base_mask(ctx: PlanContext, g_max_halfwidth_um: float) -> np.ndarray:
     """Candidates that may be proposed at all: outside the exclusion zone and away from vetoed centres."""
-    from core.geometry import exclusion_mask
 
     xy = ctx.lattice.xy_um
     mask = np.ones(len(xy), dtype=bool) if ctx.placement_mask is None else ctx.placement_mask.copy()
@@ -237,7 +237,6 @@ def reachable_mask(
 ) -> np.ndarray:
     """``local_mask`` for any program centre and stage position (to plan a program before opening it);
     with ``idx``, only for those lattice candidates."""
-    from core.geometry import SafeBand
 
     xy = ctx.lattice.xy_um if idx is None else ctx.lattice.xy_um[idx]
     band = SafeBand(ctx.calibration.plane, float(centre_um[0]), float(centre_um[1]), ctx.dz_safe_um)

@@ -29,10 +29,13 @@ from core.policies.acquisition import (
     UncertaintyExploration,
 )
 from core.policies.blocks import ReplicateGrid, ScatteredSingles
+from core.policies.grid import GridPolicy
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
 from core.policies.noise import NoiseModel
 from core.policies.parts import PolicyParts
+from core.policies.planner import BayesPlanner
+from core.policies.scattered import ScatteredPlanner
 
 if TYPE_CHECKING:
     from core.policies.base import Policy
@@ -253,9 +256,6 @@ def policy_parts(name: str, facts: RunFacts | None = None) -> PolicyParts:
 
 
 def make_policy(name: str, facts: RunFacts | None = None) -> Policy:
-    from core.policies.grid import GridPolicy
-    from core.policies.planner import BayesPlanner
-    from core.policies.scattered import ScatteredPlanner
 
     parts = policy_parts(name, facts)
     if name == "grid":

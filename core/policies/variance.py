@@ -21,6 +21,7 @@ import numpy as np
 from scipy import sparse
 
 from core.estimators import CentreEstimator, estimator_efficiency
+from core.model.ski import JITTER, SKI_ABOVE, grid_for
 from core.policies.base import GPSummary
 
 if TYPE_CHECKING:
@@ -95,8 +96,6 @@ class _GridPosterior(_ExactPosterior):
     def _factor(self, noise_var: np.ndarray) -> None:
         from scipy.linalg import solve_triangular
 
-        from core.model.ski import JITTER, grid_for
-
         self._grid = grid_for(tuple(self.ls))
         z = self._grid.points().numpy()
         kmm = self.kernel(z, z)
@@ -134,7 +133,6 @@ class _GridPosterior(_ExactPosterior):
 def posterior(summary: GPSummary, uv: np.ndarray, noise_var: np.ndarray) -> _ExactPosterior:
     """The posterior the planner prices with: the model's own (exact up to SKI_ABOVE centres, interpolated
     above, where the exact one's n × n factor took 14 s of CPU and 1.4 GB at 5,000 centres)."""
-    from core.model.ski import SKI_ABOVE
 
     cls = _GridPosterior if len(uv) > SKI_ABOVE else _ExactPosterior
     return cls(summary, uv, noise_var)

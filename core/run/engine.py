@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 import os
 import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
+from datetime import datetime
+from typing import TYPE_CHECKING, Any
 
+from core.access import user_name
 from core.describe import describe_block
 from core.driver import (
     Driver,
@@ -39,26 +40,24 @@ from core.driver import (
 )
 from core.errors import InputError
 from core.interlock import Interlock
-from core.journal.codec import DriverState
-from core.journal.schema import user_name
-from core.metrics import MapEvaluator, MapScore
-from core.modulus import ModulusMap
-from core.plan import STRETCH_PHASE, Block, Decision, IndentResult, PlannerSettings, StepRecord
+from core.metrics import MapEvaluator
+from core.operator import OperatorAvailability
+from core.plan import STRETCH_PHASE, Block, Decision, IndentResult, StepRecord
+from core.run.campaign import CampaignLike, PlansForAbsence
+from core.run.campaign import StageFrame as StageFrame
+from core.run.commands import HANDLERS
 from core.run.events import (
     ApprovalAsked,
     BlockEnded,
     BlockStarted,
     CommandDone,
     Decided,
-    FitSummary,
     Indent,
     Logged,
     Observed,
-    PlanChanged,
     PlanState,
     Resolved,
     RunEvent,
-    RunHistory,
     RunRecord,
     SessionBegan,
     SessionEnded,
@@ -68,79 +67,23 @@ from core.run.events import (
     Waiting,
 )
 from core.run.machine import Machine, Trigger, allowed, refusal
-from core.runview import CommandKind, EngineState, MapFields
-from core.settings import ON_TIMEOUT, check_veto, coerce_supervision
+from core.run.records import DriverState
+from core.run.recovery import AWAY_UNTIL_KEY, recover
+from core.run.refit import fit_summary, modulus_fit
+from core.run.watcher import AbortWatcher
+from core.runview import CommandKind, EngineState
+from core.settings import ON_TIMEOUT, coerce_supervision
+from core.visits import unattended_after
 
 if TYPE_CHECKING:
     from datetime import datetime
 
-    from core.model import FitReport  # the refit's report (torch stays out of the engine's import)
-    from core.operator import LoadWindow, OperatorAvailability
-
-
-class StageFrame(Protocol):
-    """The campaign's calibration, as far as the engine needs it: unit-square (u, v) to stage µm."""
-
-    def to_stage(self, u: float, v: float) -> tuple[Any, Any]: ...
-
-
-@runtime_checkable
-class PlansForAbsence(Protocol):
-    """A campaign that sizes its next load by when the operator will next come (core.visits)."""
-
-    unattended: Callable[[float], LoadWindow | None] | None
-
-
-class CampaignLike(Protocol):
-    """What the engine needs from core.campaign.Campaign (a fake in tests)."""
-
-    settings: PlannerSettings
-    modulus_map: ModulusMap  # read only where settings.map_weights aims at the modulus
-
-    @property
-    def calibration(self) -> StageFrame: ...
-
-    # why the last propose() returned None (budget, target, the policy has nothing left)
-    last_stop_reason: str | None
-
-    def propose(
-        self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
-    ) -> Decision | None: ...
-
-    def veto(self, decision: Decision, hold_blocks: int = ...) -> None: ...
-
-    def adjust(self, **changes: Any) -> PlannerSettings: ...
-
-    def observe_block(self, block: Block, results: Sequence[IndentResult]) -> FitReport | None: ...
-
-    def map_fields(self, snapshot_id: int, display_n: int = ...) -> MapFields: ...
-
-    def export_state(self) -> dict[str, Any]: ...
-
-    def queued_stretch(self) -> tuple[Block, ...]: ...
-
-    # scored from outside by a simulated run's evaluator (core.metrics.ScoredMap), told back the verdict
-    def has_map(self) -> bool: ...
-
-    def predict_mean_stage(self, x_um: Any, y_um: Any) -> Any: ...
-
-    def indented_xy_um(self) -> Any: ...
-
-    def note_score(self, score: MapScore | None) -> None: ...
-
-    def restore(
-        self, state: dict[str, Any], blocks: Sequence[tuple[Block, Sequence[IndentResult]]]
-    ) -> None: ...
+    from core.operator import OperatorAvailability
 
 
 def _same_block(a: Block, b: Block) -> bool:
     """The same block whatever its id: a re-proposal of a vetoed block counts as another refusal."""
     return dataclasses.replace(a, block_id=0) == dataclasses.replace(b, block_id=0)
-
-
-AWAY_UNTIL_KEY = "away_until"  # the planner state's record of an operator's away-until (engine-level)
-
-_Handler = Callable[["Engine", str, dict[str, Any], int], tuple[str, str]]
 
 
 class Engine:
@@ -149,8 +92,6 @@ class Engine:
     ``record`` is where the run goes and where its commands come from (the journal, or an in-memory
     record for a headless run); ``sinks`` receive every event too (a progress view, a test).
     """
-
-    _handlers: ClassVar[dict[CommandKind, _Handler]]  # one handler per command kind (below the class)
 
     def __init__(
         self,
@@ -236,8 +177,7 @@ class Engine:
         self._results: list[IndentResult] = []  # the open block's indents so far
         self._last_collapse: tuple[int, str] | None = None  # snapshot id, reason of an unacknowledged alarm
         self._external_abort = threading.Event()
-        self._watcher: threading.Thread | None = None
-        self._watch_stop = threading.Event()
+        self._watcher = AbortWatcher(record, self.owner_uid, driver, watch_s)
         # who answers, and when (the run file's [operator], an away-until): the planner plans for nobody
         # while nobody will come (core.visits.unattended_after); None: planned as if always attended
         self.operator = operator
@@ -246,9 +186,6 @@ class Engine:
             self._plan_for_operator()
 
     def _plan_for_operator(self) -> None:
-        from datetime import datetime
-
-        from core.visits import unattended_after
 
         now = self._local_now or datetime.now
         operator = self.operator  # every change of the operator's availability binds these again
@@ -358,10 +295,10 @@ class Engine:
         self._emit(
             SessionBegan(0.0 if history is not None else self._clock(), "resume" if history else "start")
         )
-        self._start_watcher()
+        self._watcher.start()
         try:
             if history is not None:
-                self._recover(history)
+                recover(self, history)
             else:
                 self._log(
                     "info",
@@ -376,7 +313,7 @@ class Engine:
             self._fail(exc)
             raise
         finally:
-            self._stop_watcher()
+            self._watcher.stop()
         return self.state
 
     def _fail(self, exc: BaseException) -> None:
@@ -669,131 +606,7 @@ class Engine:
             return "rejected", f"unknown command {kind_s!r}"
         if not allowed(self.state, kind):
             return "rejected", refusal(self.state, kind)
-        return self._handlers[kind](self, author, payload, cid)
-
-    def _pause(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        self._fire(Trigger.PAUSE)
-        return "accepted", "pausing after the current indent" if self._current else ""
-
-    def _resume(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        self._fire(Trigger.RESUME)
-        return "accepted", ""
-
-    def _stop_after_block(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        if self._stop_requested:
-            return "rejected", "already stopping after this block"
-        self._stop_requested = "stopped after the block by the operator"
-        return (
-            "accepted",
-            "stopping after the current block" if self._current else "stopping now (between blocks)",
-        )
-
-    def _abort(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        self.stop_reason = f"aborted by {author}"
-        self._fire(Trigger.STOP)
-        return "accepted", "finishing the current indent, lifting, stopping"
-
-    def _confirm(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        return self._instrument_report("started", str(payload.get("token", "")), author)
-
-    def _report(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        return self._instrument_report(str(payload.get("kind", "")), str(payload.get("token", "")), author)
-
-    def _skip(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        return self._instrument_report("skip", str(payload.get("site", "")), author)
-
-    def _away_until(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        """The operator is away until a local time: nobody answers before it, so the planner plans for nobody."""
-        from dataclasses import replace
-        from datetime import datetime
-
-        from core.operator import OperatorAvailability, OperatorHours
-
-        text = str(payload.get("until", ""))
-        try:
-            until = datetime.fromisoformat(text)
-        except ValueError:
-            return "rejected", f"until {text!r} is not an ISO local date-time"
-        base = self.operator or OperatorAvailability(OperatorHours.parse("always"))
-        self.operator = replace(base, away_until=until)
-        self._plan_for_operator()
-        block_id = self._next_block_id if self._current is None else self._current[0].block_id
-        self._emit(PlanChanged(self._clock(), self._plan_state(block_id, "away")))
-        when = until.strftime("%a %Y-%m-%d %H:%M")
-        self._log("info", f"{author} is away until {when}: blocks are planned for nobody until then")
-        return "accepted", f"away until {when}"
-
-    def _instrument_report(self, what: str, value: str, author: str) -> tuple[str, str]:
-        """The operator's word on the instrument (started with the token, aborted, surface, skip a site)."""
-        if self._operator is None:
-            return "rejected", "this run's driver takes no instrument reports"
-        ok, why = self._operator.operator_report(what, value, author)
-        return ("accepted" if ok else "rejected"), why
-
-    def _check_stale(self, payload: dict[str, Any]) -> str:
-        assert self._pending is not None
-        want = payload.get("decision_id")
-        if want is not None and want != self._pending[0]:
-            return f"stale: decision {self._pending[0]} is pending, not {want}"
-        return ""
-
-    def _approve(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        assert self._pending is not None  # the machine takes approve only while a decision waits
-        stale = self._check_stale(payload)
-        if stale:
-            return "rejected", stale
-        did, decision, why = self._pending
-        refusal = self._interlock_refusal(decision.block)
-        if refusal:
-            return "rejected", f"{refusal}; veto it to let the planner offer another block"
-        if why.startswith("length-scale collapse") and self._last_collapse is not None:
-            self._collapse_ack_snapshot = self._last_collapse[0]
-        self._release(did, decision, ("approved", author, cid))
-        return "accepted", f"block {decision.block.block_id} approved"
-
-    def _veto(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        assert self._pending is not None  # the machine takes veto only while a decision waits
-        stale = self._check_stale(payload)
-        if stale:
-            return "rejected", stale
-        try:
-            hold = check_veto(payload)
-        except InputError as exc:
-            return "rejected", str(exc)
-        block_id = self._pending[1].block.block_id
-        if not self._offer(self._veto_pending(author, cid, hold)):
-            self._fire(Trigger.STOP)
-            return "accepted", f"vetoed; stopping: {self.stop_reason}"
-        if self._pending is None:
-            self._fire(Trigger.GO)
-        return "accepted", f"vetoed block {block_id}; the next best is offered"
-
-    def _adjust(self, author: str, payload: dict[str, Any], cid: int) -> tuple[str, str]:
-        changes = dict(payload)
-        if not changes:
-            return "rejected", "nothing to adjust"
-        supervision = changes.pop("supervision", None)
-        if supervision is not None:
-            supervision = coerce_supervision(supervision)  # InputError: rejected with its message
-        if changes:
-            try:
-                self.campaign.adjust(**changes)
-            except (InputError, TypeError) as exc:
-                return "rejected", str(exc)
-            block_id = self._next_block_id if self._current is None else self._current[0].block_id
-            self._emit(PlanChanged(self._clock(), self._plan_state(block_id, "adjust")))
-        if supervision is not None and supervision != self.supervision:
-            self.supervision = supervision
-            self._emit(StateChanged(self._clock(), self.state, supervision=supervision))
-            if (
-                self._pending is not None
-                and self.state is EngineState.AWAITING_APPROVAL
-                and not self._approval_reason(self._pending[1])
-            ):
-                did, decision, _ = self._pending
-                self._release(did, decision, ("auto", "engine", None))
-        shown = ", ".join(f"{k}={v!r}" for k, v in payload.items())
-        return "accepted", shown
+        return HANDLERS[kind](self, author, payload, cid)
 
     # -- executing ---------------------------------------------------------------------------------
     def _journal_steps(
@@ -893,7 +706,6 @@ class Engine:
                 + ("" if wait.started else " (start not confirmed)"),
                 category="instrument",
                 block_id=wait.block_id,
-                detail=json.dumps(dataclasses.asdict(wait)),
             )
         self._checkpoint_while_paused()
 
@@ -933,7 +745,9 @@ class Engine:
             if report is not None and self.map_display_n is not None
             else None
         )
-        summary = self._fit_summary(report, mape, max_found, self._modulus_fit(report))
+        summary = fit_summary(
+            self.campaign.calibration, report, mape, max_found, modulus_fit(self.campaign, report)
+        )
         if summary.collapse_alarm:
             self._last_collapse = (sid, summary.collapse_reason)
         hyper = report.hyper if report is not None else None
@@ -950,165 +764,3 @@ class Engine:
         self._emit(Observed(t, block.block_id, sid, hyper or {}, summary, fields, plan, line))
         self._last_snapshot = sid
         self._say(line)
-
-    def _modulus_fit(self, report: FitReport | None) -> FitReport | None:
-        """The modulus GP's fit of this refit, when the planner aims at the modulus (then it is refitted
-        with the hardness map and its guard counts as much: the planner's decisions rest on it)."""
-        if report is None or not self.campaign.settings.map_weights.maps_modulus:
-            return None
-        return self.campaign.modulus_map.last_fit
-
-    def _fit_summary(
-        self,
-        report: FitReport | None,
-        mape: float | None,
-        max_found: float | None,
-        modulus: FitReport | None = None,
-    ) -> FitSummary:
-        if report is None:
-            return FitSummary(mape, max_found)
-        # one alarm for either map (the console, the approval gate and the journal show it as one); the
-        # reason names the map
-        reasons = [report.collapse_reason] if report.collapse else []
-        if modulus is not None and modulus.collapse:
-            reasons.append(f"modulus map: {modulus.collapse_reason}")
-        ls_uv = report.lengthscales_uv
-        nls_uv = report.noise_lengthscales_uv
-        return FitSummary(
-            mape,
-            max_found,
-            fitted=True,
-            lengthscales_um=self._uv_to_um(ls_uv),
-            noise_lengthscales_um=self._uv_to_um(nls_uv) if nls_uv is not None else (),
-            lengthscales_uv=tuple(float(v) for v in ls_uv),
-            collapse_alarm=bool(reasons),
-            collapse_reason="; ".join(reasons),
-            used_last_good=bool(report.used_last_good),
-            refit_s=report.seconds,
-            n_points=report.n_points,
-            iterations=report.iterations,
-            outputscale=report.outputscale,
-            mean_const=report.mean_const,
-        )
-
-    def _uv_to_um(self, ls: Sequence[float]) -> tuple[float, ...]:
-        to_stage = self.campaign.calibration.to_stage
-        x0, y0 = to_stage(0.0, 0.0)
-        xu, yu = to_stage(1.0, 0.0)
-        xv, yv = to_stage(0.0, 1.0)
-        su = math.hypot(float(xu) - float(x0), float(yu) - float(y0))
-        sv = math.hypot(float(xv) - float(x0), float(yv) - float(y0))
-        return tuple(float(v) * s for v, s in zip(ls, (su, sv), strict=False))
-
-    # -- resume ------------------------------------------------------------------------------------
-    def _restore_absence(self, away_until: object) -> None:
-        """An ``away-until`` the last engine took holds for the resumed one (the absence is not forgotten)."""
-        if not isinstance(away_until, str):
-            return
-        from dataclasses import replace
-        from datetime import datetime
-
-        from core.operator import OperatorAvailability, OperatorHours
-
-        base = self.operator or OperatorAvailability(OperatorHours.parse("always"))
-        self.operator = replace(base, away_until=datetime.fromisoformat(away_until))
-        self._plan_for_operator()
-
-    def _recover(self, history: RunHistory) -> None:
-        """Pick the run up where its record says the last engine left it."""
-        observed = history.observed
-        if self.interlock is not None:
-            self.interlock.restore(observed)
-        if history.plan is not None:
-            self.campaign.restore(history.plan[0], observed)
-            self._restore_absence(history.plan[0].get(AWAY_UNTIL_KEY))
-        elif observed:
-            raise InputError(self.record.name, "journal has observed blocks but no planner state")
-        ds = history.driver
-        self._recovery_s = history.recovery_s
-        self._decision_id = history.last_decision_id
-        self._snapshot_id = history.last_snapshot_id
-        if ds is not None:
-            # the tip state after a crash is unknown: the driver re-engages before it indents again
-            self._set_driver(ds.clock_s, ds.position_um, False, ds.physics_clock_s)
-            self._needs_recovery = ds.program_open
-        pending = history.pending
-        parts = [f"the last engine stopped while {history.last_state}", f"{len(observed)} blocks observed"]
-        if history.open_block is not None:
-            block, done_results = history.open_block
-            done = len(done_results)
-            self._current = (block, done)
-            self._results = list(done_results)
-            self._next_block_id = block.block_id
-            if done >= block.n_indents:
-                parts.append(f"block {block.block_id} was finished but not yet folded into the model")
-            else:
-                parts.append(f"block {block.block_id} continues at indent {done} of {block.n_indents}")
-            loader = self._stretch_loader
-            queued = self.campaign.queued_stretch() if loader is not None else ()
-            if loader is not None and queued:  # mid-stretch: handed out with its first; nothing planned again
-                loader.load_stretch((block, *queued))
-                parts.append(f"the stretch goes on: {len(queued)} array(s) after this one")
-            if pending is not None:
-                self._emit(Resolved(0.0, pending[0], "dropped", "engine"))
-        else:
-            self._next_block_id = max((b.block_id for b, _ in observed), default=-1) + 1
-            if pending is not None:
-                self._pending = pending
-                self._next_block_id = pending[1].block.block_id
-                parts.append(
-                    f"decision {pending[0]} for block {pending[1].block.block_id} still awaits approval"
-                )
-        if history.queued_commands:
-            parts.append(f"{history.queued_commands} commands sent before the stop are processed now")
-        if ds is not None:
-            parts.append(
-                f"instrument restored to t={ds.clock_s:,.0f} s at ({ds.position_um[0]:.0f}, {ds.position_um[1]:.0f}) µm"
-            )
-        self._log("warn", "resumed: " + "; ".join(parts), category="recovery")
-        self._say("resumed: " + "; ".join(parts))
-
-    # -- the abort / pause watcher -------------------------------------------------------------------
-    def _start_watcher(self) -> None:
-        """A thread that sees pause and abort while a slow driver step runs (the main loop only sees them between indents)."""
-        if self.watch_s is None:
-            return
-        self._watch_stop.clear()
-        self._watcher = threading.Thread(target=self._watch, name="engine-watch", daemon=True)
-        self._watcher.start()
-
-    def _stop_watcher(self) -> None:
-        if self._watcher is not None:
-            self._watch_stop.set()
-            self._watcher.join(timeout=5)
-            self._watcher = None
-
-    def _watch(self) -> None:
-        assert self.watch_s is not None
-        watch = self.record.command_watch(self.owner_uid)
-        if watch is None:
-            return
-        try:
-            while not self._watch_stop.wait(self.watch_s):
-                if self.record.command_channel_problem(self.owner_uid):
-                    continue  # the checkpoint rejects them, with the reason
-                if watch.poll():
-                    self.driver.abort()
-        finally:
-            watch.close()
-
-
-Engine._handlers = {
-    CommandKind.PAUSE: Engine._pause,
-    CommandKind.RESUME: Engine._resume,
-    CommandKind.APPROVE: Engine._approve,
-    CommandKind.STEP: Engine._approve,
-    CommandKind.VETO: Engine._veto,
-    CommandKind.ADJUST: Engine._adjust,
-    CommandKind.STOP_AFTER_BLOCK: Engine._stop_after_block,
-    CommandKind.ABORT: Engine._abort,
-    CommandKind.CONFIRM: Engine._confirm,
-    CommandKind.REPORT: Engine._report,
-    CommandKind.SKIP: Engine._skip,
-    CommandKind.AWAY_UNTIL: Engine._away_until,
-}

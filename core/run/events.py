@@ -13,9 +13,9 @@ from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
 from core.driver import InstrumentWait
-from core.journal.codec import DriverState, StoredCommand
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.run.machine import EngineState
+from core.run.records import DriverState, StoredCommand
 from core.runview import MapFields
 
 TimedSteps = tuple[tuple[StepRecord, float], ...]  # each step with the instrument clock when it ended

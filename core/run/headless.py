@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING
 
 from core.cost import CostLedger
 from core.interlock import Interlock
-from core.journal.codec import StoredCommand
 from core.metrics import MapEvaluator
 from core.plan import Decision
 from core.run.events import (
@@ -29,6 +28,7 @@ from core.run.events import (
     Steps,
 )
 from core.run.history import HistoryFold
+from core.run.records import StoredCommand
 
 if TYPE_CHECKING:
     from core.campaign import Campaign

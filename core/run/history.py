@@ -16,7 +16,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from core.journal.codec import DriverState
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.run.events import (
     BlockEnded,
@@ -32,6 +31,7 @@ from core.run.events import (
     StateChanged,
     Steps,
 )
+from core.run.records import DriverState
 
 AWAITING = "awaiting approval"  # a pending decision's reason when its record gives none
 

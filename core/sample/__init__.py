@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from core.sample.load import check_avoided_centres, load_sample, parse_sample
+from core.sample.load import check_avoided_centres, load_sample, parse_sample, sample_from_dict
 from core.sample.model import (
     CircleExclusion,
     Exclusion,
     PolygonExclusion,
     Sample,
     grid_baseline_s,
-    sample_from_dict,
 )
 from core.sample.template import SAMPLE_TEMPLATE
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
+import sqlite3
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -264,15 +265,23 @@ def _read_indents_csv(source: str, path: Path) -> list[tuple[float, float]]:
 
 
 def _read_journal_indents(source: str, path: Path) -> list[tuple[float, float]]:
-    from core.journal import JournalReader
-
+    """Where an earlier run indented, read-only from its journal's indents table (docs/journal.md: the
+    table is the journal's public format, so the sample needs nothing of the journal's code); an indent
+    whose position was not measured counts where it was commanded."""
+    where = f"field earlier.journals: {path}"
+    if not path.is_file():
+        raise InputError(source, f"{where}: no such journal file")
     try:
-        with JournalReader(path) as reader:
-            cols, rows = reader.table("indents")
-    except InputError as exc:
-        raise InputError(source, f"field earlier.journals: {exc}") from None
-    ix, iy = cols.index("actual_x_um"), cols.index("actual_y_um")
-    return [(float(r[ix]), float(r[iy])) for r in rows]
+        conn = sqlite3.connect(f"file:{path.resolve()}?mode=ro", uri=True)
+        try:
+            rows = conn.execute(
+                "SELECT COALESCE(actual_x_um, commanded_x_um), COALESCE(actual_y_um, commanded_y_um) FROM indents"
+            ).fetchall()
+        finally:
+            conn.close()
+    except sqlite3.Error as exc:
+        raise InputError(source, f"{where}: not a readable journal ({exc})") from None
+    return [(float(x), float(y)) for x, y in rows]
 
 
 def _earlier(source: str, table: Mapping[str, Any], base_dir: Path | None) -> list[tuple[float, float]]:
@@ -445,3 +454,8 @@ def load_sample(path: str | Path) -> Sample:
     data.pop("source", None)
     data["source"] = str(p.resolve())
     return parse_sample(data, src, base_dir=p.parent)
+
+
+def sample_from_dict(data: Mapping[str, Any], source: str = "sample") -> Sample:
+    """Rebuild (and re-validate) a Sample from ``Sample.to_dict`` output or a parsed sample file."""
+    return parse_sample(dict(data), source)

@@ -8,13 +8,13 @@ plain data and round-trips through ``to_dict`` / ``sample_from_dict`` so the jou
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from core.cost import grid_baseline_blocks, price_sequence
 from core.errors import InputError
 from core.geometry import Calibration, exclusion_mask
 from core.profile import InstrumentProfile
@@ -151,13 +151,6 @@ class Sample:
         }
 
 
-def sample_from_dict(data: Mapping[str, Any], source: str = "sample") -> Sample:
-    """Rebuild (and re-validate) a Sample from ``Sample.to_dict`` output or a parsed sample file."""
-    from core.sample.load import parse_sample
-
-    return parse_sample(dict(data), source)
-
-
 def check_positive(source: str, name: str, value: Any, *, allow_zero: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise InputError(source, f"field {name} must be a finite number, got {value!r}")
@@ -168,7 +161,6 @@ def check_positive(source: str, name: str, value: Any, *, allow_zero: bool = Fal
 
 def grid_baseline_s(sample: Sample, profile: InstrumentProfile, pitch_um: float = 5.0) -> float:
     """Instrument seconds of the paper's grid baseline (9×9 blocks of 5×5) over the sample's extent."""
-    from core.cost import grid_baseline_blocks, price_sequence
 
     x0, x1, y0, y1 = sample.calibration.bounds_um
     blocks = grid_baseline_blocks(

@@ -12,6 +12,7 @@ import numpy as np
 
 from core.geometry import Calibration
 from core.metrics import MapScore, ScoredMap, ScoredModulusMap, mape_pct
+from drivers.sim.laid import LaidTruth
 from drivers.sim.truth import FloatArray, TruthField, truth_modulus_gpa, truth_on_lattice
 
 
@@ -30,8 +31,6 @@ class TruthEvaluator:
     def for_truth(cls, truth: TruthField, calibration: Calibration, n: int = 100) -> TruthEvaluator:
         """An n×n lattice of cell centres: over the field's own rectangle when the field is the sample's own,
         else over the sample's (u, v) square (a field laid onto a sample)."""
-        from drivers.sim.scenarios import LaidTruth
-
         if isinstance(truth, LaidTruth):
             c = (np.arange(n) + 0.5) / n
             gu, gv = np.meshgrid(c, c)

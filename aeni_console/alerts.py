@@ -17,6 +17,7 @@ import logging
 import sqlite3
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import StrEnum
@@ -97,8 +98,6 @@ def send(
 ) -> tuple[bool, str]:
     """Send one alert with apprise's severity (its NotifyType) and a title naming the cause; returns
     (sent, what happened in words without any URL). Never raises for a service that fails."""
-    import warnings
-
     apprise = import_apprise()
     logging.getLogger("apprise").setLevel(logging.CRITICAL + 1)  # its messages may name the service
     with warnings.catch_warnings():  # its plugins load on first use (one imports the deprecated imghdr)

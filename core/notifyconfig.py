@@ -6,9 +6,12 @@ Sending is the application's (aeni_console.alerts, through apprise); core only r
 
 from __future__ import annotations
 
+import difflib
 import json
+import logging
 import os
 import stat
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -78,8 +81,6 @@ def read_urls_file(path: str | Path) -> tuple[str, ...]:
 def import_apprise() -> Any:
     """apprise, imported without its DeprecationWarning (the stdlib's imghdr), which would be a second line
     under a one-line error and noise in an engine's log. Its plugins load lazily: wrap their first use too."""
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         import apprise
@@ -91,9 +92,6 @@ def check_alert_url(url: str, field: str) -> None:
 
     apprise itself decides (``Apprise().add``), so every scheme it knows is accepted and nothing else; the
     message names the scheme, never the URL (it may hold a token)."""
-    import logging
-    import warnings
-
     apprise = import_apprise()
     from apprise.manager_plugins import NotificationManager
 
@@ -114,8 +112,6 @@ def check_alert_url(url: str, field: str) -> None:
         log.setLevel(level)
     low = scheme.lower()
     if low not in known:
-        import difflib
-
         near = difflib.get_close_matches(low, known, n=1)
         hint = f" (did you mean {near[0]}://?)" if near else ""
         raise InputError(

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from aeni_console.bench.harness import BenchConfig, RunRecord, summarise
+from core.policies.registry import policy_names
 
 _PALETTE = (
     "#ff7f0e", "#000000", "#7f7f7f", "#1f77b4", "#17becf", "#2ca02c", "#bcbd22", "#d62728",
@@ -22,8 +23,6 @@ _PALETTE = (
 
 def policy_order(names: Sequence[str]) -> list[str]:
     """The registry's policies in its order (the recommended one first), then any ablations by name."""
-    from core.policies.registry import policy_names
-
     known = [p for p in policy_names() if p in names]
     return known + sorted(set(names) - set(known))
 

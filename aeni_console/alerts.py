@@ -46,8 +46,8 @@ def alert_worthy(events: Iterable[LogEvent]) -> bool:
     return any(event_kind(e.text) is not None for e in events)
 
 
-def send(urls: tuple[str, ...], body: str, title: str = TITLE) -> tuple[bool, str]:
-    """(sent, what happened in words without any URL)."""
+def send(urls: tuple[str, ...], body: str, title: str = TITLE, severity: str = "info") -> tuple[bool, str]:
+    """(sent, what happened in words without any URL); ``severity``: apprise's info, warning or failure."""
     import apprise
 
     logging.getLogger("apprise").setLevel(logging.CRITICAL + 1)  # its messages may name the service
@@ -55,7 +55,7 @@ def send(urls: tuple[str, ...], body: str, title: str = TITLE) -> tuple[bool, st
     bad = sum(1 for u in urls if not ap.add(u))
     if len(ap) == 0:
         return False, f"none of the {len(urls)} alert URL(s) is one apprise knows"
-    ok = bool(ap.notify(title=title, body=body))
+    ok = bool(ap.notify(title=title, body=body, notify_type=apprise.NotifyType(severity)))
     if not ok:
         return False, f"a service did not accept the alert ({len(ap)} tried)"
     return True, f"sent to {len(ap)} service(s)" + (f"; {bad} URL(s) not understood" if bad else "")

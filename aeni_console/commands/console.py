@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from aeni_console.commands.common import check_new_journal, positive_float, seed_arg
+from aeni_console.supervisor import DEFAULT_AUTO_RESUME
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
 
@@ -140,7 +141,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             f"The demo's engine and fake InView stopped; step through the run: aeni console --replay {journal}"
         )
         return 0
-    pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)
+    pid = start_engine_process(
+        config, journal, args.supervision, args.speed, detach=True, auto_resume=DEFAULT_AUTO_RESUME
+    )  # the PID of the engine's supervisor: stopping it stops the engine
     assert isinstance(pid, int)
     if args.stay:
         return run_console(journal, pid=pid)
@@ -195,8 +198,14 @@ def kla_demo(
             )
         try:
             engine = start_engine_process(
-                config, journal, supervision, speed, driver="kla", exchange=str(exchange)
-            )
+                config,
+                journal,
+                supervision,
+                speed,
+                driver="kla",
+                exchange=str(exchange),
+                auto_resume=DEFAULT_AUTO_RESUME,
+            )  # the engine's supervisor: stopping it stops the engine
             assert isinstance(engine, subprocess.Popen)
             try:
                 yield exchange, engine, fake

@@ -31,6 +31,7 @@ from drivers.kla.exchange import (
     ReportKind,
     Ticket,
     make_ticket,
+    margin_s,
     stretch_line,
     ticket_panel,
     ticket_text,
@@ -186,7 +187,7 @@ class KlaDriver(InstrumentState):
         wanted = tuple((s.x_um, s.y_um) for s in block.indents[start_index:])
         if existing is not None and existing.first_index == start_index and existing.sites_um == wanted:
             if existing.deadline() <= self.now():  # the engine was down past it: a fresh wait, same token
-                wait = timedelta(seconds=self._answer_delay_s() + self.profile.inview.deadline_margin_s)
+                wait = timedelta(seconds=self._answer_delay_s() + margin_s(self.profile.inview, self.speed))
                 existing = replace(
                     existing, deadline_utc=(self.now() + wait).replace(microsecond=0).isoformat()
                 )

@@ -1,0 +1,91 @@
+"""KLA, issue 38: a 0-byte export is refused into refused/ (it was never judged: the block waited on it
+forever and the next block's status named it), and the deadline's margin shrinks with a fake InView's speed
+as docs/kla.md says."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from core.driver import InstrumentWait
+from core.plan import Block, IndentResult, local_grid
+from core.profile import load_profile
+from drivers.kla.driver import KlaDriver
+from drivers.kla.exchange import EXCHANGE_LATENCY_S, deadline_s, make_ticket, margin_s
+
+BASE = load_profile("kla-imicro")
+SHORT = replace(BASE, inview=replace(BASE.inview, stable_polls=2, poll_s=0.01, deadline_margin_s=1.5))
+
+
+def _block(block_id: int) -> Block:
+    return Block(block_id, "global", 500.0, 500.0, 2, 5.0, 80.0, local_grid(500.0, 500.0, 2, 5.0, 80.0))  # type: ignore[arg-type]
+
+
+def _run(d: KlaDriver, b: Block) -> tuple[list[IndentResult], list[InstrumentWait]]:
+    results, waits = [], []
+    for ev in d.execute_block(b):
+        if isinstance(ev, IndentResult):
+            results.append(ev)
+        elif isinstance(ev, InstrumentWait):
+            waits.append(ev)
+    return results, waits
+
+
+def _manifest(archive: Path) -> list[dict[str, object]]:
+    return [json.loads(line) for line in (archive / "manifest.jsonl").read_text().splitlines() if line]
+
+
+def test_a_0_byte_export_is_refused_at_the_deadline(tmp_path: Path) -> None:
+    exchange, archive = tmp_path / "x", tmp_path / "r1.sqlite.exports"
+    exchange.mkdir()
+    d = KlaDriver(SHORT, exchange, "r1", archive, speed=1e6)
+    gen = d.execute_block(_block(0))
+    first = next(gen)  # the ticket is out
+    assert isinstance(first, InstrumentWait)
+    empty = exchange / "inbox" / "r1-000-export.csv"
+    empty.write_bytes(b"")
+    waits = [ev for ev in gen if isinstance(ev, InstrumentWait)]
+    assert any("r1-000-export.csv is empty (0 bytes)" in w.waiting for w in waits), [w.waiting for w in waits]
+    assert not empty.exists()
+    refused = [e for e in _manifest(archive) if e["status"] == "refused"]
+    assert len(refused) == 1 and refused[0]["reason"] == "cannot be read: the file is empty (0 bytes)"
+    assert (archive / str(refused[0]["file"])).is_file() and str(refused[0]["file"]).startswith("refused/")
+
+
+def test_the_next_block_names_its_own_file_not_a_closed_blocks_empty_one(tmp_path: Path) -> None:
+    exchange, archive = tmp_path / "x", tmp_path / "r1.sqlite.exports"
+    exchange.mkdir()
+    d = KlaDriver(SHORT, exchange, "r1", archive, speed=1e6)
+    results, _ = _run(d, _block(0))  # nobody answers: block 0 closes at its deadline
+    assert {r.status for r in results} == {"not_run"}
+    late = exchange / "inbox" / "r1-000-export.csv"
+    late.write_bytes(b"")  # block 0's export, empty, after block 0 closed
+    gen = d.execute_block(_block(1))
+    waits = []
+    for ev in gen:
+        if isinstance(ev, InstrumentWait):
+            waits.append(ev.waiting)
+            if not late.exists() and len(waits) > 5:
+                break
+    assert not any("r1-000" in w for w in waits), waits  # block 1's status is block 1's
+    assert not late.exists()
+    refused = [e for e in _manifest(archive) if e["status"] == "refused"]
+    assert [(e["block_id"], e["reason"]) for e in refused] == [
+        (0, "cannot be read: the file is empty (0 bytes)")
+    ]
+
+
+def test_the_deadline_margin_shrinks_with_the_speed() -> None:
+    s = BASE.inview  # 180 s margin, 1.5 × the estimate
+    assert margin_s(s) == margin_s(s, 1.0) == 180.0
+    assert margin_s(s, 2.0) == 90.0
+    floor = (s.stable_polls + 2) * s.poll_s + EXCHANGE_LATENCY_S  # what the exchange itself needs
+    assert margin_s(s, 600.0) == floor < 180.0
+    assert deadline_s(s, 3600.0, 600.0) == 3600.0 / 600.0 * 1.5 + floor
+    assert margin_s(replace(s, deadline_margin_s=2.0), 600.0) == 2.0  # a profile's shorter margin stays
+    b = _block(3)
+    slow = make_ticket("r", b, s, expected_s=1200.0)
+    fast = make_ticket("r", b, s, expected_s=1200.0, speed=600.0)
+    assert slow.deadline_s == 1200.0 * 1.5 + 180.0
+    assert fast.deadline_s == 1200.0 / 600.0 * 1.5 + floor

@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 DEFAULT_AUTO_RESUME = 3  # resumes in a row without a new indent before it is a crash loop
 DEFAULT_BACKOFF_S = 5.0  # the first pause before a resume; doubled for each further attempt in a row
@@ -37,7 +38,51 @@ LOG_PREFIX = "supervisor: "
 # when its engine died in these states the operator had said stop or wait: not resumed automatically
 OPERATOR_HELD = {"paused": "paused by the operator", "stopping": "stopping"}
 
-Launch = Callable[[], "subprocess.Popen[bytes]"]
+SUPERVISED_ENV = "AENI_SUPERVISED"  # set in a supervised engine's environment: it needs no watcher of its own
+
+
+class EngineProcess(Protocol):
+    """What the supervisor needs of an engine process: a child (Popen) or an adopted foreground engine."""
+
+    @property
+    def pid(self) -> int: ...
+
+    def wait(self) -> int: ...
+
+    def poll(self) -> int | None: ...
+
+    def send_signal(self, sig: int) -> None: ...
+
+
+Launch = Callable[[], EngineProcess]
+NO_STATUS = -1_000_000  # an adopted engine's end: not our child, so no exit status to read
+
+
+class Adopted:
+    """A foreground engine (``aeni run`` in a terminal) watched from beside it: it is not our child, so
+    its end is seen through its journal lock (released when its process ends, however it ends)."""
+
+    def __init__(self, journal: Path, pid: int) -> None:
+        self.journal, self.pid = journal, pid
+        self._ended = False
+
+    def wait(self) -> int:
+        from core.journal import lock_path_for as engine_lock
+
+        fd = os.open(engine_lock(self.journal), os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH)  # blocks, without a poll, until the engine lets go
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        finally:
+            os.close(fd)
+        self._ended = True
+        return NO_STATUS
+
+    def poll(self) -> int | None:
+        return NO_STATUS if self._ended else None
+
+    def send_signal(self, sig: int) -> None:
+        os.kill(self.pid, sig)
 
 
 def lock_path_for(journal: str | Path) -> Path:
@@ -150,6 +195,13 @@ def last_log_line(log: Path | None) -> str:
 
 def describe_exit(returncode: int, log: Path | None) -> tuple[str, int | None, str | None]:
     """(the cause in words, the exit code, the signal's name) of an engine process that ended."""
+    if returncode == NO_STATUS:
+        return (
+            "engine ended without ending its run (a foreground engine: no exit status to read; kill -9, "
+            "the out-of-memory killer or its terminal closed)",
+            None,
+            None,
+        )
     if returncode < 0:
         try:
             name = signal.Signals(-returncode).name
@@ -187,8 +239,8 @@ class Supervisor:
         self.backoff_s = max(0.0, float(backoff_s))
         self.log = Path(log) if log is not None else self.journal.with_name(self.journal.name + ".log")
         self.poll_s = poll_s
-        self.say = say or (lambda line: print(LOG_PREFIX + line, flush=True))
-        self.child: subprocess.Popen[bytes] | None = None
+        self.say = say or _say
+        self.child: EngineProcess | None = None
         self.stopping = False
         self.deaths = 0  # every engine death seen (for the report and tests)
 
@@ -227,7 +279,7 @@ class Supervisor:
                 self.say(f"the engine ended with {code} and its journal cannot be read: not resuming")
                 return code
             held = ended_by_itself(after)
-            if held is not None and code >= 0:
+            if held is not None and (code >= 0 or code == NO_STATUS):
                 self.say(f"the engine ended: {held}")
                 return code
             if self._someone_else_runs_it():
@@ -235,6 +287,8 @@ class Supervisor:
                 return code
             self.deaths += 1
             cause, exit_code, sig = describe_exit(code, self.log)
+            if code == NO_STATUS and after.state == "failed" and after.stop_reason:
+                cause = f"engine failed: {after.stop_reason}"
             if not began:
                 cause = f"the resumed engine did not start ({cause})"
             progressed = (
@@ -251,12 +305,18 @@ class Supervisor:
                 return code or 1
             if attempt > self.auto_resume:
                 n = self.auto_resume
-                action = (
-                    f"not resumed: {n} automatic resume(s) in a row ended the same way (a crash loop); "
-                    f"`aeni resume {self.journal}` once the cause is fixed"
-                    if n
-                    else f"not resumed ([run] auto_resume = 0): `aeni resume {self.journal}`"
-                )
+                if code == NO_STATUS:
+                    action = (
+                        f"not resumed: it ran in the foreground (`aeni resume {self.journal}`; a run started "
+                        "with --detach is resumed by its supervisor)"
+                    )
+                elif n:
+                    action = (
+                        f"not resumed: {n} automatic resume(s) in a row ended the same way (a crash loop); "
+                        f"`aeni resume {self.journal}` once the cause is fixed"
+                    )
+                else:
+                    action = f"not resumed ([run] auto_resume = 0): `aeni resume {self.journal}`"
                 self._died(pid, cause, exit_code, sig, action, "failure")
                 return code or 1
             wait_s = self.backoff_s * 2 ** (attempt - 1)
@@ -275,7 +335,7 @@ class Supervisor:
                 return 0
             launch = self.resume
 
-    def _wait(self, child: subprocess.Popen[bytes]) -> int:
+    def _wait(self, child: EngineProcess) -> int:
         while True:
             try:
                 return child.wait()
@@ -353,6 +413,12 @@ class Supervisor:
         self.say(f"alert {'sent' if ok else 'not sent'} ({severity}): {how}")
 
 
+def _say(line: str) -> None:
+    """A line in the log; a log on a full disk must not take the supervisor down with it."""
+    with contextlib.suppress(OSError):
+        print(LOG_PREFIX + line, flush=True)
+
+
 def _hold_lock(journal: Path) -> int:
     """Take ``<journal>.supervisor`` for this process's life (the PID in it); SystemExit(2) when another
     supervisor holds it."""
@@ -372,6 +438,28 @@ def _hold_lock(journal: Path) -> int:
     return fd
 
 
+def watch_foreground(journal: Path, log: Path, env: dict[str, str]) -> int | None:
+    """Start a supervisor beside this foreground engine (which holds the journal): when this process dies
+    without ending the run it journals and alerts the death; it does not resume a foreground run (someone
+    at the terminal may be resuming it by hand). None when this engine is itself supervised."""
+    if os.environ.get(SUPERVISED_ENV):
+        return None
+    argv = [
+        sys.executable, "-m", SUPERVISOR_MODULE, "--journal", str(journal), "--log", str(log),
+        "--adopt", str(os.getpid()), "--auto-resume", "0",
+    ]  # fmt: skip
+    with open(log, "ab") as fh:
+        proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,  # it outlives this process and its terminal
+            env={**env, SUPERVISED_ENV: "1"},
+        )
+    return proc.pid
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="aeni-supervisor", description=__doc__.split("\n\n")[0])
     ap.add_argument("--journal", required=True, type=Path)
@@ -379,18 +467,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--auto-resume", dest="auto_resume", type=int, default=DEFAULT_AUTO_RESUME)
     ap.add_argument("--backoff-s", dest="backoff_s", type=float, default=DEFAULT_BACKOFF_S)
     ap.add_argument("--stdin", action="store_true", help="hand this process's stdin to the first engine")
+    ap.add_argument("--adopt", type=int, default=None, help="watch this foreground engine PID (no resume)")
     ap.add_argument("engine", nargs=argparse.REMAINDER, help="-- the engine's command line")
     args = ap.parse_args(argv)
     engine = args.engine[1:] if args.engine[:1] == ["--"] else args.engine
-    if not engine:
+    if not engine and args.adopt is None:
         ap.error("the engine's command line is missing (after --)")
     data = sys.stdin.buffer.read() if args.stdin else None
     journal: Path = args.journal
     fd = _hold_lock(journal)
 
+    env = {**os.environ, SUPERVISED_ENV: "1"}
+
     def launch(argv: Sequence[str], payload: bytes | None) -> subprocess.Popen[bytes]:
         proc = subprocess.Popen(
-            list(argv), stdin=subprocess.PIPE if payload is not None else subprocess.DEVNULL
+            list(argv), stdin=subprocess.PIPE if payload is not None else subprocess.DEVNULL, env=env
         )
         if payload is not None:
             assert proc.stdin is not None
@@ -400,11 +491,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 proc.stdin.close()
         return proc
 
+    adopt: int | None = args.adopt
+    first: Launch = (lambda: Adopted(journal, adopt)) if adopt is not None else (lambda: launch(engine, data))
     sup = Supervisor(
         journal,
-        lambda: launch(engine, data),
+        first,
         lambda: launch(resume_argv(journal), None),
-        auto_resume=args.auto_resume,
+        auto_resume=0 if adopt is not None else args.auto_resume,
         backoff_s=args.backoff_s,
         log=args.log,
     )

@@ -233,3 +233,35 @@ def test_the_cause_names_the_signal_or_the_last_line_of_the_log(tmp_path: Path) 
     assert describe_exit(-9, log)[0].startswith("engine killed by SIGKILL")
     assert describe_exit(-15, log) == ("engine killed by SIGTERM", None, "SIGTERM")
     assert describe_exit(1, log) == ("engine exited with code 1: ValueError: boom", 1, None)
+
+
+def test_a_killed_foreground_engine_is_journaled_and_alerted_not_resumed(
+    receiver: Receiver, tmp_path: Path
+) -> None:
+    """A foreground `aeni run` cannot report its own kill -9; the watcher it starts beside itself (when the
+    run has alerts) does, and leaves the resume to the person at the terminal."""
+    run_file = tmp_path / "run.toml"
+    run_file.write_text(
+        'name = "fg"\n[campaign]\nlattice_n = 30\nseed = 6\n[planner]\nindent_budget = 2000\n'
+        f'[run]\nspeed = 40.0\n[notify]\nurls = ["{receiver.url}"]\n'
+    )
+    journal = tmp_path / "fg.sqlite"
+    engine = subprocess.Popen(
+        [*resume_argv(journal)[:3], "run", str(run_file), "--journal", str(journal), "--quiet"],
+        env=_child_env(),
+        stdout=subprocess.DEVNULL,
+    )
+    try:
+        _wait(lambda: supervisor_pid(journal) and len(_indents(journal)) >= 1)
+        engine.send_signal(signal.SIGKILL)
+        engine.wait()
+        _wait(lambda: receiver.of("failure"))
+    finally:
+        if engine.poll() is None:
+            engine.kill()
+    alert = receiver.of("failure")[0]
+    assert "a foreground engine" in alert and "not resumed" in alert and f"aeni resume {journal}" in alert
+    _wait(lambda: supervisor_pid(journal) is None)
+    assert _supervisor_rows(journal) and not engine_running(journal)
+    with JournalReader(journal) as r:
+        assert r.q.engine_row()["state"] == "failed"

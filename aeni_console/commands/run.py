@@ -253,11 +253,13 @@ def run_engine(
     supervision: str | None = None,
     quiet: bool = False,
     notify: Any = None,
+    watch: bool = False,
 ) -> int:
     """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process.
 
     ``notify`` (core.notifyconfig.NotifyConfig) sends alerts from a thread beside the engine; a new run keeps
-    it beside its journal, owner-only, for ``aeni resume``."""
+    it beside its journal, owner-only, for ``aeni resume``. ``watch`` (a foreground run with alerts): a
+    supervisor beside this process journals and alerts its death, which this process cannot (kill -9)."""
     from core.campaign import Campaign, campaign_config_from_dict
     from core.journal import Journal, JournalReader
     from core.notifyconfig import load_run_notify, notify_path_for, write_private
@@ -351,6 +353,10 @@ def run_engine(
         from aeni_console.alerts import AlertWatcher
 
         alerts = AlertWatcher(path, notify).start()
+        if watch:
+            from aeni_console.supervisor import watch_foreground
+
+            watch_foreground(path, path.with_name(path.name + ".log"), _child_env())
     try:
         state = engine.run()
     finally:
@@ -456,7 +462,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         )
         print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
         return 0
-    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify)
+    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify, watch=True)
 
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
@@ -509,7 +515,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
             f"{args.auto_resume} times in a row at most; log {log.name})"
         )
         return 0
-    return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet)
+    return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet, watch=True)
 
 
 def preflight_resume(path: Path, speed: float | None) -> bool:

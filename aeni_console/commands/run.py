@@ -74,19 +74,22 @@ def engine_argv(
     if group is not None:
         argv += ["--group", group]
     for flag, value in (rules or {}).items():
-        if value is not None:
+        if value is not None and not isinstance(value, dict):  # a table (the [operator] hours) goes on stdin
             argv += [f"--{flag.replace('_', '-')}", str(value)]
     return argv
 
 
-def engine_stdin(config: Any, notify: Any = None) -> bytes:
-    """What an engine started with ``--config-stdin`` reads: the campaign config and the alert URLs."""
+def engine_stdin(config: Any, notify: Any = None, rules: dict[str, Any] | None = None) -> bytes:
+    """What an engine started with ``--config-stdin`` reads: the campaign config, the alert URLs and the
+    run's [operator] hours (a table no flag carries)."""
     from core.campaign import campaign_config_to_dict
     from core.journal import to_json
 
     out: dict[str, Any] = {"campaign": campaign_config_to_dict(config)}
     if notify is not None and notify.enabled:
         out["notify"] = json.loads(notify.to_json())
+    if (rules or {}).get("operator"):
+        out["operator"] = dict((rules or {})["operator"])
     return to_json(out).encode("utf-8")
 
 
@@ -133,7 +136,7 @@ def start_engine_process(
         )
     assert proc.stdin is not None
     with contextlib.suppress(BrokenPipeError):  # an engine that died at once says why in its log
-        proc.stdin.write(engine_stdin(config, notify))
+        proc.stdin.write(engine_stdin(config, notify, rules))
     with contextlib.suppress(BrokenPipeError):
         proc.stdin.close()
     deadline = time.monotonic() + wait_s
@@ -430,7 +433,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             raise InputError("--config-stdin", f"not a campaign config ({exc})") from None
         notify = NotifyConfig.from_mapping(data.get("notify") or {}, "--config-stdin")
         flags = parse_run_config(
-            {}, "command line", {k: v for k, v in _overrides(args).items() if k.startswith("run.")}
+            {"operator": data["operator"]} if data.get("operator") else {},
+            "command line",
+            {k: v for k, v in _overrides(args).items() if k.startswith("run.")},
         )
         options: RunOptions = flags.options
     else:

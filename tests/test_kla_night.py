@@ -5,8 +5,11 @@ as docs/kla.md says."""
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import replace
 from pathlib import Path
+
+import pytest
 
 from core.driver import InstrumentWait
 from core.plan import Block, IndentResult, local_grid
@@ -89,3 +92,23 @@ def test_the_deadline_margin_shrinks_with_the_speed() -> None:
     fast = make_ticket("r", b, s, expected_s=1200.0, speed=600.0)
     assert slow.deadline_s == 1200.0 * 1.5 + 180.0
     assert fast.deadline_s == 1200.0 / 600.0 * 1.5 + floor
+
+
+def test_a_wait_for_the_operator_across_a_daylight_saving_change_is_counted_in_real_seconds(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A ticket written Saturday 20:00 in Berlin before the spring-forward night is answered Sunday 08:00:
+    11 hours later, not the 12 the clock readings differ by (the deadline waited an hour too long)."""
+    from datetime import datetime
+
+    from core.operator import OperatorAvailability, OperatorHours
+
+    monkeypatch.setenv("TZ", "Europe/Berlin")
+    time.tzset()
+    try:
+        op = OperatorAvailability(OperatorHours.parse("Mon-Sun 08:00-18:00"), 0.0, 7200.0)
+        assert op.answer_delay_s(datetime(2024, 3, 30, 20, 0)) == 11 * 3600.0
+        assert op.answer_delay_s(datetime(2024, 3, 29, 20, 0)) == 12 * 3600.0  # an ordinary night
+    finally:
+        monkeypatch.undo()
+        time.tzset()

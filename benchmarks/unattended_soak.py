@@ -45,6 +45,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timedelta
@@ -140,6 +141,19 @@ def _block_wall_s(journal: Path) -> list[float]:
 
     stamps = [datetime.fromisoformat(r[0]).timestamp() for r in rows]
     return [b - a for a, b in itertools.pairwise(stamps) if b > a]
+
+
+def _retry(action: Callable[[], object], until_s: float = 10.0) -> bool:
+    """``action`` until it does not raise OSError (a share read-only for a moment); False when it never did."""
+    end = time.monotonic() + until_s
+    while True:
+        try:
+            action()
+            return True
+        except OSError:
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.2)
 
 
 def _read(path: Path) -> str:
@@ -429,10 +443,11 @@ def soak_one(out: RunOutcome, budget_s: float, invalid_rate: float, stall_x: flo
 
         def carry_away() -> None:  # the folder goes away and comes back while the run goes on
             if after_first_ticket(out.folder_away_at_s) and exchange.is_dir():
-                os.rename(exchange, away)
+                if not _retry(lambda: os.rename(exchange, away)):  # the share may be read-only just then
+                    return
                 out.folder_removed = True
                 time.sleep(out.folder_away_s)
-                os.rename(away, exchange)
+                _retry(lambda: os.rename(away, exchange), until_s=120.0)
 
         def read_only() -> None:  # the share turns read-only, then writable again
             assert out.share_ro_at_s is not None
@@ -597,6 +612,7 @@ def _bad(r: RunOutcome) -> bool:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--first", type=int, default=0, help="start at run K (a soak resumed; runs K..runs-1)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--budget-s", type=float, default=8000.0)
@@ -648,7 +664,7 @@ def main(argv: list[str] | None = None) -> int:
         return out
 
     with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
-        rows = list(pool.map(one, range(args.runs)))
+        rows = list(pool.map(one, range(args.first, args.runs)))
     text = table(rows) + f"\ntotal wall time {time.monotonic() - started:.0f} s"
     print(text)
     for r in rows:

@@ -462,7 +462,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         )
         print(f"journal {journal}")
         print(
-            f"engine detached under supervisor PID {pid} (it alerts and resumes the engine if it dies, "
+            f"supervisor PID {pid} (detached; it runs the engine, alerts and resumes it if it dies, "
             f"{options.auto_resume} times in a row at most; log {journal.name}.log)"
         )
         print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
@@ -516,7 +516,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
         _wait_started(proc, path, log)
         print(f"journal {path}")
         print(
-            f"engine detached under supervisor PID {proc.pid} (it alerts and resumes the engine if it dies, "
+            f"supervisor PID {proc.pid} (detached; it runs the engine, alerts and resumes it if it dies, "
             f"{args.auto_resume} times in a row at most; log {log.name})"
         )
         return 0

@@ -112,3 +112,27 @@ def test_a_wait_for_the_operator_across_a_daylight_saving_change_is_counted_in_r
     finally:
         monkeypatch.undo()
         time.tzset()
+
+
+def test_a_refusal_recorded_after_a_manifest_line_cut_short_still_holds_its_rows_as_made(
+    tmp_path: Path,
+) -> None:
+    """The soak's gap (a refused export's rows ended `not_run` instead of `unverified` after a kill and
+    resume): a kill -9 or a full disk cut the manifest's last line short; the next entry (the refusal, with
+    the rows it says were made) was appended to that cut line, so neither line could be read, and the resumed
+    block closed with its made indents as not run (new indents could then land on them)."""
+    from drivers.kla.inbox import ExportArchive, SiteOutcome
+
+    exchange, archive = tmp_path / "x", tmp_path / "r1.sqlite.exports"
+    exchange.mkdir()
+    archive.mkdir()
+    (archive / "manifest.jsonl").write_text('{"status": "closed", "run": "r1", "block_id": 0, "sha2')  # cut
+    src = tmp_path / "r1-001-export.csv"
+    src.write_text("Test,X Position,Y Position,HARDNESS\n1,1.0,2.0,5.0\n")
+    made = tuple(SiteOutcome(i, "unverified", 480.0 + i, 520.0, reason="export refused") for i in range(3))
+    ExportArchive(archive).refuse(src, None, "r1", 1, "positions do not match the plan: flipped", made=made)
+    assert ExportArchive(archive).refused_made("r1", 1) == made
+    resumed = KlaDriver(SHORT, exchange, "r1", archive, speed=1e6)  # the engine after the kill
+    results, _ = _run(resumed, _block(1))
+    assert [r.status for r in results] == ["unverified"] * 3 + ["not_run"]
+    assert [r.actual_x_um for r in results[:3]] == [480.0, 481.0, 482.0]

@@ -21,7 +21,7 @@ import pytest
 from aeni_console.cli import main
 from aeni_console.commands.run import _child_env, engine_argv, engine_stdin
 from aeni_console.commands.runs import format_runs, list_runs
-from aeni_console.supervisor import Supervisor, describe_exit, resume_argv, supervisor_pid
+from aeni_console.supervisor import SUPERVISED_ENV, Supervisor, describe_exit, resume_argv, supervisor_pid
 from core.journal import JournalReader, engine_running
 from core.notifyconfig import NotifyConfig
 from core.runconfig import make_campaign_config
@@ -59,7 +59,7 @@ def receiver() -> Iterator[Receiver]:
     r.server.shutdown()
 
 
-def _wait(pred: Callable[[], object], timeout_s: float = 120.0) -> None:
+def _wait(pred: Callable[[], object], timeout_s: float = 300.0) -> None:  # a loaded 2-core machine
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and not pred():
         time.sleep(0.05)
@@ -145,7 +145,7 @@ def _engine(
         proc = subprocess.Popen(
             [*engine_argv(cfg, journal, speed=speed), "--quiet"],
             stdin=subprocess.PIPE,
-            env=_child_env(),
+            env={**_child_env(), SUPERVISED_ENV: "1"},  # as the supervisor launches it
             stdout=subprocess.DEVNULL,
         )
         assert proc.stdin is not None

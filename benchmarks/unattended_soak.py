@@ -545,7 +545,7 @@ def soak_one(out: RunOutcome, budget_s: float, invalid_rate: float, stall_x: flo
             if (
                 out.stalled or out.lost or out.duplicated or out.changed or out.held_not_run
                 or not out.end_state.startswith("stopped") or out.deaths_alerted < out.deaths
-                or out.resumed < out.deaths
+                or _resumed(out) < out.deaths
             ):  # fmt: skip
                 log = journal.with_name(journal.name + ".log")
                 tail = log.read_text(errors="replace").splitlines()[-12:] if log.exists() else []
@@ -573,7 +573,7 @@ def table(rows: list[RunOutcome]) -> str:
         f"{sum(r.changed for r in rows)} | {sum(r.held_not_run for r in rows)} | "
         f"{count(lambda r: r.end_state.startswith('stopped'))} | {count(lambda r: r.killed)} | "
         f"{sum(r.deaths for r in rows)} | {sum(min(r.deaths_alerted, r.deaths) for r in rows)} | "
-        f"{sum(min(r.resumed, r.deaths) for r in rows)} | {count(lambda r: r.crash_loop)} | "
+        f"{sum(_resumed(r) for r in rows)} | {count(lambda r: r.crash_loop)} | "
         f"{count(lambda r: r.folder_removed)} | {count(lambda r: r.share_ro == 'done')} | "
         f"{count(lambda r: r.disk_full == 'done')} | {count(lambda r: r.dst)} | {sum(r.indents_made for r in rows)} | "
         f"{sum(r.recorded_made for r in rows)} | {sum(r.indents_unexported for r in rows)} | "
@@ -602,10 +602,16 @@ def table(rows: list[RunOutcome]) -> str:
     return "\n".join(lines)
 
 
+def _resumed(r: RunOutcome) -> int:
+    """The run's engine deaths its supervisor resumed: all of them (a resume that did not start counts as a
+    death, resumed by the next attempt) when a resumed engine ran and no crash loop stopped it, else none."""
+    return r.deaths if r.resumed >= 1 and not r.crash_loop else 0
+
+
 def _bad(r: RunOutcome) -> bool:
     return bool(
         r.stalled or r.lost or r.duplicated or r.changed or not r.end_state.startswith("stopped")
-        or r.deaths_alerted < r.deaths or r.resumed < r.deaths
+        or r.deaths_alerted < r.deaths or _resumed(r) < r.deaths
     )  # fmt: skip
 
 

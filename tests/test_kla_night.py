@@ -136,3 +136,34 @@ def test_a_refusal_recorded_after_a_manifest_line_cut_short_still_holds_its_rows
     results, _ = _run(resumed, _block(1))
     assert [r.status for r in results] == ["unverified"] * 3 + ["not_run"]
     assert [r.actual_x_um for r in results[:3]] == [480.0, 481.0, 482.0]
+
+
+def test_a_journal_whose_checkpoint_a_full_disk_cut_short_is_resumable(tmp_path: Path) -> None:
+    """Soak v2 (journal folder full): SQLite's checkpoint wrote the header (n pages) and could not extend the
+    file; every page is still in the -wal. The journal was refused as truncated on every resume (a crash
+    loop) though SQLite reads it whole."""
+    import os
+    import shutil
+    import sqlite3
+
+    from core.journal.schema import SCHEMA_SQL, SCHEMA_VERSION, check_journal_file
+
+    src, dst = tmp_path / "a.sqlite", tmp_path / "b.sqlite"
+    c = sqlite3.connect(src, isolation_level=None)
+    c.execute("PRAGMA journal_mode = WAL")
+    c.execute("PRAGMA wal_autocheckpoint = 0")
+    c.executescript(SCHEMA_SQL)
+    c.execute("INSERT INTO schema_version VALUES (?)", (SCHEMA_VERSION,))
+    for _ in range(60):
+        c.execute(
+            "INSERT INTO events (wall_utc, t_s, level, category, text) VALUES ('', 0, 'info', 'e', ?)",
+            ("y" * 3000,),
+        )
+    c.execute("PRAGMA wal_checkpoint(PASSIVE)")  # the main file now says 80 pages; the WAL keeps them all
+    shutil.copy(src, dst)
+    shutil.copy(f"{src}-wal", f"{dst}-wal")  # as the disk held them when the engine died
+    c.close()
+    os.truncate(dst, dst.stat().st_size // 2)  # the pages the full disk did not take
+    check_journal_file(dst)  # refused before: "journal is truncated: ... nothing was changed"
+    with sqlite3.connect(dst) as back:
+        assert back.execute("SELECT COUNT(*) FROM events").fetchone() == (60,)

@@ -167,3 +167,29 @@ def test_a_journal_whose_checkpoint_a_full_disk_cut_short_is_resumable(tmp_path:
     check_journal_file(dst)  # refused before: "journal is truncated: ... nothing was changed"
     with sqlite3.connect(dst) as back:
         assert back.execute("SELECT COUNT(*) FROM events").fetchone() == (60,)
+
+
+def test_time_the_exchange_folder_was_gone_does_not_count_against_the_deadline(tmp_path: Path) -> None:
+    """Soak v2's lost indents: the share went away (or read-only) past the deadline; at its first look after
+    it came back the block closed as not run, and the export InView wrote a moment later was refused as
+    stale: made indents held as not run. The block now waits the margin again once the folder is back."""
+    import time as clock
+
+    exchange, archive = tmp_path / "x", tmp_path / "r1.sqlite.exports"
+    exchange.mkdir()
+    d = KlaDriver(SHORT, exchange, "r1", archive, speed=1e6)
+    b = _block(0)
+    gen = d.execute_block(b)
+    first = next(gen)
+    assert isinstance(first, InstrumentWait)
+    exchange.rename(tmp_path / "away")
+    end = clock.monotonic() + 2.5  # past the 1.5 s deadline
+    while clock.monotonic() < end:
+        assert isinstance(next(gen), InstrumentWait)
+    (tmp_path / "away").rename(exchange)
+    rows = "".join(f"{k + 1},{s.x_um},{s.y_um},5.0,100.0\n" for k, s in enumerate(b.indents))
+    (exchange / "inbox" / "r1-000-export.csv").write_text(
+        f"Test,X Position,Y Position,HARDNESS,MODULUS\n{rows}"
+    )
+    results = [ev for ev in gen if isinstance(ev, IndentResult)]
+    assert [r.status for r in results] == ["measured"] * b.n_indents, [r.note for r in results]

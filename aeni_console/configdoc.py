@@ -81,6 +81,9 @@ MEANINGS: dict[str, str] = {
     "run.max_refusals": "refused blocks in a row (the interlock's, or a vetoed block proposed again) that stop the run",
     "run.approval_timeout_s": "an approval nobody answers times out after this (default: waits for the operator)",
     "run.on_timeout": "what a timed-out approval does; a collapse alarm or a refused block is vetoed, never approved",
+    "run.auto_resume": "a detached engine (--detach, demo) that dies without ending its run (kill -9, out of "
+    "memory, a crash) is alerted and resumed by its supervisor this many times in a row; 0: alert only",
+    "run.resume_backoff_s": "the pause before the supervisor's first resume, doubled for each next one in a row",
     "sample.file": "the sample file the run indents (default: the simulated scenario's built-in sample)",
     "operator.hours": "when someone is at or near the instrument, local time: 'Mon-Fri 08:30-18:00', shifts "
     "separated by ';', 'always' or 'never'; outside them the run plans for nobody",

@@ -238,7 +238,7 @@ class OperatorAvailability:
     def unattended_s(self, t: datetime) -> float:
         """Seconds from ``t`` until a request made at ``t`` is answered (inf: nobody ever comes)."""
         answer = self.answers_at(t)
-        return float("inf") if answer is None else (answer - t).total_seconds()
+        return float("inf") if answer is None else wall_seconds(t, answer)
 
     def absence_ahead(self, t: datetime) -> tuple[datetime, datetime | None] | None:
         """The next stretch with nobody there, as (from, until); until None: nobody comes back. None: no absence."""
@@ -248,6 +248,13 @@ class OperatorAvailability:
         if leave is None:
             return None
         return (leave, self.next_arrival(leave))
+
+
+def wall_seconds(a: datetime, b: datetime) -> float:
+    """``b - a`` in real seconds. Hours are local clock readings (naive datetimes); read with the local time
+    zone's rules, a night across a daylight-saving change is an hour shorter or longer than its reading (the
+    engine gave a ticket written before a spring-forward an hour too long to wait)."""
+    return b.timestamp() - a.timestamp()
 
 
 def parse_when(text: str, now: datetime, source: str) -> datetime:

@@ -132,6 +132,9 @@ class RunSection(_Strict):
     max_refusals: int = Field(default=5, ge=1, le=1000)
     approval_timeout_s: float | None = Field(default=None, gt=0)
     on_timeout: Literal["approve", "veto", "pause", "stop"] = "approve"
+    # a detached engine that dies is resumed by its supervisor this many times in a row (0: alert only)
+    auto_resume: int = Field(default=3, ge=0, le=100)
+    resume_backoff_s: float = Field(default=5.0, gt=0)  # the first pause before it; doubled each time
 
     @field_validator("supervision")
     @classmethod
@@ -199,6 +202,8 @@ class RunOptions:
     on_timeout: str = "approve"  # approve | veto | pause | stop (a collapse alarm or a refusal: veto instead)
     # who answers, and when (the [operator] section); None: no section, the run plans as if always attended
     operator: OperatorAvailability | None = None
+    auto_resume: int = 3  # a detached engine that dies is resumed this many times in a row (the supervisor)
+    resume_backoff_s: float = 5.0  # the pause before the first automatic resume, doubled for each next
 
 
 @dataclass(frozen=True)
@@ -326,6 +331,8 @@ def parse_run_config(
         approval_timeout_s=r.approval_timeout_s,
         on_timeout=r.on_timeout,
         operator=rf.operator.availability() if "operator" in rf.model_fields_set else None,
+        auto_resume=r.auto_resume,
+        resume_backoff_s=r.resume_backoff_s,
     )
     n = rf.notify
     try:

@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 
-from core.operator import LoadWindow, OperatorAvailability
+from core.operator import LoadWindow, OperatorAvailability, wall_seconds
 from core.plan import STRETCH_CONTINUES, Decision
 from core.run.events import BlockStarted, Decided, Observed, RunEvent
 
@@ -33,7 +33,7 @@ def unattended_after(availability: OperatorAvailability, now: datetime) -> LoadW
     operator who has said they are away until a time (``away_until``) loads this block as they leave."""
     if availability.away_until is not None and now < availability.away_until:
         back = availability.answers_at(now)
-        return LoadWindow(math.inf if back is None else (back - now).total_seconds())
+        return LoadWindow(math.inf if back is None else wall_seconds(now, back))
     loaded = availability.answers_at(now)
     if loaded is None:
         return LoadWindow(math.inf)
@@ -42,11 +42,11 @@ def unattended_after(availability: OperatorAvailability, now: datetime) -> LoadW
         return LoadWindow(availability.visit_every_s)
     last = leave - timedelta(seconds=availability.response_s)  # a later request waits for the next morning
     back = availability.answers_at(leave)
-    next_answer_s = math.inf if back is None else (back - loaded).total_seconds()
+    next_answer_s = math.inf if back is None else wall_seconds(loaded, back)
     routine = loaded + timedelta(seconds=availability.visit_every_s)
     # the routine visit loads the next arrays only if the request it answers is answered before they leave
     fill_s = availability.visit_every_s if routine <= last else next_answer_s
-    return LoadWindow(fill_s, (last - loaded).total_seconds(), next_answer_s)
+    return LoadWindow(fill_s, wall_seconds(loaded, last), next_answer_s)
 
 
 @dataclass(frozen=True)

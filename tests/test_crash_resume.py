@@ -151,7 +151,7 @@ def test_detached_engine_outlives_its_launcher_and_obeys_abort(tmp_path: Path) -
     out = subprocess.run(argv, capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert f"journal {journal}" in out.stdout
-    pid = int(out.stdout.split("engine PID ")[1].split()[0])
+    pid = int(out.stdout.split("supervisor PID ")[1].split()[0])  # the engine runs under it (issue 38)
     assert os.getsid(pid) == pid != os.getsid(0)  # its own session: closing the terminal does not reach it
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:

@@ -27,6 +27,7 @@ from aeni_console.app import ConsoleApp
 from aeni_console.commands.common import check_new_journal, positive_float, seed_arg
 from aeni_console.commands.run import _child_env, resolve_run, start_engine_process
 from aeni_console.journal_source import JournalReplay, JournalSource
+from aeni_console.supervisor import DEFAULT_AUTO_RESUME
 from core.errors import InputError
 from core.journal import JournalReader, default_journal_path, engine_running
 from core.runconfig import make_campaign_config
@@ -136,7 +137,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             f"The demo's engine and fake InView stopped; step through the run: aeni console --replay {journal}"
         )
         return 0
-    pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)
+    pid = start_engine_process(
+        config, journal, args.supervision, args.speed, detach=True, auto_resume=DEFAULT_AUTO_RESUME
+    )  # the PID of the engine's supervisor: stopping it stops the engine
     assert isinstance(pid, int)
     if args.stay:
         return run_console(journal, pid=pid)
@@ -190,8 +193,14 @@ def kla_demo(
             )
         try:
             engine = start_engine_process(
-                config, journal, supervision, speed, driver="kla", exchange=str(exchange)
-            )
+                config,
+                journal,
+                supervision,
+                speed,
+                driver="kla",
+                exchange=str(exchange),
+                auto_resume=DEFAULT_AUTO_RESUME,
+            )  # the engine's supervisor: stopping it stops the engine
             assert isinstance(engine, subprocess.Popen)
             try:
                 yield exchange, engine, fake

@@ -25,7 +25,9 @@ from aeni_console.commands.common import (
     check_out_folder,
     check_resumable_journal,
     positive_float,
+    whole_number,
 )
+from aeni_console.supervisor import DEFAULT_AUTO_RESUME
 from core.access import journal_gid, protect
 from core.errors import InputError
 from core.settings import SUPERVISION_MODES
@@ -72,19 +74,22 @@ def engine_argv(
     if group is not None:
         argv += ["--group", group]
     for flag, value in (rules or {}).items():
-        if value is not None:
+        if value is not None and not isinstance(value, dict):  # a table (the [operator] hours) goes on stdin
             argv += [f"--{flag.replace('_', '-')}", str(value)]
     return argv
 
 
-def engine_stdin(config: Any, notify: Any = None) -> bytes:
-    """What an engine started with ``--config-stdin`` reads: the campaign config and the alert URLs."""
+def engine_stdin(config: Any, notify: Any = None, rules: dict[str, Any] | None = None) -> bytes:
+    """What an engine started with ``--config-stdin`` reads: the campaign config, the alert URLs and the
+    run's [operator] hours (a table no flag carries)."""
     from core.campaign import campaign_config_to_dict
     from core.journal import to_json
 
     out: dict[str, Any] = {"campaign": campaign_config_to_dict(config)}
     if notify is not None and notify.enabled:
         out["notify"] = json.loads(notify.to_json())
+    if (rules or {}).get("operator"):
+        out["operator"] = dict((rules or {})["operator"])
     return to_json(out).encode("utf-8")
 
 
@@ -102,19 +107,26 @@ def start_engine_process(
     group: str | None = None,
     notify: Any = None,
     rules: dict[str, Any] | None = None,
+    auto_resume: int | None = None,
+    resume_backoff_s: float | None = None,
 ) -> subprocess.Popen[bytes] | int:
     """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
 
     Output goes to ``<journal>.log``. Returns once the journal exists (so a console can attach at once):
     the Popen handle, or with ``detach`` the PID of a process in its own session that survives the
     caller's terminal closing. InputError when the engine exits before creating its journal.
+    ``auto_resume``: the engine runs under a supervisor (aeni_console.supervisor) that alerts and resumes it
+    that many times in a row when it dies; the handle or PID is then the supervisor's.
     """
     journal = check_new_journal(journal_path)
     log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
+    argv = engine_argv(config, journal, supervision, speed, driver, exchange, group=group, rules=rules)
+    if auto_resume is not None:  # the supervisor hands the engine its stdin and resumes it when it dies
+        argv = supervised(journal, argv, auto_resume, resume_backoff_s, stdin=True, log=log)
     with open(log, "ab") as fh:
         protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
-            engine_argv(config, journal, supervision, speed, driver, exchange, group=group, rules=rules),
+            argv,
             stdin=subprocess.PIPE,
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -124,7 +136,7 @@ def start_engine_process(
         )
     assert proc.stdin is not None
     with contextlib.suppress(BrokenPipeError):  # an engine that died at once says why in its log
-        proc.stdin.write(engine_stdin(config, notify))
+        proc.stdin.write(engine_stdin(config, notify, rules))
     with contextlib.suppress(BrokenPipeError):
         proc.stdin.close()
     deadline = time.monotonic() + wait_s
@@ -140,6 +152,22 @@ def start_engine_process(
         threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
         return proc.pid
     return proc
+
+
+def supervised(
+    journal: Path,
+    argv: list[str],
+    auto_resume: int,
+    backoff_s: float | None = None,
+    *,
+    stdin: bool = False,
+    log: Path | None = None,
+) -> list[str]:
+    """``argv`` (an engine's command line) run under the engine's supervisor (aeni_console.supervisor)."""
+    from aeni_console.supervisor import DEFAULT_BACKOFF_S, supervisor_argv
+
+    backoff = DEFAULT_BACKOFF_S if backoff_s is None else backoff_s
+    return supervisor_argv(journal, argv, auto_resume=auto_resume, backoff_s=backoff, stdin=stdin, log=log)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -228,11 +256,13 @@ def run_engine(
     supervision: str | None = None,
     quiet: bool = False,
     notify: Any = None,
+    watch: bool = False,
 ) -> int:
     """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process.
 
     ``notify`` (core.notifyconfig.NotifyConfig) sends alerts from a thread beside the engine; a new run keeps
-    it beside its journal, owner-only, for ``aeni resume``."""
+    it beside its journal, owner-only, for ``aeni resume``. ``watch`` (a foreground run with alerts): a
+    supervisor beside this process journals and alerts its death, which this process cannot (kill -9)."""
     from core.campaign import Campaign, campaign_config_from_dict
     from core.journal import Journal, JournalReader
     from core.notifyconfig import load_run_notify, notify_path_for, write_private
@@ -325,6 +355,10 @@ def run_engine(
         from aeni_console.alerts import AlertWatcher
 
         alerts = AlertWatcher(path, notify).start()
+        if watch:
+            from aeni_console.supervisor import watch_foreground
+
+            watch_foreground(path, path.with_name(path.name + ".log"), _child_env())
     try:
         state = engine.run()
     finally:
@@ -377,6 +411,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "run.max_refusals": args.max_refusals,
         "run.approval_timeout_s": args.approval_timeout_s,
         "run.on_timeout": args.on_timeout,
+        "run.auto_resume": args.auto_resume,
     }
 
 
@@ -397,7 +432,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             raise InputError("--config-stdin", f"not a campaign config ({exc})") from None
         notify = NotifyConfig.from_mapping(data.get("notify") or {}, "--config-stdin")
         flags = parse_run_config(
-            {}, "command line", {k: v for k, v in _overrides(args).items() if k.startswith("run.")}
+            {"operator": data["operator"]} if data.get("operator") else {},
+            "command line",
+            {k: v for k, v in _overrides(args).items() if k.startswith("run.")},
         )
         options: RunOptions = flags.options
     else:
@@ -419,12 +456,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
             group=options.group,
             notify=notify,
             rules=engine_rules(options),
+            auto_resume=options.auto_resume,
+            resume_backoff_s=options.resume_backoff_s,
         )
         print(f"journal {journal}")
-        print(f"engine PID {pid} (detached; log {journal.name}.log)")
-        print(f"watch: aeni status {journal}    stop: send abort from a console, or kill {pid}")
+        print(
+            f"supervisor PID {pid} (detached; it runs the engine, alerts and resumes it if it dies, "
+            f"{options.auto_resume} times in a row at most; log {journal.name}.log)"
+        )
+        print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
         return 0
-    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify)
+    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify, watch=True)
 
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
@@ -460,6 +502,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
         if args.supervision is not None:
             argv += ["--supervision", args.supervision]
         log = path.with_name(path.name + ".log")
+        argv = supervised(path, argv, args.auto_resume, args.resume_backoff_s, log=log)
         with open(log, "ab") as fh:
             proc = subprocess.Popen(
                 argv,
@@ -471,9 +514,12 @@ def _cmd_resume(args: argparse.Namespace) -> int:
             )
         _wait_started(proc, path, log)
         print(f"journal {path}")
-        print(f"engine PID {proc.pid} (detached; log {log.name})")
+        print(
+            f"supervisor PID {proc.pid} (detached; it runs the engine, alerts and resumes it if it dies, "
+            f"{args.auto_resume} times in a row at most; log {log.name})"
+        )
         return 0
-    return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet)
+    return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet, watch=True)
 
 
 def preflight_resume(path: Path, speed: float | None) -> bool:
@@ -885,6 +931,11 @@ def register(subparsers: Any) -> None:
         "--on-timeout", dest="on_timeout", help="approve | veto | pause | stop (default approve)"
     )
     run.add_argument("--detach", action="store_true", help="run in the background, surviving the terminal")
+    run.add_argument(
+        "--auto-resume",
+        dest="auto_resume",
+        help="with --detach: resumes in a row after the engine dies (default 3; 0: alert only)",
+    )
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
     run.add_argument("--config-stdin", dest="config_stdin", action="store_true", help=argparse.SUPPRESS)
     run.set_defaults(func=_cmd_run)
@@ -901,6 +952,20 @@ def register(subparsers: Any) -> None:
         help="resume a run the operator aborted or stopped",
     )
     res.add_argument("--quiet", action="store_true")
+    res.add_argument(
+        "--auto-resume",
+        dest="auto_resume",
+        type=whole_number("--auto-resume", 0, 100),
+        default=DEFAULT_AUTO_RESUME,
+        help="with --detach: resumes in a row after the engine dies (default 3; 0: alert only)",
+    )
+    res.add_argument(
+        "--resume-backoff-s",
+        dest="resume_backoff_s",
+        type=positive_float("--resume-backoff-s"),
+        default=None,
+        help="with --detach: the pause before the first automatic resume (doubled for each next; default 5)",
+    )
     res.set_defaults(func=_cmd_resume)
 
     rep = subparsers.add_parser("replay", help="walk a recorded run block by block")

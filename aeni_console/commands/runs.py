@@ -1,7 +1,7 @@
 """``aeni runs [FOLDER]``: every run journal under a folder, so forgotten engines do not pile up.
 
 One line per journal: its state, its owner, whether an engine process holds it right now (and its PID),
-its age and its progress. A journal that cannot be read is listed with the reason, not skipped.
+its age, its progress and the PID of the engine's supervisor (a detached run's). A journal that cannot be read is listed with the reason, not skipped.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from aeni_console.commands.common import dumps
+from aeni_console.supervisor import supervisor_pid
 from core.errors import InputError
 from core.journal import JournalReader, engine_running, user_name
 
@@ -33,6 +34,7 @@ class RunRow:
     indents: int | None
     instrument_s: float | None
     problem: str = ""
+    supervisor_pid: int | None = None  # the engine's supervisor (aeni_console.supervisor), alive now
 
 
 def _seconds_since(utc: str | None, now: float) -> float | None:
@@ -49,6 +51,7 @@ def run_row(path: Path, now: float | None = None) -> RunRow:
 
     now = time.time() if now is None else now
     alive = engine_running(path)
+    sup = supervisor_pid(path)
     try:
         owner = user_name(path.stat().st_uid)
         with JournalReader(path) as reader:
@@ -56,7 +59,9 @@ def run_row(path: Path, now: float | None = None) -> RunRow:
             row = reader.q.engine_row()
             created = reader.meta.get("created_utc")
     except (InputError, OSError) as exc:
-        return RunRow(str(path), path.stem, "unreadable", "?", alive, None, None, None, None, None, str(exc))
+        return RunRow(
+            str(path), path.stem, "unreadable", "?", alive, None, None, None, None, None, str(exc), sup
+        )
     return RunRow(
         journal=str(path),
         name=snap.run_name,
@@ -68,6 +73,7 @@ def run_row(path: Path, now: float | None = None) -> RunRow:
         updated_s=_seconds_since(row.get("updated_utc"), now),
         indents=snap.n_indents,
         instrument_s=snap.instrument_s,
+        supervisor_pid=sup,
     )
 
 
@@ -97,16 +103,21 @@ def _age(seconds: float | None) -> str:
 def format_runs(rows: list[RunRow]) -> str:
     if not rows:
         return "no runs"
-    header = f"{'run':<34} {'state':<18} {'owner':<10} {'engine':<14} {'age':>8} {'indents':>7}"
+    header = f"{'run':<34} {'state':<18} {'owner':<10} {'engine':<14} {'age':>8} {'indents':>7}  supervisor"
     lines = [header]
     for r in rows:
         engine = f"alive PID {r.pid}" if r.engine_alive and r.pid else ("alive" if r.engine_alive else "—")
+        sup = f"  PID {r.supervisor_pid}" if r.supervisor_pid else ""
+        if r.supervisor_pid and not r.engine_alive:
+            sup += " (resuming the engine)"
         name = Path(r.journal).name
         if r.problem:
-            lines.append(f"{name:<34} {'unreadable':<18} {r.owner:<10} {engine:<14}  {r.problem}")
+            lines.append(f"{name:<34} {'unreadable':<18} {r.owner:<10} {engine:<14}  {r.problem}{sup}")
             continue
         indents = "—" if r.indents is None else str(r.indents)
-        lines.append(f"{name:<34} {r.state:<18} {r.owner:<10} {engine:<14} {_age(r.age_s):>8} {indents:>7}")
+        lines.append(
+            f"{name:<34} {r.state:<18} {r.owner:<10} {engine:<14} {_age(r.age_s):>8} {indents:>7}{sup}"
+        )
     waiting = [r for r in rows if r.engine_alive and r.state == "awaiting-approval"]
     if waiting:
         lines.append(

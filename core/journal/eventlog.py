@@ -35,6 +35,7 @@ from core.run.events import (
     BlockStarted,
     CommandDone,
     Decided,
+    EngineDied,
     FitSummary,
     Indent,
     Logged,
@@ -102,6 +103,13 @@ def _wait_from(d: dict[str, Any]) -> InstrumentWait:
 
 _ENCODE: dict[type, Callable[[Any], dict[str, Any]]] = {
     SessionBegan: lambda e: {"kind": e.kind},
+    EngineDied: lambda e: {
+        "cause": e.cause,
+        "pid": e.pid,
+        "exit_code": e.exit_code,
+        "signal": e.signal,
+        "action": e.action,
+    },
     SessionEnded: lambda e: {"state": e.state.value},
     StateChanged: lambda e: {
         "state": e.state.value,
@@ -178,6 +186,7 @@ _ENCODE: dict[type, Callable[[Any], dict[str, Any]]] = {
 
 _DECODE: dict[str, Callable[[float, dict[str, Any]], RunEvent]] = {
     "SessionBegan": lambda t, d: SessionBegan(t, d["kind"]),
+    "EngineDied": lambda t, d: EngineDied(t, d["cause"], d["pid"], d["exit_code"], d["signal"], d["action"]),
     "SessionEnded": lambda t, d: SessionEnded(t, EngineState(d["state"])),
     "StateChanged": lambda t, d: StateChanged(
         t, EngineState(d["state"]), d["supervision"], d["completed"], d["stop_reason"]

@@ -24,6 +24,7 @@ from core.run.events import (
     BlockStarted,
     CommandDone,
     Decided,
+    EngineDied,
     Indent,
     Logged,
     Observed,
@@ -106,6 +107,7 @@ _WRITERS: dict[type, Callable[[Any, Any], None]] = {
     CommandDone: lambda j, e: j.mark_command(
         e.command_id, e.outcome, e.reason, e.t_s, e.state_before, e.text
     ),
+    EngineDied: lambda j, e: j.record_engine_death(e),
 }
 
 

@@ -37,7 +37,7 @@ from core.journal.schema import (
 )
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord
 from core.profile import InstrumentProfile, profile_to_dict
-from core.run.events import RunEvent
+from core.run.events import EngineDied, RunEvent
 from core.runview import Command, CommandKind, EngineState, MapFields
 from core.settings import settings_to_dict
 
@@ -351,6 +351,28 @@ class JournalWriter:
     ) -> None:
         with self._tx() as c:
             self._event(c, level, text, category, block_id, detail)
+
+    def record_engine_death(self, e: EngineDied) -> None:
+        """The supervisor's record of an engine that died without ending its run: the dead engine's
+        session ends ``failed``, the run is FAILED (unless it had ended; an engine that failed on an
+        exception keeps its own reason), and one ``supervisor`` row says the cause and what comes next."""
+        detail = {"pid": e.pid, "exit_code": e.exit_code, "signal": e.signal, "action": e.action}
+        with self._tx() as c:
+            row = c.execute("SELECT state, completed, session_id FROM engine_state").fetchone()
+            state, completed, session_id = (str(row[0]), bool(row[1]), row[2]) if row else ("", False, None)
+            if not completed and state not in (EngineState.STOPPED.value, EngineState.FAILED.value):
+                c.execute(
+                    "UPDATE engine_state SET state = ?, stop_reason = ?, updated_utc = ?",
+                    (EngineState.FAILED.value, e.cause, utc_now()),
+                )
+            if session_id is not None:
+                c.execute(
+                    "UPDATE sessions SET ended_utc = ?, ended_unix = ?, end_state = ? "
+                    "WHERE session_id = ? AND ended_utc IS NULL",
+                    (utc_now(), time.time(), EngineState.FAILED.value, session_id),
+                )
+            text = f"{e.cause}; {e.action}" if e.action else e.cause
+            self._event(c, "error", text, "supervisor", None, to_json(detail))
 
     def _driver_state(self, c: sqlite3.Connection, ds: DriverState) -> None:
         c.execute(

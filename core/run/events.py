@@ -210,6 +210,21 @@ class CommandDone:
     text: str
 
 
+@dataclass(frozen=True)
+class EngineDied:
+    """The engine's process ended without ending its run (a signal, the out-of-memory killer, an uncaught
+    exception), as its supervisor saw it: the engine cannot say this itself. ``t_s``: the last instrument
+    time the journal holds; ``signal``: e.g. "SIGKILL" (None for an exit code)."""
+
+    t_s: float
+    cause: str  # in words, for the log and the alert: "engine killed by SIGKILL", "engine exited with code 1: ..."
+    pid: int
+    exit_code: int | None = None
+    signal: str | None = None
+    # what the supervisor does about it: "resuming (attempt 1 of 3) in 5 s", "not resumed: ..."
+    action: str = ""
+
+
 RunEvent = (
     SessionBegan
     | SessionEnded
@@ -226,6 +241,7 @@ RunEvent = (
     | PlanChanged
     | Observed
     | CommandDone
+    | EngineDied
 )
 
 

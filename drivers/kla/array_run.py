@@ -11,8 +11,8 @@ run"). Every report and every refusal is kept in ``events`` for the journal.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from drivers.kla.exchange import REPORT_KINDS, ExchangeFolder, ReportKind, Ticket, same_token
@@ -144,6 +144,17 @@ class ArrayRun:
                 )
 
     # -- waiting ---------------------------------------------------------------------------------
+    def extend(self, wall_s: float, why: str) -> None:
+        """At least ``wall_s`` more to wait from now (the exchange folder was unusable: time nobody could
+        write an export or a report does not count against the deadline)."""
+        if self.seconds_left() >= wall_s:
+            return
+        until = (self.now() + timedelta(seconds=wall_s)).replace(microsecond=0)
+        self.ticket = replace(self.ticket, deadline_utc=until.isoformat())
+        self._event(
+            "note", f"block {self.ticket.block_id}: {why}; the deadline moves to {until:%H:%M:%S} UTC"
+        )
+
     def seconds_left(self) -> float:
         return (self.ticket.deadline() - self.now()).total_seconds()
 

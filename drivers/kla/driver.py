@@ -32,6 +32,7 @@ from drivers.kla.exchange import (
     Ticket,
     check_exchange_dir,
     make_ticket,
+    margin_s,
     stretch_line,
     ticket_panel,
     ticket_text,
@@ -185,7 +186,7 @@ class KlaDriver(InstrumentState):
         wanted = tuple((s.x_um, s.y_um) for s in block.indents[start_index:])
         if existing is not None and existing.first_index == start_index and existing.sites_um == wanted:
             if existing.deadline() <= self.now():  # the engine was down past it: a fresh wait, same token
-                wait = timedelta(seconds=self._answer_delay_s() + self.profile.inview.deadline_margin_s)
+                wait = timedelta(seconds=self._answer_delay_s() + margin_s(self.profile.inview, self.speed))
                 existing = replace(
                     existing, deadline_utc=(self.now() + wait).replace(microsecond=0).isoformat()
                 )
@@ -246,8 +247,12 @@ class KlaDriver(InstrumentState):
             self._array = array
             shown = 0
             try:
+                margin = margin_s(self.profile.inview, self.speed)
+                back = "the exchange folder was unusable"
                 while True:
-                    end = yield from self._with_folder(block.block_id, array.poll)
+                    end = yield from self._with_folder(
+                        block.block_id, array.poll, on_back=lambda: array.extend(margin, back)
+                    )
                     notes = tuple(e.text for e in array.events[shown:])
                     shown = len(array.events)
                     if end is not None:  # the run log keeps what the export was and how it was matched
@@ -255,7 +260,7 @@ class KlaDriver(InstrumentState):
                     yield InstrumentWait(
                         block_id=block.block_id,
                         ticket=ticket_text(ticket).replace(ticket.token, "·····"),
-                        deadline_utc=ticket.deadline_utc,
+                        deadline_utc=array.ticket.deadline_utc,
                         seconds_left=max(array.seconds_left(), 0.0),
                         waiting=array.waiting if end is None else end.how,
                         started=array.started,
@@ -270,13 +275,19 @@ class KlaDriver(InstrumentState):
                 self._array = None
         yield from self._results(block, end)
 
-    def _with_folder(self, block_id: int, action: Callable[[], _T]) -> Generator[DriverEvent, None, _T]:
+    def _with_folder(
+        self, block_id: int, action: Callable[[], _T], on_back: Callable[[], None] | None = None
+    ) -> Generator[DriverEvent, None, _T]:
         """``action`` on the exchange folder; while the folder is missing or unreadable the block waits
-        (an InstrumentWait with the reason, journaled once) and tries again when it is back."""
+        (an InstrumentWait with the reason, journaled once) and tries again when it is back (``on_back``
+        first: nobody could answer meanwhile)."""
         told = False
         while True:
             problem = self.folder.problem()
             if problem is None:
+                if told and on_back is not None:
+                    on_back()
+                    told = False
                 try:
                     return action()
                 except (OSError, InputError):

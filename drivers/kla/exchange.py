@@ -220,9 +220,28 @@ class Ticket:
             raise InputError(source, f"not a valid ticket ({type(exc).__name__}: {exc})") from None
 
 
-def deadline_s(settings: InViewSettings, expected_s: float) -> float:
-    """How long the engine waits for the export: estimate × factor + margin (1.5 × + 180 s by default)."""
-    return expected_s * settings.deadline_factor + settings.deadline_margin_s
+# Wall seconds the file exchange itself may take whatever the speed-up: a fake InView's poll (0.2 s), its
+# emulator run and slow write (0.6 s) on a loaded PC, a share's latency. An assumption with room (no
+# instrument measured it), added to the inbox's own stability polls.
+EXCHANGE_LATENCY_S = 30.0
+
+
+def margin_s(settings: InViewSettings, speed: float | None = None) -> float:
+    """The deadline's margin: ``deadline_margin_s`` of the real instrument, ``speed`` times shorter for a
+    fake InView at ``--speed`` (docs/kla.md: the deadlines shrink with it), but never shorter than the
+    exchange needs to see an export land (its stability polls and EXCHANGE_LATENCY_S), nor than the margin
+    the profile asks for when that is shorter still."""
+    margin = settings.deadline_margin_s
+    if not speed or speed <= 1.0:
+        return margin
+    floor = (settings.stable_polls + 2) * settings.poll_s + EXCHANGE_LATENCY_S
+    return max(margin / speed, min(margin, floor))
+
+
+def deadline_s(settings: InViewSettings, expected_s: float, speed: float | None = None) -> float:
+    """How long the engine waits for the export: estimate × factor + margin (1.5 × + 180 s by default);
+    at a fake InView's ``speed`` the instrument's estimate and the margin both shrink (see margin_s)."""
+    return expected_s / (speed or 1.0) * settings.deadline_factor + margin_s(settings, speed)
 
 
 def make_ticket(
@@ -244,7 +263,7 @@ def make_ticket(
     """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre.
 
     ``speed``: the instrument runs that many times faster than the cost model (a fake InView at ``--speed``),
-    so the deadline is the estimate ÷ speed × factor + margin of wall time. ``runs_after_s``: instrument
+    so the deadline is (the estimate × factor + margin) ÷ speed of wall time (the margin with a floor). ``runs_after_s``: instrument
     seconds of the arrays loaded before it that run first (a stretch), counted into the deadline.
     ``answer_delay_s``: wall seconds until the operator can answer at all (nobody there): the wait counts
     from then, so a block written at night does not run out unrun before anyone could load it.
@@ -263,7 +282,7 @@ def make_ticket(
         else:
             methods.append(MethodStep(hold, settings.method_for(hold), i, i))
     created = (now or datetime.now(UTC)).replace(microsecond=0)
-    wait_s = deadline_s(settings, (runs_after_s + expected_s) / (speed or 1.0))
+    wait_s = deadline_s(settings, runs_after_s + expected_s, speed)
     tag = block_tag(block.block_id)
     return Ticket(
         run=run,

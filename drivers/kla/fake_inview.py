@@ -19,6 +19,7 @@ through the fake InView measures what a sim run on the same seed measures.
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import math
@@ -147,8 +148,10 @@ class FakeInView:
     def _deliver(self, write: Callable[[], None], poll_s: float = 0.2) -> None:
         """Write into the exchange folder; while it is gone, wait and write again once it is back.
 
-        InView cannot write to a share that is not there: the operator exports again when it returns.
+        InView cannot write to a share that is not there, or that turned read-only: the operator exports
+        again when it is back (writable).
         """
+        told = False
         while True:
             while not (self.exchange / "inbox").is_dir():
                 time.sleep(poll_s)
@@ -157,6 +160,13 @@ class FakeInView:
                 return
             except FileNotFoundError:
                 self.log("exchange folder went away while writing: writing again when it is back")
+            except OSError as exc:
+                if exc.errno not in (errno.EROFS, errno.EACCES, errno.EPERM):
+                    raise
+                if not told:
+                    self.log(f"exchange folder is not writable ({exc.strerror}): writing again when it is")
+                told = True
+                time.sleep(poll_s)
 
     def _record(self, ticket: Ticket, results: list[IndentResult], exported: bool) -> None:
         if self.ledger is None:

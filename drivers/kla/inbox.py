@@ -32,6 +32,13 @@ MATCHED_BY_ORDER = (
 STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a little on a share
 
 
+def _empty(path: Path) -> bool:
+    try:
+        return path.stat().st_size == 0
+    except FileNotFoundError:
+        return False
+
+
 def sha256_of(path: Path) -> str:
     return sha256_tree(path)  # a file, or a folder of per-test files (one export)
 
@@ -141,8 +148,15 @@ class ExportArchive:
         return out
 
     def _append(self, entry: dict[str, Any]) -> None:
-        with self.manifest.open("a", encoding="utf-8") as fh:
-            fh.write(json.dumps(entry) + "\n")
+        """One line; after a line a crash or a full disk cut short, on a line of its own (else the cut line
+        would swallow this entry too)."""
+        with self.manifest.open("a+b") as fh:
+            fh.seek(0, 2)
+            cut = False
+            if fh.tell() > 0:
+                fh.seek(-1, 2)
+                cut = fh.read(1) != b"\n"
+            fh.write((("\n" if cut else "") + json.dumps(entry) + "\n").encode("utf-8"))
             fh.flush()
 
     def _keep(self, src: Path, sha: str, entry: dict[str, Any], sub: str = "") -> Path:
@@ -516,7 +530,7 @@ class InboxWatcher:
             self._seen[path.name] = _Seen(size, mtime_ns)
             return False
         seen.stable += 1
-        return seen.stable >= self.folder.settings.stable_polls and size > 0
+        return seen.stable >= self.folder.settings.stable_polls
 
     def _refuse(
         self,
@@ -547,11 +561,21 @@ class InboxWatcher:
         refused: list[Refusal] = []
         waiting = "no export yet"
         for path, block_id in self._candidates():
+            ours = block_id == ticket.block_id  # only this block's files make the status it shows
             if not self._stable(path):
-                waiting = f"{path.name} is still being written"
+                if ours:
+                    waiting = f"{path.name} is still being written"
                 continue
             if self._locked(path):
-                waiting = f"{path.name} is open in InView (lock file ~$…)"
+                if ours:
+                    waiting = f"{path.name} is open in InView (lock file ~$…)"
+                continue
+            if _empty(path):  # every empty file has one SHA-256: judged before the duplicate check
+                if ours and not final:
+                    waiting = f"{path.name} is empty (0 bytes): export the array again"
+                elif ours or self.archive.closed(self.folder.run, block_id) is not None:
+                    why = "cannot be read: the file is empty (0 bytes)"
+                    refused.append(self._refuse(path, None, block_id, why))
                 continue
             sha = sha256_of(path)
             known = self.archive.by_sha(sha)
@@ -575,7 +599,7 @@ class InboxWatcher:
                 )
                 refused.append(self._refuse(path, sha, block_id, f"stale: block {block_id} {how}"))
                 continue
-            if block_id != ticket.block_id:
+            if not ours:
                 continue  # another open block's export (not expected; left for that block)
             mtime = datetime.fromtimestamp(path.stat().st_mtime, UTC)
             if (ticket.created() - mtime).total_seconds() > STALE_SLACK_S:

@@ -457,10 +457,10 @@ def test_bench_runs_on_a_dask_cluster_like_it_runs_locally() -> None:
     from dataclasses import replace
 
     distributed = pytest.importorskip("distributed")
-    from aeni_console.bench.harness import RunSpec, _parallel
+    from aeni_console.bench.harness import BenchRun, _parallel
 
     sc = BenchConfig.make(quick=True).scenarios[0]
-    specs = [RunSpec(sc, "grid", seed, lattice_n=10, max_blocks=3) for seed in (0, 1)]
+    specs = [BenchRun(sc, "grid", seed, lattice_n=10, max_blocks=3) for seed in (0, 1)]
     local = _parallel(specs, 1, None)
     with distributed.LocalCluster(
         n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
@@ -537,19 +537,19 @@ def test_with_map_weights_the_bench_scores_both_maps_and_without_it_writes_what_
     second target, and the report gains the both-maps table; a hardness-only run keeps results.json as it was."""
     from dataclasses import replace
 
-    from aeni_console.bench.harness import RunSpec, records_to_json, run_one
+    from aeni_console.bench.harness import BenchRun, records_to_json, run_one
     from aeni_console.bench.report import two_maps_table
 
     config = BenchConfig.make(quick=True)
     sc = config.scenarios[0]
     both = {"hardness": 1.0, "modulus": 1.0}
-    grid = run_one(RunSpec(sc, "grid", 0, lattice_n=10, max_blocks=4, map_weights=both))
+    grid = run_one(BenchRun(sc, "grid", 0, lattice_n=10, max_blocks=4, map_weights=both))
     assert (
         grid.final_mape_modulus_pct is not None
         and grid.target_mape_modulus_pct == grid.final_mape_modulus_pct
     )
     assert grid.t_hit_modulus_s is not None and grid.trajectory_modulus[-1][1] == grid.final_mape_modulus_pct
-    spec = RunSpec(
+    spec = BenchRun(
         sc,
         "aeni",
         0,

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from core.errors import InputError
+from core.run.spec import RunSpec
 from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
 if TYPE_CHECKING:
@@ -230,7 +231,9 @@ class BenchConfig:
 
 
 @dataclass(frozen=True)
-class RunSpec:
+class BenchRun:
+    """One run of the bench's sweep: a policy on a scenario and seed, under the bench's protocol."""
+
     scenario: BenchScenario
     policy: str
     seed: int
@@ -306,31 +309,6 @@ def _set_threads() -> None:
     torch.set_num_threads(1)
 
 
-def _is_robust(name: str) -> bool:
-    from drivers.sim.robust_fields import ROBUST_FIELDS
-
-    return name in ROBUST_FIELDS
-
-
-def _scenario(spec: RunSpec, driver_options: dict[str, Any]) -> Any:
-    """The simulated instrument's scenario (sample + truth) of a bench scenario: built in, or a
-    robustness field."""
-    from drivers.registry import sim_scenario
-    from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
-
-    name = spec.scenario.scenario
-    if name in ROBUST_FIELDS:
-        scen = robust_scenario(name, spec.seed)
-        if spec.failure_rate:
-            from dataclasses import replace
-
-            from drivers.sim.failures import FailureModes
-
-            scen = replace(scen, failures=FailureModes.at_rate(spec.failure_rate, spec.seed))
-        return scen
-    return sim_scenario(driver_options, spec.seed)
-
-
 def flat_mape_pct(sc: BenchScenario) -> float | None:
     """MAPE of the best constant map on a bench field (seed 0's truth): what a map that resolves nothing of
     the field scores, against which the grid's own final MAPE says how much of the field it resolves."""
@@ -343,36 +321,45 @@ def flat_mape_pct(sc: BenchScenario) -> float | None:
     return sim.evaluator().flat_mape_pct()
 
 
-def run_one(spec: RunSpec) -> RunRecord:
-    """One campaign under the bench protocol, through the engine an operator runs (``run_auto``, as
-    ``aeni simulate``): every block passes the interlock; refusals and approvals are counted."""
-    _set_threads()
-    from core.campaign import Campaign
-    from core.plan import Block, IndentResult
-    from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent
-    from core.run.headless import RunTally, run_auto
+def run_spec(spec: BenchRun) -> RunSpec:
+    """The run a bench run is: its scenario (a robustness field is a sim scenario of its own), policy and
+    seed on the emulator, auto supervision, the bench's budget and refit rhythm."""
+    from core.campaign import CampaignConfig
     from core.runconfig import make_campaign_config
 
-    start = time.monotonic()
     scen = spec.scenario
-    cfg = make_campaign_config(
+    cfg: CampaignConfig = make_campaign_config(
         f"bench-{scen.key}-{spec.policy}-{spec.seed}",
         policy=spec.policy,
-        # a robustness field stands on the ternary library's stage (its Scenario is passed below)
-        scenario="ternary" if _is_robust(scen.scenario) else scen.scenario,
+        scenario=scen.scenario,
         truth_csv=spec.truth_csv,
         seed=spec.seed,
         lattice_n=spec.lattice_n,
         settings={"budget_s": spec.budget_s, "map_weights": spec.map_weights},
         failure_rate=spec.failure_rate or None,
     )
-    sim = _scenario(spec, cfg.driver_options)
-    campaign = Campaign(cfg, sim.sample)
+    return RunSpec(
+        campaign=cfg,
+        calendar=spec.calendar,
+        refit_every=GRID_REFIT_EVERY if spec.policy == "grid" else 1,
+    )
+
+
+def run_one(spec: BenchRun) -> RunRecord:
+    """One campaign under the bench protocol, composed and run as ``aeni simulate`` runs one
+    (``core.run.headless.run_headless``): every block passes the interlock; refusals and approvals are
+    counted."""
+    _set_threads()
+    from core.plan import Block, IndentResult
+    from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink
+    from core.run.headless import RunTally, run_headless
+    from drivers.registry import DRIVERS
+    from drivers.sim.evaluator import TruthEvaluator
+
+    start = time.monotonic()
+    scen = spec.scenario
     is_grid = spec.policy == "grid"
-    campaign.refit_every = GRID_REFIT_EVERY if is_grid else 1
-    budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
-    driver = sim.make_driver(campaign.profile)
-    evaluator = sim.evaluator()
+    composed: list[tuple[Any, TruthEvaluator]] = []  # the campaign and its scorer, once composed
     max_found: list[tuple[float, float]] = []
     hit: list[float] = []  # the first time MAPE reached the target
     modulus: list[tuple[float, float]] = []  # (t_s, modulus MAPE %) after every refit, with map_weights
@@ -382,6 +369,9 @@ def run_one(spec: RunSpec) -> RunRecord:
     sizes: dict[int, int] = {}
     fast = local = 0
     top: float | None = None
+
+    def parts() -> tuple[Any, TruthEvaluator]:
+        return composed[0]
 
     class BlockWatch(RunTally):
         """The bench's per-block figures, folded from the run's events (a tally of its own)."""
@@ -402,6 +392,7 @@ def run_one(spec: RunSpec) -> RunRecord:
                 self.results.append(event.result)
                 self.failed += int(event.result.status != "measured")
             elif isinstance(event, Observed):
+                campaign, evaluator = parts()
                 if spec.map_weights is not None and event.fit.fitted:
                     mape_e = evaluator.score_modulus(campaign)
                     if mape_e is not None:
@@ -414,13 +405,14 @@ def run_one(spec: RunSpec) -> RunRecord:
 
         def observed(self, b: Block, collapse: bool, t_s: float) -> None:
             nonlocal alarms, fast, local, top
+            campaign, evaluator = parts()
             sizes[b.grid_g] = sizes.get(b.grid_g, 0) + 1
             fast += int(b.hold_s < campaign.profile.default_hold_s)
             local += int(b.kind == "local")
             alarms += int(collapse)
             results = [r for r in self.results if r.status == "measured"]  # what the run learnt
             if results:
-                h_true = sim.truth.hardness_gpa(
+                h_true = evaluator.truth.hardness_gpa(
                     np.array([r.actual_x_um for r in results]), np.array([r.actual_y_um for r in results])
                 )
                 top = float(np.max(h_true)) if top is None else max(top, float(np.max(h_true)))
@@ -443,16 +435,21 @@ def run_one(spec: RunSpec) -> RunRecord:
             return f"reached the target MAPE at {hit[0]:,.0f} s and ran on {100 * spec.margin:.0f} %"
         if res.blocks >= spec.max_blocks:
             return f"block cap ({spec.max_blocks} blocks)"
-        if len(campaign.centres) >= spec.max_centres and not is_grid:
+        if len(parts()[0].centres) >= spec.max_centres and not is_grid:
             return f"centre cap ({spec.max_centres} tested centres)"
         return None
 
-    operator = spec.calendar.operator() if spec.calendar is not None else None
-    if operator is not None:
-        campaign.unattended = operator.unattended
     watch = BlockWatch()
-    sinks: list[Any] = [watch] if operator is None else [operator, watch]
-    result = run_auto(campaign, driver, evaluator, sinks=sinks, stop_when=stop_when)
+
+    def sinks(campaign: Any, evaluator: Any) -> list[Sink]:
+        assert isinstance(evaluator, TruthEvaluator)  # the simulated instrument's
+        composed.append((campaign, evaluator))
+        return [watch]
+
+    result, run = run_headless(run_spec(spec), DRIVERS, sinks=sinks, stop_when=stop_when)
+    campaign, evaluator = parts()
+    budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
+    operator = run.visits
     trajectory = list(result.trajectory)
     if (
         is_grid
@@ -576,7 +573,7 @@ def write_rough_truth(path: Path, seed: int = 11, n: int = 101) -> Path:
 
 
 def _parallel(
-    specs: Sequence[RunSpec],
+    specs: Sequence[BenchRun],
     jobs: int,
     progress: Callable[[RunRecord], None] | None,
     dask_address: str | None = None,
@@ -632,11 +629,11 @@ def _dask_client(address: str) -> Any:
         raise InputError("--dask", f"cannot reach the scheduler at {address!r} ({exc})") from None
 
 
-def _run_tagged(i: int, spec: RunSpec) -> tuple[int, RunRecord]:
+def _run_tagged(i: int, spec: BenchRun) -> tuple[int, RunRecord]:
     return i, run_one(spec)
 
 
-def _expected_cost(spec: RunSpec) -> float:
+def _expected_cost(spec: BenchRun) -> float:
     return {"grid": 0.4, "uncertainty": 0.6, "cost-aware": 0.8, "adaptive-grid": 0.8, "aeni": 2.0}.get(
         spec.policy, 1.5
     )
@@ -663,8 +660,8 @@ def run_bench(
             csv_paths[sc.key] = str(write_rough_truth(work_dir / sc.truth_csv))
     seeds = range(config.seeds)
 
-    def spec(sc: BenchScenario, policy: str, seed: int, **kw: Any) -> RunSpec:
-        return RunSpec(
+    def spec(sc: BenchScenario, policy: str, seed: int, **kw: Any) -> BenchRun:
+        return BenchRun(
             scenario=sc,
             policy=policy,
             seed=seed,

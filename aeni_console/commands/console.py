@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import shutil
 import subprocess
 import sys
@@ -97,8 +98,9 @@ def _cmd_console(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.commands.host import launch_engine
     from core.journal import default_journal_path
+    from core.run.spec import EngineRules, RunSpec
     from core.runconfig import make_campaign_config
     from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
@@ -140,8 +142,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             f"The demo's engine and fake InView stopped; step through the run: aeni console --replay {journal}"
         )
         return 0
-    pid = start_engine_process(config, journal, args.supervision, args.speed, detach=True)
-    assert isinstance(pid, int)
+    spec = RunSpec(campaign=config, speed=args.speed, rules=EngineRules(args.supervision))
+    pid = launch_engine(spec, journal, detach=True).pid
     if args.stay:
         return run_console(journal, pid=pid)
     try:
@@ -171,7 +173,8 @@ def kla_demo(
     yields (exchange, engine, fake InView). On leaving, the engine is stopped (its journal keeps every
     measured indent), then the fake InView, and the exchange folder is removed (the accepted exports are
     archived next to the journal)."""
-    from aeni_console.commands.run import _child_env, start_engine_process
+    from aeni_console.commands.host import child_env, launch_engine
+    from core.run.spec import EngineRules, RunSpec
 
     options = config.driver_options
     exchange = Path(tempfile.mkdtemp(prefix="aeni-demo-exchange-"))
@@ -191,13 +194,12 @@ def kla_demo(
     try:
         with open(journal.with_name(journal.name + ".fake-inview.log"), "ab") as log:
             fake = subprocess.Popen(
-                argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=_child_env()
+                argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=child_env()
             )
         try:
-            engine = start_engine_process(
-                config, journal, supervision, speed, driver="kla", exchange=str(exchange)
-            )
-            assert isinstance(engine, subprocess.Popen)
+            kla = dataclasses.replace(config, driver_options={**options, "exchange": str(exchange)})
+            spec = RunSpec(campaign=kla, driver="kla", speed=speed, rules=EngineRules(supervision))
+            engine = launch_engine(spec, journal)
             try:
                 yield exchange, engine, fake
             finally:

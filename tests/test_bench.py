@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.bench.harness import BenchConfig, RunRecord, _paired_speedups, _quartiles, summarise
+from aeni_console.bench.harness import BenchConfig, RunRecord, summarise
+from aeni_console.bench.statistics import _paired_speedups, _quartiles
 from aeni_console.cli import main
 
 
@@ -457,7 +458,7 @@ def test_bench_runs_on_a_dask_cluster_like_it_runs_locally() -> None:
     from dataclasses import replace
 
     distributed = pytest.importorskip("distributed")
-    from aeni_console.bench.harness import BenchRun, _parallel
+    from aeni_console.bench.runner import BenchRun, _parallel
 
     sc = BenchConfig.make(quick=True).scenarios[0]
     specs = [BenchRun(sc, "grid", seed, lattice_n=10, max_blocks=3) for seed in (0, 1)]
@@ -472,7 +473,7 @@ def test_bench_runs_on_a_dask_cluster_like_it_runs_locally() -> None:
 
 def test_dask_address_that_answers_nothing_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("distributed")
-    from aeni_console.bench.harness import _dask_client
+    from aeni_console.bench.runner import _dask_client
     from core.errors import InputError
 
     with pytest.raises(InputError, match="--dask"):

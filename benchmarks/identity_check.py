@@ -35,10 +35,10 @@ FIELDS = ("blocks", "indents", "instrument_s", "final_mape_pct", "t_hit_s", "rec
 TOL = 1e-6
 
 
-def record() -> dict[str, Any]:
+def record(scenarios: str = SCENARIOS, policies: str = POLICIES) -> dict[str, Any]:
     from aeni_console.bench.harness import BenchConfig, run_bench
 
-    config = BenchConfig.make(quick=False, seeds=SEEDS, jobs=1, only=SCENARIOS, policies=POLICIES)
+    config = BenchConfig.make(quick=False, seeds=SEEDS, jobs=1, only=scenarios, policies=policies)
     config = replace(config, failure_rate=0.0)
     start = time.monotonic()
     with tempfile.TemporaryDirectory() as work:
@@ -61,6 +61,8 @@ def _same(a: Any, b: Any) -> bool:
 
 
 def compare(before: dict[str, Any], after: dict[str, Any]) -> bool:
+    """Every run of either recording, side by side; only runs both have are compared (a partial recording
+    names the rest as missing)."""
     ok = True
     print("| run | blocks | indents | instrument s | final MAPE % | same |")
     print("|---|---|---|---|---|---|")
@@ -92,11 +94,13 @@ def main() -> int:
     g.add_argument("--record", type=Path, help="run the figures and write them here")
     g.add_argument("--compare", type=Path, help="run the figures and compare them with this recording")
     g.add_argument("--diff", nargs=2, type=Path, help="compare two recordings without running")
+    p.add_argument("--scenarios", default=SCENARIOS, help=f"a subset (default {SCENARIOS})")
+    p.add_argument("--policies", default=POLICIES, help=f"besides the grid (default {POLICIES})")
     args = p.parse_args()
     if args.diff:
         before, after = (json.loads(f.read_text(encoding="utf-8")) for f in args.diff)
         return 0 if compare(before, after) else 1
-    data = record()
+    data = record(args.scenarios, args.policies)
     print(f"{len(data['runs'])} runs in {data['wall_s'] / 60:.1f} min")
     if args.record:
         args.record.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")

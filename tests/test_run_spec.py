@@ -159,3 +159,20 @@ def test_a_journal_of_the_release_before_the_spec_opens_replays_exports_and_resu
     assert main(["resume", str(path), "--quiet"]) == 2  # stopped by a signal: only with --continue
     assert main(["resume", str(path), "--quiet", "--continue", "--speed", "1e9"]) == 0
     assert _indents(path) == _indents(OLD / "finished.sqlite")
+
+
+def test_the_product_constructs_an_engine_in_one_place() -> None:
+    """compose is the one builder: no other module of core, drivers or the application calls Engine(...)."""
+    import ast
+
+    callers = set()
+    for package in ("core", "drivers", "aeni_console"):
+        for path in (ROOT / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if (
+                    isinstance(node, ast.Call)
+                    and isinstance(node.func, ast.Name)
+                    and node.func.id == "Engine"
+                ):
+                    callers.add(path.relative_to(ROOT).as_posix())
+    assert callers == {"core/run/compose.py"}

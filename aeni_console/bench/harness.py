@@ -21,10 +21,10 @@ from aeni_console.bench.catalogue import (
 from aeni_console.bench.runner import (
     BenchRun,
     RunRecord,
+    bench_run_spec,
     flat_mape_pct,
     run_bench,
     run_one,
-    run_spec,
     write_rough_truth,
     write_truth_csv,
 )
@@ -61,6 +61,7 @@ __all__ = [
     "BenchScenario",
     "PolicySummary",
     "RunRecord",
+    "bench_run_spec",
     "flat_mape_pct",
     "mape_at_equal_time",
     "merge_results",
@@ -69,7 +70,6 @@ __all__ = [
     "records_to_json",
     "run_bench",
     "run_one",
-    "run_spec",
     "speedup_by_level",
     "summarise",
     "worst_rise",

@@ -131,7 +131,7 @@ def flat_mape_pct(sc: BenchScenario) -> float | None:
     return sim.evaluator().flat_mape_pct()
 
 
-def run_spec(spec: BenchRun) -> RunSpec:
+def bench_run_spec(spec: BenchRun) -> RunSpec:
     """The run a bench run is: its scenario (a robustness field is a sim scenario of its own), policy and
     seed on the emulator, auto supervision, the bench's budget and refit rhythm."""
     from core.campaign import CampaignConfig
@@ -256,7 +256,7 @@ def run_one(spec: BenchRun) -> RunRecord:
         composed.append((campaign, evaluator))
         return [watch]
 
-    result, run = run_headless(run_spec(spec), DRIVERS, sinks=sinks, stop_when=stop_when)
+    result, run = run_headless(bench_run_spec(spec), DRIVERS, sinks=sinks, stop_when=stop_when)
     campaign, evaluator = parts()
     budget = float(campaign.settings.budget_s or campaign.grid_baseline_s)
     operator = run.visits

@@ -33,7 +33,7 @@ def run_supervised(
 
     def engine() -> None:
         try:
-            run_engine(path, create=(rc.campaign, rc.options), quiet=True)
+            run_engine(path, create=rc.spec(), quiet=True)
         except BaseException as exc:  # pragma: no cover - reported below
             failure.append(exc)
 

@@ -1,6 +1,6 @@
 """Helpers that drive the console headless against the real engine (tests, screenshots, the latency benchmark).
 
-``LiveRun`` is the one place that builds a run for them: the real ``core.run.engine.Engine`` on a temporary
+``LiveRun`` builds a run for them as every run is built (``core.run.compose``): the real engine on a temporary
 journal, the real ``Campaign`` with a cheap policy on a small lattice, and the simulated instrument
 behind a gate, so an indent happens only when the test says ``advance()``. The journal's wall clock is a
 ``ManualWallClock`` that follows the instrument clock, so the log, the status bar and every snapshot
@@ -32,6 +32,7 @@ from drivers.sim.driver import SimulatedDriver
 
 if TYPE_CHECKING:
     from core.campaign import Campaign
+    from core.journal import Journal
 
 FIXED_WALL_UNIX = 1_735_725_600.0  # 2025-01-01 10:00 UTC: where every test run's wall clock starts
 WALL_PER_INSTRUMENT_S = 0.01  # the journal's wall clock runs at a hundredth of the instrument clock
@@ -206,42 +207,50 @@ class LiveRun:
         try:
             import torch
 
-            from aeni_console.commands.run import create_run_journal
-            from core.campaign import Campaign
-            from core.interlock import Interlock
-            from core.run.engine import Engine
-            from drivers.registry import sim_scenario
+            from aeni_console.commands.host import create_run_journal
+            from core.run.compose import Hosting, compose
+            from core.run.spec import EngineRules, RunSpec
+            from drivers.registry import DRIVERS
 
             torch.set_num_threads(1)  # as in the engine process: the same fits on every machine
-            scenario = sim_scenario(self.config.driver_options, self.config.seed, self.config.sample)
-            campaign = Campaign(self.config, scenario.sample)
-            if self.prepare is not None:
-                self.prepare(campaign)
-            journal = create_run_journal(self.path, self.config, campaign, self.supervision)
-            sim = scenario.make_driver(campaign.profile)
-            self.driver = SteppedDriver(
-                sim.emulator,
-                sim.profile,
-                start_um=sim.position_um(),
-                gate=self._gate,
-                unmeasured=self.unmeasured,
+            spec = RunSpec(
+                campaign=self.config,
+                rules=EngineRules(
+                    self.supervision, approval_timeout_s=self.approval_timeout_s, on_timeout=self.on_timeout
+                ),
             )
-            driver = self.driver
-            self.clock.instrument_s = driver.clock_s
-            self.engine = Engine(
-                journal,
-                campaign,
-                driver,
-                self.supervision,
-                sleep=self._gate.sleep,
-                watch_s=None,
-                map_display_n=self.display_n,
-                interlock=Interlock(campaign.sample, campaign.profile),
-                evaluator=scenario.evaluator(),
-                approval_timeout_s=self.approval_timeout_s,
-                on_timeout=self.on_timeout,
-                wall_clock=lambda: self.waited_s,
+
+            def gated(sim: Any) -> SteppedDriver:
+                self.driver = SteppedDriver(
+                    sim.emulator,
+                    sim.profile,
+                    start_um=sim.position_um(),
+                    gate=self._gate,
+                    unmeasured=self.unmeasured,
+                )
+                self.clock.instrument_s = self.driver.clock_s
+                return self.driver
+
+            journals: list[Journal] = []
+
+            def record(spec: RunSpec, campaign: Campaign) -> Journal:
+                journals.append(create_run_journal(self.path, spec, campaign))
+                return journals[0]
+
+            run = compose(
+                spec,
+                DRIVERS,
+                record,
+                hosting=Hosting(
+                    sleep=self._gate.sleep,
+                    watch_s=None,
+                    map_display_n=self.display_n,
+                    wall_clock=lambda: self.waited_s,
+                ),
+                driver=gated,
+                prepare=self.prepare,
             )
+            journal, self.engine = journals[0], run.engine
         except BaseException as exc:
             self._error = exc
             self._ready.set()

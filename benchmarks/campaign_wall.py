@@ -25,16 +25,17 @@ def main() -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args()
 
-    from core.campaign import Campaign, CampaignConfig
+    from core.campaign import CampaignConfig
     from core.run.events import Observed, RunEvent
-    from core.run.headless import run_auto
-    from drivers.sim.scenarios import make_scenario
+    from core.run.headless import run_headless
+    from core.run.spec import RunSpec
+    from drivers.registry import DRIVERS
 
     rows = []
     for seed in range(args.seeds):
-        scenario = make_scenario("ternary", seed)
-        campaign = Campaign(CampaignConfig(policy=args.policy, seed=seed), scenario.sample)
-        driver = scenario.make_driver(campaign.profile)
+        spec = RunSpec(
+            campaign=CampaignConfig(policy=args.policy, seed=seed, driver_options={"scenario": "ternary"})
+        )
         block_walls: list[float] = []
         last = [time.perf_counter()]
 
@@ -48,9 +49,10 @@ def main() -> int:
                     mark[0] = now
 
         t0 = time.perf_counter()
-        res = run_auto(campaign, driver, sinks=[BlockWall()])
+        res, run = run_headless(spec, DRIVERS, sinks=[BlockWall()])
         wall = time.perf_counter() - t0
-        mape = scenario.evaluator().score(campaign).mape_pct
+        assert run.evaluator is not None
+        mape = run.evaluator.score(run.campaign).mape_pct
         rows.append(
             {
                 "seed": seed,

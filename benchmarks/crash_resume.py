@@ -44,7 +44,7 @@ MEASURED = (
 
 
 @dataclass(frozen=True)
-class RunSpec:
+class TrialRun:
     policy: str = "cost-aware"
     scenario: str = "ternary"
     seed: int = 3
@@ -52,8 +52,9 @@ class RunSpec:
     budget_s: float = 30000.0
     speed: float | None = 20000.0  # slow enough that kills land inside blocks, not only in GP fits
 
-    def config_dict(self) -> dict[str, Any]:
-        from core.campaign import campaign_config_to_dict
+    def spec_json(self) -> str:
+        """The run as the engine receives it (core.run.spec.RunSpec)."""
+        from core.run.spec import RunSpec
         from core.runconfig import make_campaign_config
 
         cfg = make_campaign_config(
@@ -64,22 +65,19 @@ class RunSpec:
             lattice_n=self.lattice_n,
             settings={"budget_s": self.budget_s},
         )
-        return campaign_config_to_dict(cfg)
+        return RunSpec(campaign=cfg, speed=self.speed).to_json()
 
 
 # --------------------------------------------------------------------------------------------------
 # engine processes
 
 
-def _engine_child(journal: str, config: dict[str, Any] | None, speed: float | None) -> None:
-    """Target of a forked engine: create (config given) or resume the run, then exit."""
+def _engine_child(journal: str, spec_json: str | None, speed: float | None) -> None:
+    """Target of a forked engine: create (its RunSpec given) or resume the run, then exit."""
     from aeni_console.commands.run import run_engine
-    from core.campaign import campaign_config_from_dict
-    from core.runconfig import RunOptions
+    from core.run.spec import RunSpec
 
-    create = None
-    if config is not None:
-        create = (campaign_config_from_dict(config), RunOptions(speed=speed))
+    create = None if spec_json is None else RunSpec.from_json(spec_json)
     code = run_engine(journal, create=create, speed=speed, quiet=True)
     os._exit(code)
 
@@ -101,7 +99,7 @@ def _context() -> Any:
 class EngineProc:
     """One engine process: forked (fast) or the real CLI (``aeni run`` / ``aeni resume``)."""
 
-    def __init__(self, journal: Path, spec: RunSpec, create: bool, cli: bool = False) -> None:
+    def __init__(self, journal: Path, spec: TrialRun, create: bool, cli: bool = False) -> None:
         self.cli = cli
         if cli:
             env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -121,7 +119,7 @@ class EngineProc:
         else:
             self.popen = None
             self.proc = _context().Process(
-                target=_engine_child, args=(str(journal), spec.config_dict() if create else None, spec.speed)
+                target=_engine_child, args=(str(journal), spec.spec_json() if create else None, spec.speed)
             )
             self.proc.start()
             self.pid = self.proc.pid
@@ -256,10 +254,10 @@ class Trial:
         return self.comparison is not None and self.comparison.identical and not self.error
 
 
-def reference_run(workdir: Path, spec: RunSpec) -> Path:
+def reference_run(workdir: Path, spec: TrialRun) -> Path:
     path = workdir / "reference.sqlite"
     if not path.exists():
-        ref_spec = RunSpec(
+        ref_spec = TrialRun(
             **{**asdict(spec), "speed": None}
         )  # as fast as possible: speed must not change results
         p = EngineProc(path, ref_spec, create=True)
@@ -291,7 +289,7 @@ def _kill_at_random(
 
 def crash_trial(
     workdir: Path,
-    spec: RunSpec,
+    spec: TrialRun,
     trial: int,
     ref: Path,
     ref_wall_s: float,
@@ -343,7 +341,7 @@ def _noop() -> None:
 
 def run_trials(
     workdir: Path,
-    spec: RunSpec,
+    spec: TrialRun,
     trials: int,
     workers: int = 2,
     cli_every: int = 0,
@@ -372,7 +370,7 @@ def run_trials(
 # report
 
 
-def report(spec: RunSpec, trials: list[Trial], ref: Path, wall_s: float) -> dict[str, Any]:
+def report(spec: TrialRun, trials: list[Trial], ref: Path, wall_s: float) -> dict[str, Any]:
     landed = [t for t in trials if t.kills_landed]
     ident = [t for t in landed if t.identical]
     where = Counter(w for t in trials for w in t.kills)
@@ -458,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.frozen:
         return _run_frozen(list(sys.argv[1:] if argv is None else argv), args.out)  # the last --out wins
-    spec = RunSpec()
+    spec = TrialRun()
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="aeni-crash-") as tmp:
         ref, _, trials = run_trials(Path(tmp), spec, args.trials, args.workers, args.cli_every)

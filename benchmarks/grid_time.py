@@ -31,9 +31,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from aeni_console.bench.harness import (  # noqa: E402
     BenchConfig,
+    BenchRun,
     BenchScenario,
     RunRecord,
-    RunSpec,
     flat_mape_pct,
     run_one,
 )
@@ -53,7 +53,7 @@ def _scenario(key: str) -> BenchScenario:
 
 def _run(args: tuple[str, str, int, int, float | None]) -> RunRecord:
     key, policy, seed, lattice_n, budget_s = args
-    spec = RunSpec(
+    spec = BenchRun(
         _scenario(key),
         policy,
         seed,

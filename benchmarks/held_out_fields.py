@@ -37,7 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from aeni_console.bench.harness import BenchScenario, RunRecord, RunSpec, run_one, write_truth_csv  # noqa: E402
+from aeni_console.bench.harness import BenchRun, BenchScenario, RunRecord, run_one, write_truth_csv  # noqa: E402
 
 SIDE_UM = 1000.0
 LATTICE_N = 50  # the bench's candidate lattice
@@ -89,9 +89,9 @@ def write_truth(key: str, folder: Path) -> Path:
     return write_truth_csv(folder / f"held_out_{key}.csv", gx, gy, *FIELDS[key](gx, gy))
 
 
-def _spec(key: str, csv: Path, policy: str, seed: int, lattice_n: int, **kw: float) -> RunSpec:
+def _spec(key: str, csv: Path, policy: str, seed: int, lattice_n: int, **kw: float) -> BenchRun:
     sc = BenchScenario(key, "csv", f"held-out field {key}", ("grid", policy), group="robustness")
-    return RunSpec(sc, policy, seed, lattice_n, truth_csv=str(csv), **kw)  # type: ignore[arg-type]
+    return BenchRun(sc, policy, seed, lattice_n, truth_csv=str(csv), **kw)  # type: ignore[arg-type]
 
 
 def _grid(args: tuple[str, Path, int, int]) -> RunRecord:

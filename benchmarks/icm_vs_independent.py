@@ -39,10 +39,11 @@ import gpytorch  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from benchmarks.two_maps import HARDNESS_ONLY, sim_campaign  # noqa: E402
+from benchmarks.two_maps import HARDNESS_ONLY, sim_spec  # noqa: E402
 from core.metrics import mape_pct  # noqa: E402
 from core.model import Observations  # noqa: E402
-from core.run.headless import run_auto  # noqa: E402
+from core.run.headless import run_headless  # noqa: E402
+from drivers.registry import DRIVERS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -50,11 +51,9 @@ RESULTS = ROOT / "benchmarks" / "results"
 def design(scenario: str, policy: str, seed: int, budget_s: float | None, lattice_n: int) -> tuple[Any, Any]:
     """Run a design on the simulated instrument; the campaign (both maps fitted on it) and its evaluator."""
     # the grid fitted once at the end: only the design matters here
-    campaign, scen = sim_campaign(
-        scenario, policy, seed, HARDNESS_ONLY, budget_s, lattice_n, grid_refit_every=10**9
-    )
-    evaluator = scen.evaluator()
-    run_auto(campaign, scen.make_driver(campaign.profile), evaluator)
+    spec = sim_spec(scenario, policy, seed, HARDNESS_ONLY, budget_s, lattice_n, grid_refit_every=10**9)
+    _, run = run_headless(spec, DRIVERS)
+    campaign, evaluator = run.campaign, run.evaluator
     campaign.surrogate.fit(campaign.observations())
     campaign.modulus_map.fit(campaign.calibration.to_uv)
     return campaign, evaluator

@@ -1,137 +1,115 @@
-"""Identity check for refactors: the published campaigns give the same figures before and after.
+"""Record the published figures' identity fields, or compare them with a recording.
 
-Runs ``grid``, ``cost-aware`` and ``aeni`` on the ternary library, the film and one robustness field (seeds 0 and
-1, failures off) under the bench protocol (``run_one``: the grid run of a seed sets its target MAPE and budget,
-as ``aeni bench`` does) and writes blocks, indents, instrument time and final MAPE per (scenario, policy, seed).
-With ``--compare BASELINE.json`` it prints the largest absolute difference per metric and exits 1 if any exceeds
-``--tol`` (1e-6).
+The refactors of issue 35 must not move a single published number: ``aeni``, ``grid`` and ``cost-aware`` on the
+ternary, the film and one robustness field (``step``), seeds 0 and 1, failures off, under the bench protocol
+(the grid first: its final MAPE is the target and its instrument time the budget of the others). For each run
+this records the blocks, indents, instrument time and final MAPE (and the time to the target, the stop reason
+and the reconfigurations), then compares two recordings to 1e-6.
 
-    nice -n 10 .venv/bin/python benchmarks/identity_check.py --out benchmarks/results/identity_baseline.json
-    nice -n 10 .venv/bin/python benchmarks/identity_check.py --scenarios ternary edge-spot \
-        --compare benchmarks/results/identity_baseline.json --out /tmp/identity_after.json
+    python benchmarks/identity_check.py --record before.json       # on the code before the change
+    python benchmarks/identity_check.py --compare before.json      # after: prints the table, exit 1 on a change
+
+The film's ``aeni`` takes ~4 min a seed: run it with ``nice -n 10``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from aeni_console.bench.harness import FULL_SCENARIOS, BenchConfig, RunSpec, run_one
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
-SCENARIOS = ("ternary", "film", "edge-spot")
-POLICIES = ("grid", "cost-aware", "aeni")
-METRICS = ("blocks", "indents", "instrument_s", "final_mape_pct")
-
-
-def run_case(
-    scenario_key: str, seed: int, policies: tuple[str, ...], margin: float, max_blocks: int | None = None
-) -> dict[str, dict[str, Any]]:
-    """One scenario and seed: the grid first (its MAPE and time are the others' target and budget)."""
-    sc = next(s for s in FULL_SCENARIOS if s.key == scenario_key)
-    bench = BenchConfig()
-    lattice_n = bench.lattice_n
-    out: dict[str, dict[str, Any]] = {}
-    grid = None
-    for policy in ("grid", *[p for p in policies if p != "grid"]):
-        kw: dict[str, Any] = {}
-        if policy != "grid":
-            assert grid is not None
-            kw = {"budget_s": grid.instrument_s, "target_mape_pct": grid.final_mape_pct}
-        start = time.monotonic()
-        spec = RunSpec(
-            scenario=sc,
-            policy=policy,
-            seed=seed,
-            lattice_n=lattice_n,
-            margin=margin,
-            max_blocks=bench.max_blocks if max_blocks is None or policy == "grid" else max_blocks,
-            max_centres=bench.max_centres,
-            **kw,
-        )
-        rec = run_one(spec)
-        if policy == "grid":
-            grid = rec
-        if policy not in policies:
-            continue
-        out[policy] = {
-            "blocks": rec.blocks,
-            "indents": rec.indents,
-            "instrument_s": rec.instrument_s,
-            "final_mape_pct": rec.final_mape_pct,
-            "stop_reason": rec.stop_reason,
-            "margin": margin,
-            "max_blocks": spec.max_blocks,
-            "wall_s": round(time.monotonic() - start, 1),
-        }
-        print(f"{scenario_key:10s} {policy:11s} seed {seed}: {out[policy]}", flush=True)
-    return out
+SCENARIOS = "ternary,film,step"
+POLICIES = "aeni,cost-aware"
+SEEDS = 2
+FIELDS = ("blocks", "indents", "instrument_s", "final_mape_pct", "t_hit_s", "reconfigurations", "stop_reason")
+TOL = 1e-6
 
 
-def compare(after: dict[str, Any], before: dict[str, Any]) -> tuple[dict[str, float], list[str]]:
-    """Largest absolute difference per metric over the cases both files hold, and the cases missing from one."""
-    worst = dict.fromkeys(METRICS, 0.0)
-    missing: list[str] = []
-    for key, b in before.items():
-        a = after.get(key)
-        if a is None:
-            missing.append(key)
-            continue
-        for m in METRICS:
-            if (a[m] is None) != (b[m] is None):
-                worst[m] = float("inf")
-            elif a[m] is not None:
-                worst[m] = max(worst[m], abs(float(a[m]) - float(b[m])))
-    return worst, missing
+def record(scenarios: str = SCENARIOS, policies: str = POLICIES) -> dict[str, Any]:
+    from aeni_console.bench.harness import BenchConfig, run_bench
 
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
-    ap.add_argument("--policies", nargs="+", default=list(POLICIES))
-    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--compare", type=Path, default=None)
-    ap.add_argument("--tol", type=float, default=1e-6)
-    ap.add_argument(
-        "--margin",
-        type=float,
-        default=BenchConfig().margin,
-        help="run-on after the target (default: the bench's); identity_baseline.json was made with 0.25",
-    )
-    ap.add_argument(
-        "--max-blocks",
-        type=int,
-        default=None,
-        help="stop the non-grid runs after this many blocks: a quick check of a long run's first blocks",
-    )
-    args = ap.parse_args(argv)
-    results: dict[str, Any] = {}
+    config = BenchConfig.make(quick=False, seeds=SEEDS, jobs=1, only=scenarios, policies=policies)
+    config = replace(config, failure_rate=0.0)
     start = time.monotonic()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    for scen in args.scenarios:
-        for seed in args.seeds:
-            for policy, row in run_case(
-                scen, seed, tuple(args.policies), args.margin, args.max_blocks
-            ).items():
-                results[f"{scen}/{policy}/{seed}"] = row
-            # after every case: a long sweep that is stopped keeps what it measured
-            tmp = args.out.with_name(f".{args.out.name}.tmp")
-            tmp.write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
-            tmp.replace(args.out)
-    print(f"wrote {args.out} ({len(results)} runs, {time.monotonic() - start:.0f} s)")
-    if args.compare is None:
+    with tempfile.TemporaryDirectory() as work:
+        records = run_bench(config, Path(work), progress=lambda r: print(_line(r.__dict__), flush=True))
+    runs = {f"{r.scenario}/{r.policy}/{r.seed}": {name: getattr(r, name) for name in FIELDS} for r in records}
+    return {"wall_s": time.monotonic() - start, "runs": runs}
+
+
+def _line(run: dict[str, Any]) -> str:
+    return (
+        f"{run.get('scenario', '')} {run.get('policy', '')} {run.get('seed', '')}: {run['blocks']} blocks, "
+        f"{run['indents']} indents, {run['instrument_s']:.3f} s, MAPE {run['final_mape_pct']}"
+    )
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float):
+        return math.isclose(a, b, rel_tol=0.0, abs_tol=TOL) or (math.isnan(a) and math.isnan(b))
+    return bool(a == b)
+
+
+def compare(before: dict[str, Any], after: dict[str, Any]) -> bool:
+    """Every run of either recording, side by side; only runs both have are compared (a partial recording
+    names the rest as missing)."""
+    ok = True
+    print("| run | blocks | indents | instrument s | final MAPE % | same |")
+    print("|---|---|---|---|---|---|")
+    for key in sorted(set(before["runs"]) | set(after["runs"])):
+        b, a = before["runs"].get(key), after["runs"].get(key)
+        if b is None or a is None:
+            print(f"| {key} | missing {'before' if b is None else 'after'} | | | | no |")
+            ok = False
+            continue
+        same = all(_same(b[f], a[f]) for f in FIELDS)
+        ok &= same
+
+        def both(f: str, fmt: str, b: dict[str, Any] = b, a: dict[str, Any] = a) -> str:
+            vb, va = b[f], a[f]
+            sb = format(vb, fmt) if vb is not None else "-"
+            sa = format(va, fmt) if va is not None else "-"
+            return sb if _same(vb, va) else f"{sb} → {sa}"
+
+        print(
+            f"| {key} | {both('blocks', 'd')} | {both('indents', 'd')} | {both('instrument_s', '.3f')} |"
+            f" {both('final_mape_pct', '.6f')} | {'yes' if same else 'NO'} |"
+        )
+    return ok
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--record", type=Path, help="run the figures and write them here")
+    g.add_argument("--compare", type=Path, help="run the figures and compare them with this recording")
+    g.add_argument("--diff", nargs=2, type=Path, help="compare two recordings without running")
+    p.add_argument("--scenarios", default=SCENARIOS, help=f"a subset (default {SCENARIOS})")
+    p.add_argument("--policies", default=POLICIES, help=f"besides the grid (default {POLICIES})")
+    args = p.parse_args()
+    if args.diff:
+        before, after = (json.loads(f.read_text(encoding="utf-8")) for f in args.diff)
+        return 0 if compare(before, after) else 1
+    data = record(args.scenarios, args.policies)
+    print(f"{len(data['runs'])} runs in {data['wall_s'] / 60:.1f} min")
+    if args.record:
+        args.record.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
         return 0
-    before = json.loads(args.compare.read_text())
-    worst, _ = compare(results, {k: v for k, v in before.items() if k in results})
-    print("metric           max |after - before|")
-    for m, d in worst.items():
-        print(f"{m:16s} {d:.3g}")
-    return 0 if all(d <= args.tol for d in worst.values()) else 1
+    out = args.compare.with_name(args.compare.stem + "-after.json")
+    out.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    before = json.loads(args.compare.read_text(encoding="utf-8"))
+    return 0 if compare(before, data) else 1
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

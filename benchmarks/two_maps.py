@@ -36,12 +36,12 @@ if str(ROOT) not in sys.path:
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from aeni_console.bench.harness import GRID_REFIT_EVERY  # noqa: E402
-from core.campaign import Campaign  # noqa: E402
 from core.metrics import time_to_mape  # noqa: E402
 from core.run.events import Observed, RunEvent  # noqa: E402
-from core.run.headless import RunTally, run_auto  # noqa: E402
+from core.run.headless import RunTally, run_headless  # noqa: E402
+from core.run.spec import RunSpec  # noqa: E402
 from core.runconfig import make_campaign_config  # noqa: E402
-from drivers.registry import sim_scenario  # noqa: E402
+from drivers.registry import DRIVERS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 HARDNESS_ONLY = {"hardness": 1.0, "modulus": 0.0}
@@ -56,7 +56,7 @@ MODES: dict[str, tuple[str, dict[str, float]]] = {
 DEFAULT_MODES = ("hardness", "both")
 
 
-def sim_campaign(
+def sim_spec(
     scenario: str,
     policy: str,
     seed: int,
@@ -64,8 +64,8 @@ def sim_campaign(
     budget_s: float | None,
     lattice_n: int,
     grid_refit_every: int = GRID_REFIT_EVERY,
-) -> tuple[Campaign, Any]:
-    """A campaign on the simulated instrument with these map weights, and its scenario (driver, evaluator).
+) -> RunSpec:
+    """A run on the simulated instrument with these map weights.
 
     The grid is refitted once per row of blocks, as in the bench, unless told otherwise."""
     config = make_campaign_config(
@@ -75,11 +75,7 @@ def sim_campaign(
         lattice_n=lattice_n,
         settings={"budget_s": budget_s, "map_weights": weights},
     )
-    scen = sim_scenario(config.driver_options, seed)
-    campaign = Campaign(config, scen.sample)
-    if policy == "grid":
-        campaign.refit_every = grid_refit_every
-    return campaign, scen
+    return RunSpec(campaign=config, refit_every=grid_refit_every if policy == "grid" else 1)
 
 
 def one_run(
@@ -92,17 +88,20 @@ def one_run(
     lattice_n: int,
 ) -> dict[str, Any]:
     """A run with both maps scored after every refit; stopped once both reach ``targets`` (H, E) if given."""
-    campaign, scen = sim_campaign(scenario, policy, seed, weights, cap_s, lattice_n)
-    driver = scen.make_driver(campaign.profile)
-    evaluator = scen.evaluator()
     modulus: list[tuple[float, float]] = []
+    parts: list[tuple[Any, Any]] = []  # the campaign and its scorer, once composed
 
     class ModulusScore(RunTally):
         def emit(self, event: RunEvent) -> None:
             if isinstance(event, Observed) and event.fit.fitted:
+                campaign, evaluator = parts[0]
                 mape = evaluator.score_modulus(campaign)
                 if mape is not None:
                     modulus.append((event.t_s, mape))
+
+    def sinks(campaign: Any, evaluator: Any) -> list[Any]:
+        parts.append((campaign, evaluator))
+        return [ModulusScore()]
 
     def stop_when(res: RunTally) -> str | None:
         if targets is None or not res.trajectory or not modulus:
@@ -115,7 +114,9 @@ def one_run(
         return None
 
     start = time.monotonic()
-    result = run_auto(campaign, driver, evaluator, sinks=[ModulusScore()], stop_when=stop_when)
+    spec = sim_spec(scenario, policy, seed, weights, cap_s, lattice_n)
+    result, _ = run_headless(spec, DRIVERS, sinks=sinks, stop_when=stop_when)
+    campaign, evaluator = parts[0]
     hardness = list(result.trajectory)
     if policy == "grid" and len(campaign.centres) >= 2:
         # the grid's final maps on all its indents

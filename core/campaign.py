@@ -125,7 +125,22 @@ class _Veto:
 
 
 class Campaign:
-    def __init__(self, config: CampaignConfig, sample: Sample | None = None) -> None:
+    def __init__(
+        self,
+        config: CampaignConfig,
+        sample: Sample | None = None,
+        *,
+        refit_every: int = 1,
+        wall_s_per_instrument_s: float = 1.0,
+        unattended: Callable[[float], LoadWindow | None] | None = None,
+    ) -> None:
+        """``refit_every`` > 1 refits only after every so many blocks (the bench's grid, which never looks at
+        the model); ``wall_s_per_instrument_s``: how much wall time an instrument second takes (1 on a real
+        instrument, 1/speed on a sped-up simulation, 0 as fast as possible), for ``stop_at``; ``unattended``:
+        how long the next load runs before anyone comes again (a simulated operator, core.visits), None: the
+        run is planned as if someone were always there."""
+        if refit_every < 1:
+            raise InputError("refit_every", f"{refit_every!r} is not allowed: expected a whole number ≥ 1")
         sample = sample or config.sample
         if sample is None:
             raise InputError(
@@ -183,15 +198,15 @@ class Campaign:
         self.last_score: MapScore | None = None
         self.last_stop_reason: str | None = None
         self.budget_note = ""  # how the last block was sized to fit a budget, for the stop reason
-        # stop_at runs on the local wall clock: the engine says how much wall time an instrument second
-        # takes (1 on a real instrument, 1/speed on a sped-up simulation, 0 as fast as possible)
+        # stop_at runs on the local wall clock
         self.wall_clock: Callable[[], float] = time.time
-        self.wall_s_per_instrument_s = 1.0
+        self.wall_s_per_instrument_s = wall_s_per_instrument_s
         self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
-        self.refit_every = 1  # the bench's grid: refit only after every so many blocks
+        self.refit_every = refit_every
         # how long the next load runs before anyone comes again (a simulated operator, core.visits); None:
-        # the run is planned as if someone were always there
+        # the run is planned as if someone were always there. A calendar makes the policy again (the setter)
         self._unattended: Callable[[float], LoadWindow | None] | None = None
+        self.unattended = unattended
         self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
 
     @property

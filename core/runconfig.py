@@ -15,6 +15,7 @@ get the same one-line message naming the field, the value and what is allowed.
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ from core.notifyconfig import (
 )
 from core.operator import OperatorAvailability, OperatorHours
 from core.policies.registry import policy_names, policy_parts
+from core.run.spec import EngineRules, RunSpec
 from core.sample import check_avoided_centres, load_sample
 from core.settings import (
     ADJUSTABLE,
@@ -55,6 +57,7 @@ __all__ = [
     "load_run_config",
     "make_campaign_config",
     "parse_run_config",
+    "run_spec",
 ]
 DRIVERS: tuple[str, ...] = ("sim", "kla")
 
@@ -211,6 +214,33 @@ class RunConfig:
     campaign: Any  # core.campaign.CampaignConfig
     options: RunOptions
     notify: NotifyConfig = field(default_factory=NotifyConfig)  # never part of the campaign config
+
+    def spec(self) -> RunSpec:
+        """The run this file describes (where its journal goes, ``options.journal`` and ``runs_dir``, is not
+        part of it)."""
+        return run_spec(self.campaign, self.options, self.notify)
+
+
+def run_spec(campaign: CampaignConfig, options: RunOptions, notify: NotifyConfig | None = None) -> RunSpec:
+    """A campaign config and the engine's run options as one RunSpec (a KLA run's exchange folder is one of
+    its driver's options)."""
+    if options.exchange is not None and options.driver == "kla":
+        opts = {**campaign.driver_options, "exchange": options.exchange}
+        campaign = dataclasses.replace(campaign, driver_options=opts)
+    return RunSpec(
+        campaign=campaign,
+        driver=options.driver,
+        speed=options.speed,
+        rules=EngineRules(
+            supervision=options.supervision,
+            max_refusals=options.max_refusals,
+            approval_timeout_s=options.approval_timeout_s,
+            on_timeout=options.on_timeout,
+        ),
+        operator=options.operator,
+        notify=notify or NotifyConfig(),
+        group=options.group,
+    )
 
 
 def _allowed(model: type[BaseModel], section: tuple[str | int, ...]) -> str:

@@ -1,5 +1,5 @@
 """Which driver runs a campaign: ``make_driver(kind, sample, profile, options)`` and its helpers, and
-the one typed place a run is composed (``campaign_for`` + ``compose_engine``).
+``DRIVERS``, what ``core.run.compose.compose`` asks for a run's sample, driver and map scorer.
 
 A run is a sample, a driver, a policy and settings. The simulated driver ('sim') lays an emulator
 scenario's truth (or a truth CSV) onto the run's sample and, having the truth, also supplies the
@@ -9,22 +9,18 @@ evaluator that scores the map; a real instrument supplies neither truth nor eval
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from core.driver import Driver
 from core.errors import InputError
-from core.interlock import Interlock
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
-from core.run.engine import Engine
 from core.sample import Sample
 
 if TYPE_CHECKING:
-    from core.campaign import Campaign, CampaignConfig
-    from core.operator import OperatorAvailability
-    from core.run.events import RunRecord, Sink
+    from core.run.spec import RunSpec
 
 DRIVER_KINDS: tuple[str, ...] = ("sim", "kla")
 SIM_OPTIONS: tuple[str, ...] = ("scenario", "noise", "drift", "truth_csv", "lateral_sd_um", "failure_rate")
@@ -53,6 +49,7 @@ def sim_options(
 
 def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = None) -> Any:
     """The emulator scenario named by ``options``, laid onto ``sample`` when one is given."""
+    from drivers.sim.robust_fields import ROBUST_FIELDS
     from drivers.sim.scenarios import SCENARIOS, make_scenario
 
     unknown = sorted(set(options) - set(SIM_OPTIONS))
@@ -62,9 +59,13 @@ def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = 
             f"unknown sim option(s) {', '.join(unknown)} (allowed: {', '.join(SIM_OPTIONS)})",
         )
     name = str(options.get("scenario", "ternary"))
+    if name in ROBUST_FIELDS:
+        scenario = _robust(name, options, seed)
+        return scenario if sample is None else scenario.on_sample(sample)
     if name not in SCENARIOS:
         raise InputError(
-            "campaign.scenario", f"{name!r} is not allowed: must be one of {', '.join(SCENARIOS)}"
+            "campaign.scenario",
+            f"{name!r} is not allowed: must be one of {', '.join((*SCENARIOS, *ROBUST_FIELDS))}",
         )
     scenario = make_scenario(
         name,
@@ -76,6 +77,23 @@ def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = 
         failure_rate=options.get("failure_rate"),
     )
     return scenario if sample is None else scenario.on_sample(sample)
+
+
+def _robust(name: str, options: Mapping[str, Any], seed: int) -> Any:
+    """A robustness field of the bench (drivers.sim.robust_fields) on the ternary library's stage."""
+    from drivers.sim.failures import FailureModes
+    from drivers.sim.robust_fields import robust_scenario
+
+    fixed = sorted(k for k in options if k not in ("scenario", "failure_rate"))
+    if fixed:
+        raise InputError(
+            "driver options", f"the robustness field {name!r} fixes its own {', '.join(fixed)}: leave it out"
+        )
+    scenario = robust_scenario(name, seed)
+    rate = options.get("failure_rate")
+    if rate is not None:
+        scenario = dataclasses.replace(scenario, failures=FailureModes.at_rate(float(rate), seed))
+    return scenario
 
 
 def _sim_part(kind: str, options: Mapping[str, Any]) -> dict[str, Any]:
@@ -131,61 +149,22 @@ def make_evaluator(
     return evaluator
 
 
-def campaign_for(kind: str, config: CampaignConfig) -> Campaign:
-    """The campaign of a run: its sample resolved (the driver's built-in one when none was given), its
-    profile and policy from the config."""
-    from core.campaign import Campaign
+class Registry:
+    """The drivers a run may name, as ``core.run.compose`` asks for them (:class:`core.run.compose.Drivers`)."""
 
-    if config.sample is None:
-        config = dataclasses.replace(config, sample=default_sample(kind, config.driver_options, config.seed))
-    return Campaign(config)
+    def default_sample(self, spec: RunSpec) -> Sample:
+        return default_sample(spec.driver, spec.driver_options, spec.campaign.seed)
 
+    def driver(
+        self, spec: RunSpec, sample: Sample, profile: InstrumentProfile, journal: Path | None
+    ) -> Driver:
+        c = spec.campaign
+        return make_driver(
+            spec.driver, sample, profile, c.driver_options, seed=c.seed, speed=spec.speed, journal=journal
+        )
 
-def compose_engine(
-    kind: str,
-    campaign: Campaign,
-    record: RunRecord,
-    *,
-    supervision: str = "auto",
-    speed: float | None = None,
-    journal: str | Path | None = None,
-    max_refusals: int = 5,
-    approval_timeout_s: float | None = None,
-    on_timeout: str = "approve",
-    progress: Callable[[str], None] | None = None,
-    sinks: Sequence[Sink] = (),
-    operator: dict[str, Any] | None = None,
-) -> Engine:
-    """A run put together: the campaign's driver, its interlock and (where a truth is known) the evaluator,
-    driven by an Engine into ``record`` (the journal) and ``sinks``."""
-    c = campaign.config
-    driver = make_driver(
-        kind, campaign.sample, campaign.profile, c.driver_options, seed=c.seed, speed=speed, journal=journal
-    )
-    return Engine(
-        record,
-        campaign,
-        driver,
-        supervision,
-        progress=progress,
-        interlock=Interlock(campaign.sample, campaign.profile),
-        evaluator=make_evaluator(kind, campaign.sample, c.driver_options, seed=c.seed),
-        max_refusals=max_refusals,
-        approval_timeout_s=approval_timeout_s,
-        on_timeout=on_timeout,
-        sinks=sinks,
-        operator=_availability(operator),
-    )
+    def evaluator(self, spec: RunSpec, sample: Sample) -> MapEvaluator | None:
+        return make_evaluator(spec.driver, sample, spec.driver_options, seed=spec.campaign.seed)
 
 
-def _availability(operator: dict[str, Any] | None) -> OperatorAvailability | None:
-    """The run's [operator] section as kept in its journal's engine rules (None: no section)."""
-    if operator is None:
-        return None
-    from core.operator import OperatorAvailability, OperatorHours
-
-    return OperatorAvailability(
-        OperatorHours.parse(str(operator["hours"])),
-        float(operator["response_min"]) * 60.0,
-        float(operator["visit_every_min"]) * 60.0,
-    )
+DRIVERS = Registry()

@@ -153,8 +153,8 @@ def test_the_detached_engine_gets_no_config_on_its_command_line(receiver: Receiv
     from core.journal import JournalReader
 
     cfg = make_campaign_config("det", policy="cost-aware", lattice_n=30, settings={"indent_budget": 25})
-    argv = engine_argv(cfg, tmp_path / "x.sqlite")
-    assert "--config-stdin" in argv and not any("policy" in a or "{" in a for a in argv)
+    argv = engine_argv(tmp_path / "x.sqlite")
+    assert "--spec-stdin" in argv and not any("policy" in a or "{" in a for a in argv)
     path = tmp_path / "det.sqlite"
     proc = start_engine_process(cfg, path, notify=NotifyConfig(urls=(receiver.url,)))
     assert isinstance(proc, subprocess.Popen)

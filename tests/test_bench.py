@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.bench.harness import BenchConfig, RunRecord, _paired_speedups, _quartiles, summarise
+from aeni_console.bench.harness import BenchConfig, RunRecord, summarise
+from aeni_console.bench.statistics import _paired_speedups, _quartiles
 from aeni_console.cli import main
 
 
@@ -457,10 +458,10 @@ def test_bench_runs_on_a_dask_cluster_like_it_runs_locally() -> None:
     from dataclasses import replace
 
     distributed = pytest.importorskip("distributed")
-    from aeni_console.bench.harness import RunSpec, _parallel
+    from aeni_console.bench.runner import BenchRun, _parallel
 
     sc = BenchConfig.make(quick=True).scenarios[0]
-    specs = [RunSpec(sc, "grid", seed, lattice_n=10, max_blocks=3) for seed in (0, 1)]
+    specs = [BenchRun(sc, "grid", seed, lattice_n=10, max_blocks=3) for seed in (0, 1)]
     local = _parallel(specs, 1, None)
     with distributed.LocalCluster(
         n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
@@ -472,7 +473,7 @@ def test_bench_runs_on_a_dask_cluster_like_it_runs_locally() -> None:
 
 def test_dask_address_that_answers_nothing_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("distributed")
-    from aeni_console.bench.harness import _dask_client
+    from aeni_console.bench.runner import _dask_client
     from core.errors import InputError
 
     with pytest.raises(InputError, match="--dask"):
@@ -538,19 +539,19 @@ def test_the_bench_scores_both_maps_and_a_hardness_only_run_writes_what_it_wrote
     (``--map-weights hardness=1,modulus=0``) keeps results.json as it was."""
     from dataclasses import replace
 
-    from aeni_console.bench.harness import RunSpec, records_to_json, run_one
+    from aeni_console.bench.harness import BenchRun, records_to_json, run_one
     from aeni_console.bench.report import two_maps_table
 
     config = BenchConfig.make(quick=True)
     sc = config.scenarios[0]
     both = {"hardness": 1.0, "modulus": 1.0}
-    grid = run_one(RunSpec(sc, "grid", 0, lattice_n=10, max_blocks=4, map_weights=both))
+    grid = run_one(BenchRun(sc, "grid", 0, lattice_n=10, max_blocks=4, map_weights=both))
     assert (
         grid.final_mape_modulus_pct is not None
         and grid.target_mape_modulus_pct == grid.final_mape_modulus_pct
     )
     assert grid.t_hit_modulus_s is not None and grid.trajectory_modulus[-1][1] == grid.final_mape_modulus_pct
-    spec = RunSpec(
+    spec = BenchRun(
         sc,
         "aeni",
         0,

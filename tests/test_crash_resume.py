@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.crash_resume import RunSpec, compare, crash_trial, indent_count, run_trials, where_killed
+from benchmarks.crash_resume import TrialRun, compare, crash_trial, indent_count, run_trials, where_killed
 from core.journal import JournalReader
 
 ROOT = Path(__file__).resolve().parents[1]
 # kills are placed by indent count, so a fast clock still lands them mid-run; half the benchmark's budget
 # (5 blocks, 114 indents rather than 10 and 229) proves the same resume on a third of the fits
-SPEC = RunSpec(speed=5e4, budget_s=15000.0)
+SPEC = TrialRun(speed=5e4, budget_s=15000.0)
 
 pytestmark = pytest.mark.slow
 

@@ -265,7 +265,7 @@ def test_a_folder_that_vanishes_after_the_journal_is_made_leaves_no_journal(
     """The folder is checked before the journal is made, but a share can drop between the two."""
     import shutil
 
-    from aeni_console.commands import run as run_cmd
+    from aeni_console.commands import host as run_cmd
 
     exchange = tmp_path / "exchange"
     exchange.mkdir()

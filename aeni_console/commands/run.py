@@ -1,376 +1,36 @@
-"""``aeni run | resume | replay | export | status``: the run engine as its own process, and its journal.
+"""``aeni run | resume | replay | export | send | status``: the CLI verbs over a run and its journal.
 
 The engine process owns one journal (``./runs/<UTC time>-<name>.sqlite`` by default). Consoles attach
 to the journal, never to the process, so an engine started with ``--detach`` outlives the terminal or
-the SSH session that started it, and ``aeni resume`` picks up a run whose process died.
+the SSH session that started it, and ``aeni resume`` picks up a run whose process died. The engine process
+itself, and how it is launched with its RunSpec, is ``aeni_console.commands.host``.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
 import os
-import signal
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from aeni_console.commands.common import (
-    check_new_journal,
-    check_out_folder,
-    check_resumable_journal,
-    positive_float,
-    whole_number,
+from aeni_console.commands.common import check_new_journal, check_out_folder, positive_float, whole_number
+from aeni_console.commands.host import (  # re-exported: the engine host's entry points
+    engine_argv,
+    launch_engine,
+    preflight_resume,
+    run_engine,
+    start_engine_process,
 )
 from aeni_console.supervisor import DEFAULT_AUTO_RESUME
-from core.access import journal_gid, protect
 from core.errors import InputError
+from core.run.spec import RunSpec
 from core.settings import SUPERVISION_MODES
 
-ENGINE_MODULE = "aeni_console.cli"
-_REPO_ROOT = Path(__file__).resolve().parents[2]
-
-
-# --------------------------------------------------------------------------------------------------
-# launching an engine process (used by `aeni run --detach` and by the demo console)
-
-
-def _child_env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_REPO_ROOT), env.get("PYTHONPATH", "")) if p)
-    # one BLAS/torch thread: the GP is small, and a fixed thread count keeps a resumed run bit-identical
-    env.setdefault("OMP_NUM_THREADS", "1")
-    return env
-
-
-def engine_argv(
-    config: Any,
-    journal_path: str | Path,
-    supervision: str = "auto",
-    speed: float | None = None,
-    driver: str = "sim",
-    exchange: str | None = None,
-    group: str | None = None,
-    rules: dict[str, Any] | None = None,
-) -> list[str]:
-    """The command line of an engine process; its config goes to its stdin (``engine_stdin``), never here:
-    a command line is what ``ps`` shows every user."""
-    argv = [
-        sys.executable, "-m", ENGINE_MODULE, "run",
-        "--config-stdin",
-        "--journal", str(journal_path),
-        "--supervision", supervision,
-        "--driver", driver,
-    ]  # fmt: skip
-    if speed is not None:
-        argv += ["--speed", repr(float(speed))]
-    if exchange is not None:
-        argv += ["--exchange", str(exchange)]
-    if group is not None:
-        argv += ["--group", group]
-    for flag, value in (rules or {}).items():
-        if value is not None and not isinstance(value, dict):  # a table (the [operator] hours) goes on stdin
-            argv += [f"--{flag.replace('_', '-')}", str(value)]
-    return argv
-
-
-def engine_stdin(config: Any, notify: Any = None, rules: dict[str, Any] | None = None) -> bytes:
-    """What an engine started with ``--config-stdin`` reads: the campaign config, the alert URLs and the
-    run's [operator] hours (a table no flag carries)."""
-    from core.campaign import campaign_config_to_dict
-    from core.journal import to_json
-
-    out: dict[str, Any] = {"campaign": campaign_config_to_dict(config)}
-    if notify is not None and notify.enabled:
-        out["notify"] = json.loads(notify.to_json())
-    if (rules or {}).get("operator"):
-        out["operator"] = dict((rules or {})["operator"])
-    return to_json(out).encode("utf-8")
-
-
-def start_engine_process(
-    config: Any,
-    journal_path: str | Path,
-    supervision: str = "auto",
-    speed: float | None = None,
-    detach: bool = False,
-    *,
-    log_path: str | Path | None = None,
-    wait_s: float = 60.0,
-    driver: str = "sim",
-    exchange: str | None = None,
-    group: str | None = None,
-    notify: Any = None,
-    rules: dict[str, Any] | None = None,
-    auto_resume: int | None = None,
-    resume_backoff_s: float | None = None,
-) -> subprocess.Popen[bytes] | int:
-    """Start ``python -m aeni_console.cli run ...`` on a new journal as its own process.
-
-    Output goes to ``<journal>.log``. Returns once the journal exists (so a console can attach at once):
-    the Popen handle, or with ``detach`` the PID of a process in its own session that survives the
-    caller's terminal closing. InputError when the engine exits before creating its journal.
-    ``auto_resume``: the engine runs under a supervisor (aeni_console.supervisor) that alerts and resumes it
-    that many times in a row when it dies; the handle or PID is then the supervisor's.
-    """
-    journal = check_new_journal(journal_path)
-    log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
-    argv = engine_argv(config, journal, supervision, speed, driver, exchange, group=group, rules=rules)
-    if auto_resume is not None:  # the supervisor hands the engine its stdin and resumes it when it dies
-        argv = supervised(journal, argv, auto_resume, resume_backoff_s, stdin=True, log=log)
-    with open(log, "ab") as fh:
-        protect(log, journal_gid(group))  # the log says what the journal says: same readers
-        proc = subprocess.Popen(
-            argv,
-            stdin=subprocess.PIPE,
-            stdout=fh,
-            stderr=subprocess.STDOUT,
-            start_new_session=detach,
-            env=_child_env(),
-            cwd=os.getcwd(),
-        )
-    assert proc.stdin is not None
-    with contextlib.suppress(BrokenPipeError):  # an engine that died at once says why in its log
-        proc.stdin.write(engine_stdin(config, notify, rules))
-    with contextlib.suppress(BrokenPipeError):
-        proc.stdin.close()
-    deadline = time.monotonic() + wait_s
-    while not journal.exists() and time.monotonic() < deadline:
-        if proc.poll() is not None:
-            break
-        time.sleep(0.05)
-    if not journal.exists() and proc.poll() is not None:
-        tail = [ln for ln in log.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
-        why = tail[-1] if tail else f"exit code {proc.returncode}"
-        raise InputError(str(journal), f"the engine did not start: {why}")
-    if detach:
-        threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
-        return proc.pid
-    return proc
-
-
-def supervised(
-    journal: Path,
-    argv: list[str],
-    auto_resume: int,
-    backoff_s: float | None = None,
-    *,
-    stdin: bool = False,
-    log: Path | None = None,
-) -> list[str]:
-    """``argv`` (an engine's command line) run under the engine's supervisor (aeni_console.supervisor)."""
-    from aeni_console.supervisor import DEFAULT_BACKOFF_S, supervisor_argv
-
-    backoff = DEFAULT_BACKOFF_S if backoff_s is None else backoff_s
-    return supervisor_argv(journal, argv, auto_resume=auto_resume, backoff_s=backoff, stdin=stdin, log=log)
-
-
-# --------------------------------------------------------------------------------------------------
-# the engine process itself
-
-
-def _prepare_process() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    try:
-        import torch
-
-        torch.set_num_threads(1)
-    except ImportError:  # pragma: no cover
-        pass
-
-
-def _print(line: str) -> None:
-    print(line, flush=True)
-
-
-def create_run_journal(
-    path: Path,
-    config: Any,
-    campaign: Any,
-    supervision: str,
-    driver: str = "sim",
-    speed: float | None = None,
-    group: str | None = None,
-    rules: dict[str, Any] | None = None,
-) -> Any:
-    """A new journal for ``campaign``'s run (the engine process, and the console tests' engine).
-
-    ``rules`` (max_refusals, approval_timeout_s, on_timeout) are kept in the journal so a resume keeps them.
-    """
-    from core.campaign import campaign_config_to_dict
-    from core.journal import Journal
-
-    return Journal.create(
-        path,
-        campaign_config_to_dict(campaign.config),  # with the sample the campaign runs on
-        campaign.profile,
-        campaign.calibration.to_dict(),
-        supervision=supervision,
-        driver=driver,
-        speed=speed,
-        grid_baseline_s=campaign.grid_baseline_s,
-        stage_bounds_um=campaign.stage_bounds_um,
-        name=config.name,
-        group_gid=journal_gid(group),
-        extra={"engine_rules": dict(rules or {})},
-    )
-
-
-def _discard_new_journal(path: Path) -> None:
-    """Remove a journal (and its side files) that a run created but never started on."""
-    from core.journal import lock_path_for
-    from core.notifyconfig import notify_path_for
-
-    for p in (path, Path(f"{path}-wal"), Path(f"{path}-shm"), notify_path_for(path), lock_path_for(path)):
-        with contextlib.suppress(FileNotFoundError):
-            p.unlink()
-
-
-def engine_rules(options: Any) -> dict[str, Any]:
-    """The engine's no-wait-without-an-answer rules of a run's options (core.runconfig.RunOptions)."""
-    rules = {
-        "max_refusals": options.max_refusals,
-        "approval_timeout_s": options.approval_timeout_s,
-        "on_timeout": options.on_timeout,
-    }
-    op = getattr(options, "operator", None)
-    if op is not None:  # the run file's [operator], kept for a resume
-        rules["operator"] = {
-            "hours": op.hours.text,
-            "response_min": op.response_s / 60.0,
-            "visit_every_min": op.visit_every_s / 60.0,
-        }
-    return rules
-
-
-def run_engine(
-    journal_path: str | Path,
-    *,
-    create: tuple[Any, Any] | None = None,
-    speed: float | None = None,
-    supervision: str | None = None,
-    quiet: bool = False,
-    notify: Any = None,
-    watch: bool = False,
-) -> int:
-    """Run (``create=(CampaignConfig, RunOptions)``) or resume the engine on a journal in this process.
-
-    ``notify`` (core.notifyconfig.NotifyConfig) sends alerts from a thread beside the engine; a new run keeps
-    it beside its journal, owner-only, for ``aeni resume``. ``watch`` (a foreground run with alerts): a
-    supervisor beside this process journals and alerts its death, which this process cannot (kill -9)."""
-    from core.campaign import Campaign, campaign_config_from_dict
-    from core.journal import Journal, JournalReader
-    from core.notifyconfig import load_run_notify, notify_path_for, write_private
-    from core.runview import EngineState
-    from drivers.registry import campaign_for, compose_engine
-
-    _prepare_process()
-    path = Path(journal_path)
-    if create is not None:
-        config, options = create
-        if options.driver == "kla":
-            from drivers.kla.exchange import check_exchange_dir
-
-            check_exchange_dir(options.exchange or "")  # before any journal
-            opts = {**config.driver_options, "exchange": str(Path(options.exchange).resolve())}
-            config = dataclasses.replace(config, driver_options=opts)  # kept in the journal for resume
-        campaign = campaign_for(options.driver, config)
-        rules = engine_rules(options)
-        journal = create_run_journal(
-            path,
-            config,
-            campaign,
-            options.supervision,
-            options.driver,
-            options.speed,
-            group=options.group,
-            rules=rules,
-        )
-        driver_kind, sup, spd = options.driver, options.supervision, options.speed
-        if notify is not None and notify.enabled:
-            write_private(notify_path_for(path), notify.to_json())
-    else:
-        with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
-            meta = reader.meta
-            row = reader.q.engine_row()
-        if row.get("completed"):
-            _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
-            return 0
-        check_resumable_journal(path)
-        try:
-            config = campaign_config_from_dict(meta["config"])
-        except InputError as exc:
-            raise InputError(str(path), exc.problem) from None
-        campaign = Campaign(config)
-        if notify is None:
-            notify = load_run_notify(path)
-        journal = Journal.open_writer(path)
-        driver_kind = str(meta.get("driver", "sim"))
-        rules = dict(meta.get("engine_rules") or {})  # a journal from before the rules: the defaults
-        sup = supervision or str(row.get("supervision") or "auto")
-        spd = speed if speed is not None else meta.get("speed")
-    if create is not None and speed is not None:
-        spd = speed
-    # stop_at reads the wall clock: an instrument second takes 1/speed s of it (none as fast as possible)
-    campaign.wall_s_per_instrument_s = 1.0 / spd if spd else (0.0 if driver_kind == "sim" else 1.0)
-    try:
-        engine = compose_engine(
-            driver_kind,
-            campaign,
-            journal,
-            supervision=supervision or sup,
-            speed=spd,
-            journal=path,
-            progress=None if quiet else _print,
-            **rules,
-        )
-    except BaseException:
-        journal.close(compact=False)
-        if create is not None:  # nothing measured yet: leave nothing, so the same command can run again
-            _discard_new_journal(path)
-        raise
-    if not quiet:
-        _print(f"journal {path} (engine PID {os.getpid()}, supervision {engine.supervision})")
-    asked: list[int] = []
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        if asked:  # a second Ctrl-C: stop now (the journal stays resumable)
-            raise KeyboardInterrupt
-        asked.append(signum)
-        engine.request_abort()
-        if not quiet:
-            _print("stopping after the current indent (press Ctrl-C again to stop at once)")
-
-    previous = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(ValueError):  # not the main thread
-            previous[sig] = signal.signal(sig, on_signal)
-    alerts = None
-    if notify is not None and notify.enabled:
-        from aeni_console.alerts import AlertWatcher
-
-        alerts = AlertWatcher(path, notify).start()
-        if watch:
-            from aeni_console.supervisor import watch_foreground
-
-            watch_foreground(path, path.with_name(path.name + ".log"), _child_env())
-    try:
-        state = engine.run()
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        journal.close()
-        if alerts is not None:
-            alerts.stop()
-    if not quiet or state != EngineState.STOPPED:
-        _print(f"{state.label}: {engine.stop_reason or 'done'}")
-    return 0 if state == EngineState.STOPPED else 1
-
+__all__ = ["engine_argv", "launch_engine", "preflight_resume", "run_engine", "start_engine_process"]
 
 # --------------------------------------------------------------------------------------------------
 # CLI handlers
@@ -417,48 +77,28 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from core.journal import default_journal_path
-    from core.runconfig import RunOptions, load_run_config
+    from core.runconfig import load_run_config
 
-    notify: Any = None
-    if args.config_stdin:  # an engine started by start_engine_process: its config comes on stdin
-        from core.campaign import campaign_config_from_dict
-        from core.notifyconfig import NotifyConfig
-        from core.runconfig import parse_run_config
-
-        try:
-            data = json.loads(sys.stdin.read())
-            config = campaign_config_from_dict(data["campaign"])
-        except (ValueError, TypeError, KeyError) as exc:
-            raise InputError("--config-stdin", f"not a campaign config ({exc})") from None
-        notify = NotifyConfig.from_mapping(data.get("notify") or {}, "--config-stdin")
-        flags = parse_run_config(
-            {"operator": data["operator"]} if data.get("operator") else {},
-            "command line",
-            {k: v for k, v in _overrides(args).items() if k.startswith("run.")},
-        )
-        options: RunOptions = flags.options
-    else:
-        rc = load_run_config(args.config, _overrides(args))
-        config, options, notify = rc.campaign, rc.options, rc.notify
-    journal = (
-        Path(options.journal) if options.journal else default_journal_path(config.name, options.runs_dir)
-    )
+    if args.spec_stdin:  # an engine started by launch_engine: its RunSpec comes on stdin
+        if not args.journal:
+            raise InputError("--spec-stdin", "needs --journal")
+        spec = RunSpec.from_json(sys.stdin.read(), "--spec-stdin")
+        if args.resume:
+            return run_engine(args.journal, resume_with=spec, quiet=args.quiet)
+        return run_engine(args.journal, create=spec, quiet=args.quiet)
+    rc = load_run_config(args.config, _overrides(args))
+    options = rc.options
+    spec = rc.spec()
+    journal = Path(options.journal) if options.journal else default_journal_path(spec.name, options.runs_dir)
     check_new_journal(journal)
     if args.detach:
-        pid = start_engine_process(
-            config,
+        pid = launch_engine(
+            spec,
             journal,
-            options.supervision,
-            options.speed,
             detach=True,
-            driver=options.driver,
-            exchange=options.exchange,
-            group=options.group,
-            notify=notify,
-            rules=engine_rules(options),
             auto_resume=options.auto_resume,
             resume_backoff_s=options.resume_backoff_s,
-        )
+        ).pid
         print(f"journal {journal}")
         print(
             f"supervisor PID {pid} (detached; it runs the engine, alerts and resumes it if it dies, "
@@ -466,7 +106,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         )
         print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
         return 0
-    return run_engine(journal, create=(config, options), quiet=args.quiet, notify=notify, watch=True)
+    return run_engine(journal, create=spec, quiet=args.quiet, watch=True)
 
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
@@ -492,81 +132,29 @@ def _cmd_resume(args: argparse.Namespace) -> int:
         raise InputError(str(path), "an engine is already running this journal")
     check_not_stopped(path, args.continue_stopped)
     if args.detach:
-        if not preflight_resume(path, args.speed):
+        spec = preflight_resume(path, args.speed)
+        if spec is None:
             return 0
-        argv = [sys.executable, "-m", ENGINE_MODULE, "resume", str(path), "--quiet"]
-        if args.continue_stopped:
-            argv.append("--continue")
-        if args.speed is not None:
-            argv += ["--speed", repr(args.speed)]
         if args.supervision is not None:
-            argv += ["--supervision", args.supervision]
-        log = path.with_name(path.name + ".log")
-        argv = supervised(path, argv, args.auto_resume, args.resume_backoff_s, log=log)
-        with open(log, "ab") as fh:
-            proc = subprocess.Popen(
-                argv,
-                stdin=subprocess.DEVNULL,
-                stdout=fh,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-                env=_child_env(),
+            spec = dataclasses.replace(
+                spec, rules=dataclasses.replace(spec.rules, supervision=args.supervision)
             )
-        _wait_started(proc, path, log)
+        proc = launch_engine(
+            spec,
+            path,
+            resume=True,
+            detach=True,
+            wait_s=120.0,
+            auto_resume=args.auto_resume,
+            resume_backoff_s=args.resume_backoff_s,
+        )
         print(f"journal {path}")
         print(
             f"supervisor PID {proc.pid} (detached; it runs the engine, alerts and resumes it if it dies, "
-            f"{args.auto_resume} times in a row at most; log {log.name})"
+            f"{args.auto_resume} times in a row at most; log {path.name}.log)"
         )
         return 0
     return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet, watch=True)
-
-
-def preflight_resume(path: Path, speed: float | None) -> bool:
-    """What a resumed engine checks first, done here before detaching so a refusal is an exit 2 and not a
-    line in the log of a process that died: the journal, its config and sample, the driver (a KLA run's
-    exchange folder). False when the run already finished (nothing to start)."""
-    from core.campaign import Campaign, campaign_config_from_dict
-    from core.journal import JournalReader
-
-    with JournalReader(path) as reader:
-        meta = reader.meta
-        row = reader.q.engine_row()
-    if row.get("completed"):
-        _print(f"{path}: run already finished ({row.get('stop_reason') or 'done'}); nothing to resume")
-        return False
-    check_resumable_journal(path)
-    try:
-        campaign = Campaign(campaign_config_from_dict(meta["config"]))
-    except InputError as exc:
-        raise InputError(str(path), exc.problem) from None
-    from drivers.registry import make_driver
-
-    c = campaign.config
-    make_driver(
-        str(meta.get("driver", "sim")),
-        campaign.sample,
-        campaign.profile,
-        c.driver_options,
-        seed=c.seed,
-        speed=speed if speed is not None else meta.get("speed"),
-        journal=path,
-    )
-    return True
-
-
-def _wait_started(proc: subprocess.Popen[bytes], path: Path, log: Path, wait_s: float = 120.0) -> None:
-    """Until the detached engine holds the journal; InputError with its last log line if it died first."""
-    from core.journal import engine_running
-
-    deadline = time.monotonic() + wait_s
-    while time.monotonic() < deadline and not engine_running(path):
-        if proc.poll() is not None:
-            tail = [ln for ln in log.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
-            why = tail[-1] if tail else f"exit code {proc.returncode}"
-            raise InputError(str(path), f"the engine did not start: {why}")
-        time.sleep(0.05)
-    threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
 
 
 def _fmt_s(v: float | None) -> str:
@@ -937,7 +525,8 @@ def register(subparsers: Any) -> None:
         help="with --detach: resumes in a row after the engine dies (default 3; 0: alert only)",
     )
     run.add_argument("--quiet", action="store_true", help="no per-block progress lines")
-    run.add_argument("--config-stdin", dest="config_stdin", action="store_true", help=argparse.SUPPRESS)
+    run.add_argument("--spec-stdin", dest="spec_stdin", action="store_true", help=argparse.SUPPRESS)
+    run.add_argument("--resume", action="store_true", help=argparse.SUPPRESS)  # with --spec-stdin
     run.set_defaults(func=_cmd_run)
 
     res = subparsers.add_parser("resume", help="continue a run whose engine stopped or died")

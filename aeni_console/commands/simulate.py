@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from collections.abc import Sequence
@@ -61,12 +62,14 @@ def run_simulation(
     """
     from core.campaign import Campaign
     from core.run.events import Observed, RunEvent
-    from core.run.headless import RunTally, run_auto
+    from core.run.headless import RunTally, run_headless
+    from core.run.spec import RunSpec
     from core.runconfig import make_campaign_config
     from core.sample import load_sample
     from core.settings import settings_to_dict
-    from drivers.registry import sim_scenario
+    from drivers.registry import DRIVERS
     from drivers.sim.emulator import field_extrema
+    from drivers.sim.evaluator import TruthEvaluator
 
     config = make_campaign_config(
         scenario="csv" if truth else scenario,
@@ -80,24 +83,24 @@ def run_simulation(
         settings={"budget_s": budget_s, "map_weights": map_weights},
         failure_rate=failure_rate,
     )
-    sample = load_sample(sample_file) if sample_file is not None else None
-    scen = sim_scenario(config.driver_options, seed, sample)
-    campaign = Campaign(config, scen.sample)
-    driver = scen.make_driver(campaign.profile)
-    evaluator = scen.evaluator()
+    if sample_file is not None:
+        config = dataclasses.replace(config, sample=load_sample(sample_file))
     start = time.monotonic()
-    budget = campaign.settings.budget_s or campaign.grid_baseline_s
+    parts: list[tuple[Campaign, TruthEvaluator]] = []  # the run's campaign and scorer, once composed
+    modulus: list[tuple[float, float]] = []
 
     class Progress(RunTally):
         """A second tally of the same events, printing a progress line after every block."""
+
+        def __init__(self, budget_s: float) -> None:
+            super().__init__()
+            self.budget_s = budget_s
 
         def emit(self, event: RunEvent) -> None:
             super().emit(event)
             if isinstance(event, Observed):
                 mape = self.trajectory[-1][1] if self.trajectory else None
-                _progress(event.t_s, budget, self.blocks, mape, start)
-
-    modulus: list[tuple[float, float]] = []
+                _progress(event.t_s, self.budget_s, self.blocks, mape, start)
 
     class ModulusScore(RunTally):
         """The modulus map's MAPE after every refit, for every policy (a run that does not aim at the modulus,
@@ -105,25 +108,24 @@ def run_simulation(
 
         def emit(self, event: RunEvent) -> None:
             if isinstance(event, Observed) and event.fit.fitted:
+                campaign, evaluator = parts[0]
                 mape = evaluator.score_modulus(campaign)
                 if mape is not None:
                     modulus.append((event.t_s, mape))
 
-    watch = [ModulusScore()]
-    operator = calendar.operator() if calendar is not None else None
-    if operator is not None:
-        campaign.unattended = operator.unattended
-    result = run_auto(
-        campaign,
-        driver,
-        evaluator,
-        sinks=[
-            *([operator] if operator is not None else []),
+    def watchers(campaign: Campaign, evaluator: Any) -> list[Sink]:
+        assert isinstance(evaluator, TruthEvaluator)  # the simulated instrument's
+        parts.append((campaign, evaluator))
+        budget = campaign.settings.budget_s or campaign.grid_baseline_s
+        return [
             *sinks,
-            *watch,
-            *([Progress()] if progress else []),
-        ],
-    )
+            ModulusScore(),  # every policy, the grid included (issue 37)
+            *([Progress(budget)] if progress else []),
+        ]
+
+    result, run = run_headless(RunSpec(campaign=config, calendar=calendar), DRIVERS, sinks=watchers)
+    campaign, evaluator = parts[0]
+    operator = run.visits
     if progress:
         sys.stderr.write("\n")
     score = evaluator.score(campaign)
@@ -145,7 +147,7 @@ def run_simulation(
     return {
         "policy": policy,
         "scenario": config.driver_options["scenario"],
-        "sample": scen.sample.name,
+        "sample": campaign.sample.name,
         "seed": seed,
         "profile": campaign.profile.name,
         "instrument_s": result.instrument_s,

@@ -1,7 +1,8 @@
 """A run with nobody at the console: the same Engine in auto supervision, its events kept in memory.
 
-``aeni simulate``, the bench, the benchmarks and the tests run campaigns through :func:`run_auto`, so
-they measure the loop an operator runs: every block passes the interlock (a refused block is vetoed by
+``aeni simulate``, the bench, the benchmarks and the tests run campaigns through :func:`run_headless` (a
+spec, composed by ``core.run.compose``; :func:`run_auto` for a campaign built by hand), so they measure the
+loop an operator runs: every block passes the interlock (a refused block is vetoed by
 the engine and the planner asked again), and the tally counts refusals and approvals.
 """
 
@@ -13,9 +14,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from core.cost import CostLedger
-from core.interlock import Interlock
 from core.metrics import MapEvaluator
 from core.plan import Decision
+from core.run.compose import HEADLESS, ComposedRun, Drivers, SinksFor, compose, engine_for
 from core.run.events import (
     BlockStarted,
     CommandWatcher,
@@ -29,10 +30,12 @@ from core.run.events import (
 )
 from core.run.history import HistoryFold
 from core.run.records import StoredCommand
+from core.run.spec import EngineRules, RunSpec
 
 if TYPE_CHECKING:
     from core.campaign import Campaign
     from core.driver import Driver
+    from core.run.engine import Engine
 
 
 @dataclass
@@ -118,6 +121,32 @@ class _StopWhen:
                 self.stop(reason)
 
 
+def run_headless(
+    spec: RunSpec,
+    drivers: Drivers,
+    *,
+    sinks: Sequence[Sink] | SinksFor = (),
+    stop_when: Callable[[RunTally], str | None] | None = None,
+) -> tuple[RunTally, ComposedRun]:
+    """Run ``spec`` to its end in memory, composed as every run is (``core.run.compose``), in the spec's
+    supervision with nobody at a console.
+
+    ``sinks`` see every event after the tally; ``stop_when`` may end the run after any block with a reason
+    (the bench stops a run once its question is answered). Returns the tally and the composed run (its
+    campaign, driver and evaluator, for the figures a caller computes at the end).
+    """
+    record = MemoryRecord()
+    stopper = _StopWhen(record, stop_when) if stop_when is not None else None
+    tail: list[Sink] = [stopper] if stopper is not None else []
+
+    def all_sinks(campaign: Campaign, evaluator: MapEvaluator | None) -> Sequence[Sink]:
+        return [*(sinks(campaign, evaluator) if callable(sinks) else sinks), *tail]
+
+    run = compose(spec, drivers, lambda _spec, _campaign: record, sinks=all_sinks, hosting=HEADLESS)
+    _drive(run.engine, run.campaign, run.driver, record, stopper)
+    return record, run
+
+
 def run_auto(
     campaign: Campaign,
     driver: Driver,
@@ -127,31 +156,29 @@ def run_auto(
     stop_when: Callable[[RunTally], str | None] | None = None,
     max_refusals: int = 5,
 ) -> RunTally:
-    """Run a campaign to its end through the Engine in auto supervision, with the interlock, in memory.
+    """Run a campaign a caller built by hand (a test, a study of one part) to its end through the Engine in
+    auto supervision, with the interlock, in memory. A run described by a spec: :func:`run_headless`.
 
-    ``evaluator`` (a simulated instrument's) scores the map after each block; ``sinks`` see every event
-    after the tally; ``stop_when`` may end the run after any block with a reason (the bench stops a run
-    once its question is answered).
+    ``evaluator`` (a simulated instrument's) scores the map after each block; ``sinks`` and ``stop_when``
+    as in :func:`run_headless`.
     """
-    from core.run.engine import Engine
-
     record = MemoryRecord()
-    extra: list[Sink] = list(sinks)
     stopper = _StopWhen(record, stop_when) if stop_when is not None else None
-    if stopper is not None:
-        extra.append(stopper)
-    engine = Engine(
-        record,
+    engine = engine_for(
         campaign,
         driver,
-        "auto",
-        watch_s=None,
-        map_display_n=None,
-        interlock=Interlock(campaign.sample, campaign.profile),
+        record,
+        EngineRules(max_refusals=max_refusals),
         evaluator=evaluator,
-        max_refusals=max_refusals,
-        sinks=extra,
+        sinks=[*sinks, *([stopper] if stopper is not None else [])],
     )
+    _drive(engine, campaign, driver, record, stopper)
+    return record
+
+
+def _drive(
+    engine: Engine, campaign: Campaign, driver: Driver, record: RunTally, stopper: _StopWhen | None
+) -> None:
     if stopper is not None:
         stopper.stop = engine.request_stop
     engine.run()
@@ -162,4 +189,3 @@ def run_auto(
         )
     else:  # stopped early (stop_when), or by max_refusals
         record.stop_reason = engine.stop_reason
-    return record

@@ -19,11 +19,13 @@ from pathlib import Path
 import pytest
 
 from aeni_console.cli import main
-from aeni_console.commands.run import _child_env, engine_argv, engine_stdin
+from aeni_console.commands.host import child_env as _child_env
+from aeni_console.commands.host import engine_argv
 from aeni_console.commands.runs import format_runs, list_runs
 from aeni_console.supervisor import SUPERVISED_ENV, Supervisor, describe_exit, resume_argv, supervisor_pid
 from core.journal import JournalReader, engine_running
 from core.notifyconfig import NotifyConfig
+from core.run.spec import RunSpec
 from core.runconfig import make_campaign_config
 
 
@@ -143,13 +145,14 @@ def _engine(
 
     def launch() -> subprocess.Popen[bytes]:
         proc = subprocess.Popen(
-            [*engine_argv(cfg, journal, speed=speed), "--quiet"],
+            [*engine_argv(journal), "--quiet"],
             stdin=subprocess.PIPE,
             env={**_child_env(), SUPERVISED_ENV: "1"},  # as the supervisor launches it
             stdout=subprocess.DEVNULL,
         )
         assert proc.stdin is not None
-        proc.stdin.write(engine_stdin(cfg, notify))
+        spec = RunSpec(campaign=cfg, speed=speed, notify=notify or NotifyConfig())
+        proc.stdin.write(spec.to_json().encode("utf-8"))
         proc.stdin.close()
         return proc
 

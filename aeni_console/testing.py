@@ -21,13 +21,19 @@ from typing import TYPE_CHECKING, Any
 
 from textual.pilot import Pilot
 
+from aeni_console.commands.host import create_run_journal
 from aeni_console.heatmap import marks_for
 from aeni_console.journal_source import JournalReplay, JournalSource
 from aeni_console.widgets.mapview import MapPanel
+from core.campaign import CampaignConfig
 from core.driver import DriverEvent
+from core.journal import JournalReader, reader, send_command, writer
 from core.plan import Block, IndentResult, IndentStatus, PlannerSettings
+from core.run.compose import Hosting, compose
+from core.run.spec import EngineRules, RunSpec
 from core.runview import Command, EngineState, MapFields, RunSnapshot
 from core.sample.model import Sample
+from drivers.registry import DRIVERS
 from drivers.sim.driver import SimulatedDriver
 
 if TYPE_CHECKING:
@@ -58,7 +64,6 @@ class ManualWallClock:
     @contextlib.contextmanager
     def installed(self) -> Iterator[None]:
         """Make the journal stamp and read its rows with this clock (its writer and reader read the time)."""
-        from core.journal import reader, writer
 
         clock = self
 
@@ -164,7 +169,6 @@ class LiveRun:
         settings: PlannerSettings | None = None,
         prepare: Callable[[Campaign], None] | None = None,
     ) -> None:
-        from core.campaign import CampaignConfig
 
         self.path = Path(directory) / f"{name}.sqlite"
         self.config = CampaignConfig(name=name, policy=policy, seed=seed, lattice_n=lattice_n, sample=sample)
@@ -206,11 +210,6 @@ class LiveRun:
         """The engine thread: everything that writes the journal is created and used here."""
         try:
             import torch
-
-            from aeni_console.commands.host import create_run_journal
-            from core.run.compose import Hosting, compose
-            from core.run.spec import EngineRules, RunSpec
-            from drivers.registry import DRIVERS
 
             torch.set_num_threads(1)  # as in the engine process: the same fits on every machine
             spec = RunSpec(
@@ -371,7 +370,6 @@ class LiveRun:
 
     def commands(self) -> list[dict[str, Any]]:
         """Every command in the journal, as the engine recorded it (kind, author, payload_json, outcome ...)."""
-        from core.journal import JournalReader
 
         with JournalReader(self.path) as reader:
             return reader.commands()
@@ -399,7 +397,6 @@ class CannedSource:
 
 
 def _send(path: Path, command: Command) -> int:
-    from core.journal import send_command
 
     return send_command(path, command)
 

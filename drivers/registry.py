@@ -18,6 +18,10 @@ from core.errors import InputError
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
 from core.sample import Sample
+from drivers.kla.driver import make_kla_driver
+from drivers.sim.failures import FailureModes
+from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
+from drivers.sim.scenarios import SCENARIOS, make_scenario
 
 if TYPE_CHECKING:
     from core.run.spec import RunSpec
@@ -49,8 +53,6 @@ def sim_options(
 
 def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = None) -> Any:
     """The emulator scenario named by ``options``, laid onto ``sample`` when one is given."""
-    from drivers.sim.robust_fields import ROBUST_FIELDS
-    from drivers.sim.scenarios import SCENARIOS, make_scenario
 
     unknown = sorted(set(options) - set(SIM_OPTIONS))
     if unknown:
@@ -81,8 +83,6 @@ def sim_scenario(options: Mapping[str, Any], seed: int, sample: Sample | None = 
 
 def _robust(name: str, options: Mapping[str, Any], seed: int) -> Any:
     """A robustness field of the bench (drivers.sim.robust_fields) on the ternary library's stage."""
-    from drivers.sim.failures import FailureModes
-    from drivers.sim.robust_fields import robust_scenario
 
     fixed = sorted(k for k in options if k not in ("scenario", "failure_rate"))
     if fixed:
@@ -121,8 +121,6 @@ def make_driver(
     """The instrument driver for a run on ``sample`` (the KLA driver keeps its exports beside ``journal``)."""
     _check_kind(kind)
     if kind == "kla":
-        from drivers.kla.driver import make_kla_driver
-
         if journal is None:
             raise InputError(
                 "--journal", "the KLA driver needs the run's journal (its exports are kept beside it)"

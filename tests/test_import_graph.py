@@ -42,16 +42,7 @@ HEAVY_OPTIONAL = frozenset(
 
 # files the `spec` branch rewrites in this same session (issue 35's RunSpec and compose): their imports
 # inside functions are hoisted when the two branches are merged (then this set is emptied)
-PENDING_SPEC_MERGE = frozenset(
-    {
-        "aeni_console/bench/harness.py",
-        "aeni_console/commands/run.py",
-        "aeni_console/commands/simulate.py",
-        "aeni_console/testing.py",
-        "core/run/headless.py",
-        "drivers/registry.py",
-    }
-)
+PENDING_SPEC_MERGE: frozenset[str] = frozenset()
 
 
 def _ancestors(module: str) -> list[str]:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 from core.errors import InputError
+from core.policies.registry import policy_names, policy_parts
 from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
 if TYPE_CHECKING:
@@ -34,7 +35,6 @@ class BenchScenario:
 
 
 def _all_policies() -> tuple[str, ...]:
-    from core.policies.registry import policy_names
 
     return policy_names()
 
@@ -179,7 +179,6 @@ class BenchConfig:
             config = replace(config, scenarios=tuple(known[k] for k in dict.fromkeys(keys)))
         if policies is None:
             return config
-        from core.policies.registry import policy_names, policy_parts
 
         keep = list(dict.fromkeys(p.strip() for p in policies.split(",") if p.strip()))
         for p in keep:

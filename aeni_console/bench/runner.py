@@ -33,8 +33,18 @@ from aeni_console.bench.catalogue import (
     BenchConfig,
     BenchScenario,
 )
+from core.campaign import CampaignConfig
 from core.errors import InputError
+from core.plan import Block, IndentResult
+from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink
+from core.run.headless import RunTally, run_headless
 from core.run.spec import RunSpec
+from core.runconfig import make_campaign_config
+from drivers.registry import DRIVERS
+from drivers.sim.emulator import RoughField
+from drivers.sim.evaluator import TruthEvaluator
+from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
+from drivers.sim.scenarios import make_scenario
 
 if TYPE_CHECKING:
     from core.visits import OperatorCalendar
@@ -124,8 +134,6 @@ def flat_mape_pct(sc: BenchScenario) -> float | None:
     the field scores, against which the grid's own final MAPE says how much of the field it resolves."""
     if sc.truth_csv is not None:
         return None
-    from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
-    from drivers.sim.scenarios import make_scenario
 
     sim = robust_scenario(sc.scenario, 0) if sc.scenario in ROBUST_FIELDS else make_scenario(sc.scenario, 0)
     return sim.evaluator().flat_mape_pct()
@@ -134,8 +142,6 @@ def flat_mape_pct(sc: BenchScenario) -> float | None:
 def bench_run_spec(spec: BenchRun) -> RunSpec:
     """The run a bench run is: its scenario (a robustness field is a sim scenario of its own), policy and
     seed on the emulator, auto supervision, the bench's budget and refit rhythm."""
-    from core.campaign import CampaignConfig
-    from core.runconfig import make_campaign_config
 
     scen = spec.scenario
     cfg: CampaignConfig = make_campaign_config(
@@ -160,11 +166,6 @@ def run_one(spec: BenchRun) -> RunRecord:
     (``core.run.headless.run_headless``): every block passes the interlock; refusals and approvals are
     counted."""
     _set_threads()
-    from core.plan import Block, IndentResult
-    from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink
-    from core.run.headless import RunTally, run_headless
-    from drivers.registry import DRIVERS
-    from drivers.sim.evaluator import TruthEvaluator
 
     start = time.monotonic()
     scen = spec.scenario
@@ -376,7 +377,6 @@ def write_truth_csv(
 
 def write_rough_truth(path: Path, seed: int = 11, n: int = 101) -> Path:
     """A rough real-looking map as a CSV lattice."""
-    from drivers.sim.emulator import RoughField
 
     field_ = RoughField(seed=seed)
     xs = np.linspace(0.0, field_.side_um, n)

@@ -13,25 +13,35 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from aeni_console.app import ConsoleApp
 from aeni_console.commands.common import check_new_journal, positive_float, seed_arg
+from aeni_console.commands.host import child_env, launch_engine
+from aeni_console.commands.run import resolve_run
+from aeni_console.journal_source import JournalReplay, JournalSource
 from aeni_console.supervisor import DEFAULT_AUTO_RESUME
 from core.errors import InputError
+from core.journal import JournalReader, default_journal_path, engine_running
+from core.run.spec import EngineRules, RunSpec
+from core.runconfig import make_campaign_config
 from core.settings import SUPERVISION_MODES
+from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
 DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min) passes in about 6 s
 
 
 def leave_message(journal: Path, pid: int | None = None) -> str:
     """What to print after the console closes while the engine runs on."""
-    from core.journal import JournalReader
 
     try:
         with JournalReader(journal) as reader:
@@ -53,8 +63,6 @@ def leave_message(journal: Path, pid: int | None = None) -> str:
 def run_console(
     journal: Path, replay: bool = False, pid: int | None = None, *, leave: bool = True, **app_kwargs: Any
 ) -> int:
-    from aeni_console.app import ConsoleApp
-    from aeni_console.journal_source import JournalReplay, JournalSource
 
     source = JournalReplay(journal) if replay else JournalSource(journal)
     try:
@@ -72,11 +80,6 @@ def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
     SIGTERM first; SIGKILL only if it has not ended after ``grace_s`` (every finished indent is already in
     the journal, so even that loses nothing). Returns what happened, in words.
     """
-    import os
-    import signal
-    import time
-
-    from core.journal import engine_running
 
     try:
         os.kill(pid, signal.SIGTERM)
@@ -93,17 +96,11 @@ def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
 
 
 def _cmd_console(args: argparse.Namespace) -> int:
-    from aeni_console.commands.run import resolve_run
 
     return run_console(resolve_run(args.run), replay=args.replay)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from aeni_console.commands.host import launch_engine
-    from core.journal import default_journal_path
-    from core.run.spec import EngineRules, RunSpec
-    from core.runconfig import make_campaign_config
-    from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
     # the simulated instrument fails now and then, as a real one does (a KLA demo's fake InView has its own)
     failure_rate = args.failure_rate
@@ -175,8 +172,6 @@ def kla_demo(
     yields (exchange, engine, fake InView). On leaving, the engine is stopped (its journal keeps every
     measured indent), then the fake InView, and the exchange folder is removed (the accepted exports are
     archived next to the journal)."""
-    from aeni_console.commands.host import child_env, launch_engine
-    from core.run.spec import EngineRules, RunSpec
 
     options = config.driver_options
     exchange = Path(tempfile.mkdtemp(prefix="aeni-demo-exchange-"))

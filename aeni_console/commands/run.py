@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import getpass
 import json
 import os
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +27,17 @@ from aeni_console.commands.host import (  # re-exported: the engine host's entry
     run_engine,
     start_engine_process,
 )
+from aeni_console.finalmaps import FINAL_MAP_COLUMNS, final_maps
 from aeni_console.supervisor import DEFAULT_AUTO_RESUME
 from core.errors import InputError
+from core.journal import JournalReader, default_journal_path, engine_running, send_command
+from core.operator import parse_when
 from core.run.spec import RunSpec
-from core.settings import SUPERVISION_MODES
+from core.runconfig import load_run_config
+from core.runview import Command, CommandKind, EngineState
+from core.settings import SUPERVISION_MODES, check_adjust, check_hold_in_force, check_veto
+from drivers.kla.driver import archive_dir_for
+from drivers.kla.inbox import ExportArchive
 
 __all__ = ["engine_argv", "launch_engine", "preflight_resume", "run_engine", "start_engine_process"]
 
@@ -76,8 +85,6 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from core.journal import default_journal_path
-    from core.runconfig import load_run_config
 
     if args.spec_stdin:  # an engine started by launch_engine: its RunSpec comes on stdin
         if not args.journal:
@@ -111,8 +118,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
     """A run the operator aborted or stopped is not resumed by accident: only with ``--continue``."""
-    from core.journal import JournalReader
-    from core.runview import EngineState
 
     with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
         row = reader.q.engine_row()
@@ -125,7 +130,6 @@ def check_not_stopped(path: Path, anyway: bool) -> None:
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
-    from core.journal import engine_running
 
     path = resolve_run(args.run)
     if engine_running(path):
@@ -162,7 +166,6 @@ def _fmt_s(v: float | None) -> str:
 
 
 def status_line(path: str | Path) -> str:
-    from core.journal import JournalReader
 
     with JournalReader(path) as r:
         s = r.snapshot()
@@ -194,7 +197,6 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from core.journal import JournalReader
 
     path = resolve_run(args.run)
     with JournalReader(path) as r:
@@ -254,8 +256,6 @@ def _replay_line(rec: Any) -> str:
 
 def _export_files(journal: Path, indents: Any) -> list[str]:
     """Each indent's instrument export (a KLA run's archive beside the journal); '' for a simulated run."""
-    from drivers.kla.driver import archive_dir_for
-    from drivers.kla.inbox import ExportArchive
 
     folder = archive_dir_for(journal)
     if not (folder / "manifest.jsonl").is_file():
@@ -270,8 +270,6 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
     """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events,
     sessions and predictions (both maps' final means and sds, and H/E)."""
     import pandas as pd
-
-    from core.journal import JournalReader
 
     if fmt not in ("csv", "parquet"):
         raise InputError("--format", f"{fmt!r} is not allowed: expected csv or parquet")
@@ -354,7 +352,6 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             cols, rows = r.table(name)
             tables[name] = pd.DataFrame(rows, columns=cols)
     # both maps' final predictions on the candidate lattice (empty before the run has a map)
-    from aeni_console.finalmaps import FINAL_MAP_COLUMNS, final_maps
 
     maps = final_maps(path)
     tables["predictions"] = (
@@ -382,7 +379,6 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _command_kinds() -> list[Any]:
-    from core.runview import CommandKind
 
     return list(CommandKind)
 
@@ -403,10 +399,6 @@ _INSTRUMENT_REPORTS: dict[str, tuple[str, ...]] = {
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
-    import getpass
-
-    from core.journal import send_command
-    from core.runview import Command, CommandKind
 
     path = resolve_run(args.run)
     payload: dict[str, Any] = {}
@@ -418,10 +410,6 @@ def _cmd_send(args: argparse.Namespace) -> int:
         payload = dict(zip(names, args.fields, strict=True))
         args.fields = []
     if args.kind == "away-until":  # away-until 08:00 | "Mon 09:00" | ISO: the next such local time
-        from datetime import datetime
-
-        from core.operator import parse_when
-
         if len(args.fields) != 1:
             raise InputError(args.kind, "expected `aeni send RUN away-until HH:MM` (or 'Mon 09:00', or ISO)")
         until = parse_when(args.fields[0], datetime.now(), "away-until")
@@ -435,9 +423,6 @@ def _cmd_send(args: argparse.Namespace) -> int:
     if args.kind == "adjust" and not payload:
         raise InputError("adjust", "give at least one field=value (e.g. beta=2.5 target_sem_gpa=0.1)")
     if args.kind == "adjust":  # the engine's own rules and the run's holds: a bad value is never queued
-        from core.journal import JournalReader
-        from core.settings import check_adjust, check_hold_in_force
-
         with JournalReader(path) as reader:
             payload = check_adjust(payload, reader.profile.allowed_holds_s)
             check_hold_in_force(reader.snapshot().policy, payload, "adjust")
@@ -449,8 +434,6 @@ def _cmd_send(args: argparse.Namespace) -> int:
             takes = ", ".join(allowed.get(args.kind, ())) or "no fields"
             raise InputError(extra[0], f"is not a field of {args.kind} (it takes {takes})")
     if args.kind == "veto":
-        from core.settings import check_veto
-
         check_veto(payload)
     cid = send_command(path, Command(CommandKind(args.kind), author=getpass.getuser(), payload=payload))
     if args.no_wait:
@@ -476,7 +459,6 @@ def wait_for_verdict(
     path: Path, command_id: int, wait_s: float, poll_s: float = 0.05
 ) -> tuple[str, str] | None:
     """The engine's (outcome, reason) for a queued command, or None when it has not answered within wait_s."""
-    from core.journal import JournalReader
 
     deadline = time.monotonic() + wait_s
     with JournalReader(path) as reader:

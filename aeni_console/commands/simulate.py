@@ -18,6 +18,17 @@ from aeni_console.commands.common import (
     positive_float,
     seed_arg,
 )
+from core.campaign import Campaign
+from core.policies.registry import RECOMMENDED, policy_names
+from core.run.events import Observed, RunEvent
+from core.run.headless import RunTally, run_headless
+from core.run.spec import RunSpec
+from core.runconfig import make_campaign_config
+from core.sample import load_sample
+from core.settings import settings_to_dict
+from drivers.registry import DRIVERS
+from drivers.sim.emulator import field_extrema
+from drivers.sim.evaluator import TruthEvaluator
 
 if TYPE_CHECKING:
     from core.run.events import Sink
@@ -60,16 +71,6 @@ def run_simulation(
     its evaluator scores the map; the campaign sees only the sample. ``sinks`` see the run's events.
     With a ``calendar`` a simulated operator loads the blocks, and the run reports its wall clock and visits.
     """
-    from core.campaign import Campaign
-    from core.run.events import Observed, RunEvent
-    from core.run.headless import RunTally, run_headless
-    from core.run.spec import RunSpec
-    from core.runconfig import make_campaign_config
-    from core.sample import load_sample
-    from core.settings import settings_to_dict
-    from drivers.registry import DRIVERS
-    from drivers.sim.emulator import field_extrema
-    from drivers.sim.evaluator import TruthEvaluator
 
     config = make_campaign_config(
         scenario="csv" if truth else scenario,
@@ -214,7 +215,6 @@ def _handler(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from core.policies.registry import RECOMMENDED, policy_names
 
     p = sub.add_parser("simulate", help="run one headless emulator campaign")
     p.add_argument("--policy", choices=policy_names(), default=RECOMMENDED)

@@ -32,9 +32,9 @@ class _QuitWhenWaiting:
 
 @pytest.fixture
 def no_screen(monkeypatch: pytest.MonkeyPatch) -> None:
-    import aeni_console.app
+    import aeni_console.commands.console
 
-    monkeypatch.setattr(aeni_console.app, "ConsoleApp", _QuitWhenWaiting)
+    monkeypatch.setattr(aeni_console.commands.console, "ConsoleApp", _QuitWhenWaiting)
 
 
 def test_quitting_the_demo_console_stops_its_engine(

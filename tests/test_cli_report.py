@@ -70,7 +70,7 @@ def test_report_summary_names_what_happened(demo_run: Path) -> None:
     assert mape[0] == pytest.approx(data.recorded_mape_pct, rel=0.25)
     for name in FIGURES:
         assert f"]({name})" in text
-    # the modulus map: fitted from the same indents (the run planned for hardness only), scored against the truth
+    # the modulus map: planned for beside the hardness (both maps, the default since issue 37), scored
     from aeni_console.runreport import modulus_mape_pct
 
     e_mape = modulus_mape_pct(data)
@@ -79,7 +79,7 @@ def test_report_summary_names_what_happened(demo_run: Path) -> None:
         and 0 < e_mape[0] < 10
         and f"modulus map error against the simulated truth: MAPE {e_mape[0]:.2f} %" in text
     )
-    assert "modulus map: fitted from the same indents; H/E 0.0" in text
+    assert "modulus map: planned for beside the hardness (map_weights); H/E 0.0" in text
 
 
 def test_report_of_a_real_run_claims_no_truth(demo_run: Path) -> None:

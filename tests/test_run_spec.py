@@ -121,12 +121,14 @@ def test_in_process_detached_killed_and_resumed_the_same_spec_and_indents(
     run_file = _run_file(tmp_path)
     here, away = tmp_path / "here.sqlite", tmp_path / "away.sqlite"
     assert main(["run", str(run_file), "--journal", str(here), "--quiet"]) == 0
-    assert main(["run", str(run_file), "--journal", str(away), "--detach"]) == 0
-    out = capsys.readouterr().out
-    pid = int(out.split("engine PID ")[1].split()[0])
+    # --auto-resume 0: its supervisor journals and alerts the kill but leaves the resume to this test
+    assert main(["run", str(run_file), "--journal", str(away), "--detach", "--auto-resume", "0"]) == 0
+    assert "supervisor PID" in capsys.readouterr().out
     deadline = time.monotonic() + 120
     while _count(away) < 3 and time.monotonic() < deadline:
         time.sleep(0.02)
+    with JournalReader(away) as r:
+        pid = int(r.q.engine_row()["pid"])  # the engine's own PID (the supervisor's is printed)
     os.kill(pid, signal.SIGKILL)
     while engine_running(away) and time.monotonic() < deadline:
         time.sleep(0.05)

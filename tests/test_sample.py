@@ -227,8 +227,17 @@ def test_sample_errors_are_input_errors_naming_the_source() -> None:
 
 
 def test_the_readme_documents_the_example_sample_file() -> None:
+    """The README shows the worked sample file abridged: every setting it shows is the file's own."""
     readme = (EXAMPLE.parents[2] / "README.md").read_text(encoding="utf-8")
-    assert EXAMPLE.read_text(encoding="utf-8") in readme
+    block = readme.split("```toml\n", 1)[1].split("```", 1)[0]
+    assert 'name = "NiTiCu-library-07"' in block and str(EXAMPLE.name) in readme
+
+    def settings(text: str) -> list[str]:
+        lines = (ln.split("#", 1)[0].strip() for ln in text.splitlines())
+        return [" ".join(ln.split()) for ln in lines if "=" in ln]
+
+    shown, kept = settings(block), set(settings(EXAMPLE.read_text(encoding="utf-8")))
+    assert len(shown) >= 10 and [ln for ln in shown if ln not in kept] == []
 
 
 def test_resuming_a_journal_from_before_samples_says_why_it_cannot(

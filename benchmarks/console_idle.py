@@ -41,8 +41,8 @@ def child(journal: str, ready: str) -> int:
     """The console, headless: quits on SIGUSR1 as if the operator pressed q; prints the quit timings."""
     from textual import events
 
-    from aeni_console.app import ConsoleApp
-    from aeni_console.journal_source import JournalSource
+    from aeni_console.console.app import ConsoleApp
+    from aeni_console.console.journal_source import JournalSource
 
     app = ConsoleApp(JournalSource(journal))
     marks: dict[str, float] = {}
@@ -86,7 +86,7 @@ def main() -> int:
     if args.child:
         return child(*args.child)
 
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.cli.run import start_engine_process
     from core.campaign import CampaignConfig
     from core.journal import JournalReader, send_command
     from core.runview import Command, CommandKind, EngineState

@@ -26,11 +26,11 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 from textual import events  # noqa: E402
 
-from aeni_console.app import ConsoleApp  # noqa: E402
-from aeni_console.heatmap import FIELD_KEYS, MapMarks, render_heatmap  # noqa: E402
-from aeni_console.testing import settle, wait_until  # noqa: E402
-from aeni_console.widgets.help import HelpScreen  # noqa: E402
-from aeni_console.widgets.mapview import HeatmapView, MapPanel  # noqa: E402
+from aeni_console.console.app import ConsoleApp  # noqa: E402
+from aeni_console.console.heatmap import FIELD_KEYS, MapMarks, render_heatmap  # noqa: E402
+from aeni_console.console.widgets.help import HelpScreen  # noqa: E402
+from aeni_console.console.widgets.mapview import HeatmapView, MapPanel  # noqa: E402
+from aeni_console.testkit.live import settle, wait_until  # noqa: E402
 from core.runview import IndentMark, MapFields  # noqa: E402
 
 
@@ -43,7 +43,7 @@ def heatmap_cost(n: int = 50, repeats: int = 40) -> dict[str, list[float]]:
     (copying the finished strips into the frame)."""
     from rich.style import Style
 
-    from aeni_console.widgets.mapview import to_strips
+    from aeni_console.console.widgets.mapview import to_strips
 
     xs = np.linspace(0, 1000, n)
     xx, yy = np.meshgrid(xs, xs)
@@ -170,7 +170,7 @@ def main() -> int:
     stop = threading.Event()
     with tempfile.TemporaryDirectory() as tmp:
         if args.in_process:
-            from aeni_console.testing import LiveRun
+            from aeni_console.testkit.live import LiveRun
 
             run = LiveRun(tmp, supervision="auto", name="bench")
             run.start()
@@ -184,8 +184,8 @@ def main() -> int:
             threading.Thread(target=tick, daemon=True).start()
             where = "in-process engine, one indent every 50 ms"
         else:
-            from aeni_console.commands.run import start_engine_process
-            from aeni_console.journal_source import JournalSource
+            from aeni_console.cli.run import start_engine_process
+            from aeni_console.console.journal_source import JournalSource
             from core.campaign import CampaignConfig
 
             journal = Path(tmp) / "bench.sqlite"

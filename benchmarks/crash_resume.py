@@ -74,7 +74,7 @@ class TrialRun:
 
 def _engine_child(journal: str, spec_json: str | None, speed: float | None) -> None:
     """Target of a forked engine: create (its RunSpec given) or resume the run, then exit."""
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.run.spec import RunSpec
 
     create = None if spec_json is None else RunSpec.from_json(spec_json)
@@ -91,7 +91,7 @@ def _context() -> Any:
     if _CTX is None:
         _CTX = mp.get_context("forkserver")
         _CTX.set_forkserver_preload(
-            ["core.campaign", "core.run.engine", "aeni_console.commands.run", "benchmarks.crash_resume"]
+            ["core.campaign", "core.run.engine", "aeni_console.cli.run", "benchmarks.crash_resume"]
         )
     return _CTX
 
@@ -104,13 +104,13 @@ class EngineProc:
         if cli:
             env = dict(os.environ, PYTHONPATH=str(ROOT))
             if create:
-                argv = [sys.executable, "-m", "aeni_console.cli", "run", "--quiet", "--journal", str(journal),
+                argv = [sys.executable, "-m", "aeni_console.cli.main", "run", "--quiet", "--journal", str(journal),
                         "--policy", spec.policy, "--scenario", spec.scenario, "--seed", str(spec.seed),
                         "--lattice-n", str(spec.lattice_n), "--budget-s", repr(spec.budget_s)]  # fmt: skip
                 if spec.speed is not None:
                     argv += ["--speed", repr(spec.speed)]
             else:
-                argv = [sys.executable, "-m", "aeni_console.cli", "resume", "--quiet", str(journal)]
+                argv = [sys.executable, "-m", "aeni_console.cli.main", "resume", "--quiet", str(journal)]
             self.popen: subprocess.Popen[bytes] | None = subprocess.Popen(
                 argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
             )

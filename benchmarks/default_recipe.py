@@ -31,7 +31,7 @@ from aeni_console.bench.harness import (  # noqa: E402
     records_to_json,
     run_one,
 )
-from aeni_console.commands.common import map_weights_arg  # noqa: E402
+from aeni_console.cli.common import map_weights_arg  # noqa: E402
 from core.operator import OperatorAvailability, OperatorHours, parse_start  # noqa: E402
 from core.visits import OperatorCalendar  # noqa: E402
 

@@ -103,7 +103,7 @@ class RunOutcome:
 
 
 def _aeni(*args: str) -> list[str]:
-    return [sys.executable, "-m", "aeni_console.cli", *args]
+    return [sys.executable, "-m", "aeni_console.cli.main", *args]
 
 
 def _env() -> dict[str, str]:
@@ -357,14 +357,14 @@ def _engine_pid(journal: Path) -> int | None:
 
 
 def _supervised_alive(journal: Path) -> bool:
-    from aeni_console.supervisor import supervisor_pid
+    from aeni_console.cli.supervisor import supervisor_pid
     from core.journal import engine_running
 
     return supervisor_pid(journal) is not None or engine_running(journal)
 
 
 def _kill_all(journal: Path) -> None:
-    from aeni_console.supervisor import supervisor_pid
+    from aeni_console.cli.supervisor import supervisor_pid
 
     for pid in (supervisor_pid(journal), _engine_pid(journal)):
         if pid is not None:

@@ -23,10 +23,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from aeni_console.app import ConsoleApp  # noqa: E402
-from aeni_console.commands.run import start_engine_process  # noqa: E402
-from aeni_console.journal_source import JournalSource  # noqa: E402
-from aeni_console.testing import wait_until, widget_text  # noqa: E402
+from aeni_console.cli.run import start_engine_process  # noqa: E402
+from aeni_console.console.app import ConsoleApp  # noqa: E402
+from aeni_console.console.journal_source import JournalSource  # noqa: E402
+from aeni_console.testkit.live import wait_until, widget_text  # noqa: E402
 from core.campaign import CampaignConfig  # noqa: E402
 from core.runview import EngineState  # noqa: E402
 

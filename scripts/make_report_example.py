@@ -12,8 +12,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from aeni_console.runreport import write_report  # noqa: E402
-from aeni_console.scripted import run_supervised  # noqa: E402
+from aeni_console.reports.run import write_report  # noqa: E402
+from aeni_console.testkit.scripted import run_supervised  # noqa: E402
 
 OUT = ROOT / "docs" / "report-example"
 

@@ -21,11 +21,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from aeni_console.app import ConsoleApp  # noqa: E402
-from aeni_console.testing import FIXED_WALL_UNIX, LiveRun, settle, wait_until  # noqa: E402
-from aeni_console.widgets.adjust import AdjustScreen  # noqa: E402
-from aeni_console.widgets.confirm import ConfirmScreen  # noqa: E402
-from aeni_console.widgets.help import HelpScreen  # noqa: E402
+from aeni_console.console.app import ConsoleApp  # noqa: E402
+from aeni_console.console.widgets.adjust import AdjustScreen  # noqa: E402
+from aeni_console.console.widgets.confirm import ConfirmScreen  # noqa: E402
+from aeni_console.console.widgets.help import HelpScreen  # noqa: E402
+from aeni_console.testkit.live import FIXED_WALL_UNIX, LiveRun, settle, wait_until  # noqa: E402
 from core.runview import EngineState  # noqa: E402
 
 FIXED_CLOCK = FIXED_WALL_UNIX  # the status bar's time of day: 2025-01-01 10:00 UTC

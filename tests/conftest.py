@@ -27,8 +27,8 @@ def kla_dir() -> Path:
 
 @pytest.fixture
 def live_run(tmp_path: Path):  # type: ignore[no-untyped-def]
-    """Start real test runs (``aeni_console.testing.LiveRun``); each is stopped when the test ends."""
-    from aeni_console.testing import LiveRun
+    """Start real test runs (``aeni_console.testkit.live.LiveRun``); each is stopped when the test ends."""
+    from aeni_console.testkit.live import LiveRun
 
     runs: list[LiveRun] = []
 

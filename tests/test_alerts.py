@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from aeni_console.alerts import AlertWatcher
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.errors import InputError
 from core.journal import append_event
 from core.notifyconfig import NotifyConfig, notify_path_for
@@ -70,7 +70,7 @@ def _wait(pred: object, timeout_s: float = 60.0) -> None:
 def test_a_run_that_ends_alerts_and_keeps_the_url_out_of_the_journal(
     receiver: Receiver, tmp_path: Path
 ) -> None:
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
 
     cfg = make_campaign_config("alerted", policy="cost-aware", lattice_n=30, settings={"indent_budget": 50})
     path = tmp_path / "alerted.sqlite"
@@ -89,7 +89,7 @@ def test_a_run_that_ends_alerts_and_keeps_the_url_out_of_the_journal(
 def test_a_supervised_decision_alerts_and_a_failed_send_is_journaled_without_the_url(
     receiver: Receiver, tmp_path: Path
 ) -> None:
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.journal import JournalReader, engine_running, send_command
     from core.runview import Command, CommandKind
 
@@ -119,7 +119,7 @@ def test_a_supervised_decision_alerts_and_a_failed_send_is_journaled_without_the
 
 
 def test_repeated_alerts_are_rate_limited(receiver: Receiver, tmp_path: Path) -> None:
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
 
     cfg = make_campaign_config("rl", policy="cost-aware", lattice_n=30, settings={"indent_budget": 25})
     path = tmp_path / "rl.sqlite"
@@ -149,7 +149,7 @@ def test_urls_file_must_be_owner_only_and_notify_test_sends(receiver: Receiver, 
 
 
 def test_the_detached_engine_gets_no_config_on_its_command_line(receiver: Receiver, tmp_path: Path) -> None:
-    from aeni_console.commands.run import engine_argv, start_engine_process
+    from aeni_console.cli.run import engine_argv, start_engine_process
     from core.journal import JournalReader
 
     cfg = make_campaign_config("det", policy="cost-aware", lattice_n=30, settings={"indent_budget": 25})
@@ -171,7 +171,7 @@ def test_the_detached_engine_gets_no_config_on_its_command_line(receiver: Receiv
 
 def test_a_silent_instrument_and_a_lost_exchange_folder_alert(receiver: Receiver, tmp_path: Path) -> None:
     """A KLA run whose ticket nobody runs: the silence alert; then the folder goes: its alert."""
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.campaign import CampaignConfig
     from core.journal import JournalReader, send_command
     from core.runview import Command, CommandKind
@@ -211,7 +211,7 @@ def test_a_supervised_run_nobody_answers_goes_on_after_the_timeout_and_alerts(
 ) -> None:
     """Issue 23's done-when: supervised, approval_timeout_s set, nobody at the keys; the global jumps are
     approved by the timeout (journaled), the run reaches its budget, and the receiver got the alerts."""
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.journal import JournalReader
 
     cfg = make_campaign_config("alone", policy="cost-aware", lattice_n=30, settings={"indent_budget": 60})
@@ -243,7 +243,7 @@ def test_every_alert_carries_apprises_severity_and_names_its_cause(
 ) -> None:
     """Issue 38: the severity is apprise's NotifyType, chosen by what happened; the title names the cause."""
     from aeni_console.alerts import Severity, send
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
 
     cfg = make_campaign_config("sev", policy="cost-aware", lattice_n=30, settings={"indent_budget": 25})
     path = tmp_path / "sev.sqlite"
@@ -272,7 +272,7 @@ def test_a_refused_export_is_alerted_once_as_refused_not_as_a_silent_instrument(
     deadline. One `warning` alert names the refusal and its reason; no "has not answered" follows it."""
     from dataclasses import replace
 
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.campaign import CampaignConfig
     from core.plan import PlannerSettings
     from core.profile import load_profile

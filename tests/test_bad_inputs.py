@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.campaign import CampaignConfig
 from core.plan import PlannerSettings
 
@@ -463,7 +463,7 @@ CASES: tuple[Case, ...] = (
 
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.runconfig import RunOptions
 
     path = tmp_path_factory.mktemp("bad-inputs-run") / "done.sqlite"
@@ -481,7 +481,7 @@ def aborted_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     import threading
     import time
 
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.journal import JournalReader, engine_running, send_command
     from core.runconfig import RunOptions
     from core.runview import Command, CommandKind

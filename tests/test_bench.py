@@ -11,7 +11,7 @@ import pytest
 
 from aeni_console.bench.harness import BenchConfig, RunRecord, summarise
 from aeni_console.bench.statistics import _paired_speedups, _quartiles
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 
 
 @pytest.fixture(scope="module")
@@ -211,7 +211,7 @@ def test_the_full_report_renders_every_section_from_synthetic_runs(tmp_path: Pat
     missing the target, so each code path of the report is taken."""
     from dataclasses import replace
 
-    from aeni_console.bench.report import results_markdown, targets, write_report
+    from aeni_console.reports.bench import results_markdown, targets, write_report
 
     config = BenchConfig.make(quick=False, seeds=3)
     records = []
@@ -487,7 +487,7 @@ def test_flat_map_error_is_the_best_constant_maps_and_flags_a_grid_that_resolves
 
     import numpy as np
 
-    from aeni_console.bench.report import flat_map_errors, resolution_table, targets
+    from aeni_console.reports.bench import flat_map_errors, resolution_table, targets
     from drivers.sim.evaluator import TruthEvaluator
     from drivers.sim.robust_fields import GrainField
 
@@ -540,7 +540,7 @@ def test_the_bench_scores_both_maps_and_a_hardness_only_run_writes_what_it_wrote
     from dataclasses import replace
 
     from aeni_console.bench.harness import BenchRun, records_to_json, run_one
-    from aeni_console.bench.report import two_maps_table
+    from aeni_console.reports.bench import two_maps_table
 
     config = BenchConfig.make(quick=True)
     sc = config.scenarios[0]

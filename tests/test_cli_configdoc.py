@@ -5,13 +5,13 @@ from __future__ import annotations
 import re
 import tomllib
 
-from aeni_console import configdoc
+from aeni_console.reports import configdoc
 from core.runconfig import RunFile, parse_run_config
 
 
 def test_config_doc_is_current() -> None:
     assert configdoc.DOC_PATH.read_text(encoding="utf-8") == configdoc.render(), (
-        "docs/config.md is stale: run python -m aeni_console.configdoc"
+        "docs/config.md is stale: run python -m aeni_console.reports.configdoc"
     )
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -133,7 +133,7 @@ def test_no_traceback_from_a_real_process(tmp_path: Path) -> None:
     f = tmp_path / "p.csv"
     f.write_text("a\n", encoding="utf-8")
     proc = subprocess.run(
-        [sys.executable, "-m", "aeni_console.cli", "cost", "path", str(f)],
+        [sys.executable, "-m", "aeni_console.cli.main", "cost", "path", str(f)],
         cwd=ROOT,
         capture_output=True,
         text=True,

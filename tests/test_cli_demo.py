@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.journal import JournalReader, engine_running
 from core.runview import EngineState
 
@@ -32,9 +32,9 @@ class _QuitWhenWaiting:
 
 @pytest.fixture
 def no_screen(monkeypatch: pytest.MonkeyPatch) -> None:
-    import aeni_console.commands.console
+    import aeni_console.cli.console
 
-    monkeypatch.setattr(aeni_console.commands.console, "ConsoleApp", _QuitWhenWaiting)
+    monkeypatch.setattr(aeni_console.cli.console, "ConsoleApp", _QuitWhenWaiting)
 
 
 def test_quitting_the_demo_console_stops_its_engine(

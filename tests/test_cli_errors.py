@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.campaign import CampaignConfig
 from core.plan import PlannerSettings
 
@@ -40,7 +40,7 @@ def _one_line_error(code: int, err: str, *needles: str) -> None:
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny finished emulator run (one block)."""
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.runconfig import RunOptions
 
     path = tmp_path_factory.mktemp("runs") / "done.sqlite"
@@ -84,7 +84,7 @@ def test_export_out_is_an_existing_file(
 
 
 def test_resume_of_a_read_only_journal(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.runconfig import RunOptions
 
     path = tmp_path / "ro.sqlite"
@@ -157,7 +157,7 @@ def test_journal_flag_on_something_that_exists(
 
 
 def test_library_warnings_go_to_stderr_as_one_line(capsys: pytest.CaptureFixture[str]) -> None:
-    from aeni_console import cli
+    from aeni_console.cli import main as cli
 
     with warnings.catch_warnings():
         warnings.simplefilter("always")
@@ -171,14 +171,14 @@ def test_library_warnings_go_to_stderr_as_one_line(capsys: pytest.CaptureFixture
 def test_simulate_json_stdout_is_only_json_even_when_libraries_warn(tmp_path: Path) -> None:
     code = (
         "import warnings, sys\n"
-        "import aeni_console.commands.simulate as s\n"
+        "import aeni_console.cli.simulate as s\n"
         "orig = s.run_simulation\n"
         "def noisy(*a, **k):\n"
         "    warnings.warn('numerical trouble in a library', RuntimeWarning)\n"
         "    print('x', file=sys.stderr)\n"
         "    return orig(*a, **k)\n"
         "s.run_simulation = noisy\n"
-        "from aeni_console.cli import main\n"
+        "from aeni_console.cli.main import main\n"
         "sys.exit(main(['simulate', '--budget-s', '3000', '--json']))\n"
     )
     proc = subprocess.run(
@@ -232,7 +232,7 @@ def test_runs_lists_state_owner_engine_and_age(
 
 
 def test_runs_shows_a_live_engine_with_its_pid(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.cli.run import start_engine_process
 
     journal = tmp_path / "live.sqlite"
     config = CampaignConfig(name="live", settings=PlannerSettings(budget_s=200_000))
@@ -251,7 +251,7 @@ def test_runs_shows_a_live_engine_with_its_pid(tmp_path: Path, capsys: pytest.Ca
 
 
 def test_write_atomic_gives_the_usual_file_mode(tmp_path: Path) -> None:
-    from aeni_console.commands.common import write_atomic
+    from aeni_console.files import write_atomic
 
     target = tmp_path / "summary.md"
     write_atomic(target, "hello")

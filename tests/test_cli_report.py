@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 
 pytest.importorskip("matplotlib")
 
@@ -17,7 +17,7 @@ FIGURES = ("maps.png", "modulus.png", "time.png", "uncertainty.png", "drift.png"
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished demo run (supervised) where the operator vetoes the first jump and approves the rest."""
-    from aeni_console.scripted import run_supervised
+    from aeni_console.testkit.scripted import run_supervised
 
     path = tmp_path_factory.mktemp("report") / "demo.sqlite"
     return run_supervised(
@@ -53,7 +53,7 @@ def test_report_writes_figures_with_content(demo_run: Path, capsys: pytest.Captu
 
 
 def test_report_summary_names_what_happened(demo_run: Path) -> None:
-    from aeni_console.runreport import read_run, truth_mape_pct
+    from aeni_console.reports.run import read_run, truth_mape_pct
 
     out = demo_run.parent / "summary-check"
     assert main(["report", str(demo_run), "--out", str(out)]) == 0
@@ -71,7 +71,7 @@ def test_report_summary_names_what_happened(demo_run: Path) -> None:
     for name in FIGURES:
         assert f"]({name})" in text
     # the modulus map: planned for beside the hardness (both maps, the default since issue 37), scored
-    from aeni_console.runreport import modulus_mape_pct
+    from aeni_console.reports.run import modulus_mape_pct
 
     e_mape = modulus_mape_pct(data)
     assert (
@@ -86,7 +86,7 @@ def test_report_of_a_real_run_claims_no_truth(demo_run: Path) -> None:
     import dataclasses
     import math
 
-    from aeni_console.runreport import read_run, render_report, summary_markdown, truth_mape_pct
+    from aeni_console.reports.run import read_run, render_report, summary_markdown, truth_mape_pct
 
     data = read_run(demo_run)
     data.driver = "kla"
@@ -116,7 +116,7 @@ def test_report_of_a_running_run(tmp_path: Path, capsys: pytest.CaptureFixture[s
     """A run whose engine is still going (here: waiting for approval) gets a report too, said to be a snapshot."""
     import time
 
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.cli.run import start_engine_process
     from core.journal import JournalReader
     from core.runconfig import load_run_config
     from core.runview import EngineState
@@ -145,8 +145,8 @@ def test_report_of_a_running_run(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 def test_report_draws_the_samples_exclusions_and_earlier_indents(tmp_path: Path) -> None:
     """On a sample file with a clamp, a particle and an earlier test: the map shows all three."""
-    from aeni_console.commands.run import run_engine
-    from aeni_console.runreport import read_run, render_report
+    from aeni_console.cli.run import run_engine
+    from aeni_console.reports.run import read_run, render_report
     from core.runconfig import load_run_config
 
     root = Path(__file__).resolve().parents[1]
@@ -177,7 +177,7 @@ def test_report_figures_read_without_help(demo_run: Path) -> None:
 
     import matplotlib.pyplot as plt
 
-    from aeni_console.runreport import _overlay, _stage_axes, _vetoes, read_run, uncertainty_jumps
+    from aeni_console.reports.run import _overlay, _stage_axes, _vetoes, read_run, uncertainty_jumps
     from core.plan import IndentResult, IndentSpec
 
     data = read_run(demo_run)
@@ -223,8 +223,8 @@ def test_approvals_the_timeout_took_are_not_shown_as_the_operators(tmp_path: Pat
     """Issue 38: supervised, nobody at the keys, approval_timeout_s: every approval is the timeout's."""
     import matplotlib.pyplot as plt
 
-    from aeni_console.commands.run import run_engine
-    from aeni_console.runreport import _decision_figure, decision_who, read_run, summary_markdown
+    from aeni_console.cli.run import run_engine
+    from aeni_console.reports.run import _decision_figure, decision_who, read_run, summary_markdown
     from core.runconfig import RunOptions, make_campaign_config
 
     cfg = make_campaign_config("alone", policy="cost-aware", lattice_n=30, settings={"indent_budget": 40})
@@ -248,7 +248,7 @@ def test_unverified_indents_are_counted_and_listed_and_their_two_kinds_told_apar
 
     import matplotlib.pyplot as plt
 
-    from aeni_console.runreport import _overlay, read_run, summary_markdown
+    from aeni_console.reports.run import _overlay, read_run, summary_markdown
     from core.plan import IndentResult, IndentSpec
 
     data = read_run(demo_run)

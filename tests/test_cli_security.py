@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
-from aeni_console.commands.run import start_engine_process
+from aeni_console.cli.main import main
+from aeni_console.cli.run import start_engine_process
 from core.access import JOURNAL_MODE, command_channel_problem
 from core.journal import JournalReader, lock_path_for
 from core.runconfig import load_run_config
@@ -141,7 +141,7 @@ def _send_as_nobody(live: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(
         ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-m",
-         "aeni_console.cli", "send", str(live), "abort"],
+         "aeni_console.cli.main", "send", str(live), "abort"],
         capture_output=True, text=True, timeout=120, env=env, cwd="/", check=False,
     )  # fmt: skip
     assert proc.returncode == 2, proc.stderr

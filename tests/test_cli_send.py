@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
-from aeni_console.commands.run import SEND_NO_VERDICT, SEND_REJECTED, start_engine_process, wait_for_verdict
+from aeni_console.cli.main import main
+from aeni_console.cli.run import SEND_NO_VERDICT, SEND_REJECTED, start_engine_process, wait_for_verdict
 from core.campaign import CampaignConfig
 from core.journal import JournalReader
 from core.plan import PlannerSettings
@@ -78,7 +78,7 @@ def test_no_verdict_in_time_says_so(tmp_path: Path, capsys: pytest.CaptureFixtur
     import os
     import shutil
 
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.journal import lock_path_for
     from core.runconfig import RunOptions
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from aeni_console.app import ConsoleApp
-from aeni_console.testing import LiveRun, settle, wait_until, widget_text
+from aeni_console.console.app import ConsoleApp
+from aeni_console.testkit.live import LiveRun, settle, wait_until, widget_text
 from core.journal import JournalReader
 from core.runview import EngineState
 

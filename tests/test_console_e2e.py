@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.app import ConsoleApp
-from aeni_console.cli import main as cli_main
-from aeni_console.commands.console import leave_message
-from aeni_console.journal_source import JournalReplay, JournalSource
-from aeni_console.testing import settle, wait_until
-from aeni_console.widgets.confirm import ConfirmScreen
+from aeni_console.cli.console import leave_message
+from aeni_console.cli.main import main as cli_main
+from aeni_console.console.app import ConsoleApp
+from aeni_console.console.journal_source import JournalReplay, JournalSource
+from aeni_console.console.widgets.confirm import ConfirmScreen
+from aeni_console.testkit.live import settle, wait_until
 from core.runview import EngineState
 
 pytestmark = pytest.mark.slow
@@ -25,7 +25,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture
 def engine(tmp_path: Path) -> Iterator[tuple[Path, subprocess.Popen[bytes]]]:
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.cli.run import start_engine_process
     from core.campaign import CampaignConfig
 
     journal = tmp_path / "e2e.sqlite"

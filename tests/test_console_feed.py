@@ -12,10 +12,10 @@ from collections.abc import Callable
 import pytest
 from textual.message import Message
 
-from aeni_console.feed import Feed, FeedProblem, MapArrived, ReplaySource, RunSource, SnapshotArrived
-from aeni_console.journal_source import JournalSource
-from aeni_console.testing import LiveRun
-from aeni_console.widgets.adjust import FIELDS, parse_adjust, parse_field
+from aeni_console.console.feed import Feed, FeedProblem, MapArrived, ReplaySource, RunSource, SnapshotArrived
+from aeni_console.console.journal_source import JournalSource
+from aeni_console.console.widgets.adjust import FIELDS, parse_adjust, parse_field
+from aeni_console.testkit.live import LiveRun
 from core.errors import InputError
 from core.plan import PlannerSettings
 from core.runview import RunSnapshot

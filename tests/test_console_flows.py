@@ -1,6 +1,6 @@
 """Operator flows through the console (Pilot, headless) against the real engine.
 
-Each test starts ``aeni_console.testing.LiveRun``: the real engine, campaign and journal, with the
+Each test starts ``aeni_console.testkit.live.LiveRun``: the real engine, campaign and journal, with the
 simulated instrument run an indent at a time by the test. The console reads the run through the same
 ``JournalSource`` as ``aeni console``, and its keys reach the engine through the journal's command table.
 """
@@ -17,15 +17,15 @@ from typing import Any
 import pytest
 from textual.pilot import Pilot
 
-from aeni_console.app import ConsoleApp
-from aeni_console.feed import RunSource
-from aeni_console.journal_source import JournalSource
-from aeni_console.testing import CannedSource, LiveRun, settle, wait_until, widget_text
-from aeni_console.widgets import mapview
-from aeni_console.widgets.adjust import AdjustScreen
-from aeni_console.widgets.confirm import ConfirmScreen
-from aeni_console.widgets.help import HelpScreen
-from aeni_console.widgets.mapview import HeatmapView, MapPanel
+from aeni_console.console.app import ConsoleApp
+from aeni_console.console.feed import RunSource
+from aeni_console.console.journal_source import JournalSource
+from aeni_console.console.widgets import mapview
+from aeni_console.console.widgets.adjust import AdjustScreen
+from aeni_console.console.widgets.confirm import ConfirmScreen
+from aeni_console.console.widgets.help import HelpScreen
+from aeni_console.console.widgets.mapview import HeatmapView, MapPanel
+from aeni_console.testkit.live import CannedSource, LiveRun, settle, wait_until, widget_text
 from core.runview import Command, CommandKind, EngineState, RunSnapshot
 
 SIZES = [(100, 30), (80, 24)]
@@ -500,7 +500,7 @@ async def test_away_until_is_in_the_footer_and_in_help(
         await wait_until(pilot, lambda: isinstance(app.screen, HelpScreen), what="help")
     from rich.console import Console
 
-    from aeni_console.widgets.help import help_text
+    from aeni_console.console.widgets.help import help_text
 
     console = Console(width=90, record=True)
     console.print(help_text())

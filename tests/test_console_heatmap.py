@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import core.runview as rv
-from aeni_console.heatmap import (
+from aeni_console.console.heatmap import (
     LEGEND,
     MARK_EARLIER,
     MARK_EXCLUDED,

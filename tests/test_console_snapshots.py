@@ -1,6 +1,6 @@
 """SVG snapshots of the main screens (pytest-textual-snapshot), from the real engine and a fixed clock.
 
-Each run is ``aeni_console.testing.LiveRun`` (the real engine, a seeded emulator, the journal's wall
+Each run is ``aeni_console.testkit.live.LiveRun`` (the real engine, a seeded emulator, the journal's wall
 clock tied to the instrument clock), so the screens repeat exactly. Update after an intended change of
 the look: pytest tests/test_console_snapshots.py --snapshot-update
 """
@@ -14,11 +14,11 @@ from typing import Any
 
 import pytest
 
-from aeni_console.app import ConsoleApp
-from aeni_console.feed import RunSource
-from aeni_console.testing import LiveRun, settle, wait_until
-from aeni_console.widgets.adjust import AdjustScreen
-from aeni_console.widgets.help import HelpScreen
+from aeni_console.console.app import ConsoleApp
+from aeni_console.console.feed import RunSource
+from aeni_console.console.widgets.adjust import AdjustScreen
+from aeni_console.console.widgets.help import HelpScreen
+from aeni_console.testkit.live import LiveRun, settle, wait_until
 from core.runview import Command, CommandKind
 
 LiveRunFactory = Callable[..., LiveRun]

@@ -102,7 +102,7 @@ def test_kill_mid_block_continues_at_the_first_unfinished_indent(
     block, _, done = open_block
     assert 0 < done < block.n_indents
     out = subprocess.run(
-        [sys.executable, "-m", "aeni_console.cli", "resume", str(journal), "--speed", "1e9"],
+        [sys.executable, "-m", "aeni_console.cli.main", "resume", str(journal), "--speed", "1e9"],
         capture_output=True,
         text=True,
         timeout=120,
@@ -126,7 +126,7 @@ def test_resume_of_a_corrupt_journal_changes_nothing(tmp_path: Path, trials: tup
     bad.write_bytes(data[: len(data) // 3])
     before = bad.read_bytes()
     out = subprocess.run(
-        [sys.executable, "-m", "aeni_console.cli", "resume", str(bad)],
+        [sys.executable, "-m", "aeni_console.cli.main", "resume", str(bad)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -145,7 +145,7 @@ def test_detached_engine_outlives_its_launcher_and_obeys_abort(tmp_path: Path) -
 
     journal = tmp_path / "runs" / "bg.sqlite"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    argv = [sys.executable, "-m", "aeni_console.cli", "run", "--detach", "--journal", str(journal), "--speed", "100",
+    argv = [sys.executable, "-m", "aeni_console.cli.main", "run", "--detach", "--journal", str(journal), "--speed", "100",
             "--lattice-n", "30", "--budget-s", "30000", "--seed", "5",
             "--policy", "cost-aware"]  # 5×5 blocks: an abort lands inside the first ones  # fmt: skip
     out = subprocess.run(argv, capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
@@ -163,7 +163,7 @@ def test_detached_engine_outlives_its_launcher_and_obeys_abort(tmp_path: Path) -
     assert snap.state == EngineState.RUNNING and not snap.finished and snap.can_command
     # a second engine on the same journal is refused
     second = subprocess.run(
-        [sys.executable, "-m", "aeni_console.cli", "resume", str(journal)], capture_output=True, text=True,
+        [sys.executable, "-m", "aeni_console.cli.main", "resume", str(journal)], capture_output=True, text=True,
         timeout=60, env=env,
     )  # fmt: skip
     assert second.returncode == 2 and "already running" in second.stderr
@@ -186,7 +186,7 @@ def test_start_engine_process_for_the_demo_console(tmp_path: Path) -> None:
     """The demo console's entry point: a step-mode engine process that waits for the operator."""
     import time
 
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.cli.run import start_engine_process
     from core.campaign import CampaignConfig
     from core.journal import send_command
     from core.plan import PlannerSettings

@@ -594,7 +594,7 @@ def test_replay_driver_reproduces_a_recorded_run(tmp_path: Path) -> None:
 def test_cli_status_replay_and_export(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import pandas as pd
 
-    from aeni_console.cli import main
+    from aeni_console.cli.main import main
 
     _, path = run_engine(tmp_path, FakeCampaign(n_blocks=3), name="cli.sqlite")
     assert main(["status", str(path)]) == 0

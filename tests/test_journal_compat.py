@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.journal import JournalReader
 from core.runview import EngineState
 

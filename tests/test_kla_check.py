@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.commands import kla as kla_command
+from aeni_console.cli import kla as kla_command
 from core.profile import load_profile
 from drivers.kla.fake_inview import FakeInView, parse_fault
 from drivers.sim.scenarios import make_scenario

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.app import ConsoleApp
-from aeni_console.journal_source import JournalSource
-from aeni_console.testing import wait_until, widget_text
-from aeni_console.widgets.help import INSTRUMENT_KEYS, HelpScreen, help_text
-from aeni_console.widgets.ticket import AskScreen
+from aeni_console.console.app import ConsoleApp
+from aeni_console.console.journal_source import JournalSource
+from aeni_console.console.widgets.help import INSTRUMENT_KEYS, HelpScreen, help_text
+from aeni_console.console.widgets.ticket import AskScreen
+from aeni_console.testkit.live import wait_until, widget_text
 from core.profile import load_profile
 from core.runview import EngineState
 from drivers.kla.exchange import ExchangeFolder
@@ -31,7 +31,7 @@ FAST_PROFILE = (
 
 @pytest.fixture
 def kla_engine(tmp_path: Path) -> Iterator[tuple[Path, Path, Path]]:
-    from aeni_console.commands.run import start_engine_process
+    from aeni_console.cli.run import start_engine_process
     from core.campaign import CampaignConfig
 
     exchange = tmp_path / "exchange"

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.app import ConsoleApp
-from aeni_console.commands.console import kla_demo
-from aeni_console.journal_source import JournalSource
-from aeni_console.testing import wait_until
+from aeni_console.cli.console import kla_demo
+from aeni_console.console.app import ConsoleApp
+from aeni_console.console.journal_source import JournalSource
+from aeni_console.testkit.live import wait_until
 from core.runconfig import make_campaign_config
 from core.runview import EngineState
 

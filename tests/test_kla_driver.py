@@ -324,8 +324,8 @@ def test_resume_detach_refuses_at_once_when_the_exchange_folder_is_gone(
     import shutil
     import time
 
-    from aeni_console.cli import main
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.main import main
+    from aeni_console.cli.run import run_engine
     from core.campaign import CampaignConfig
     from core.journal import JournalReader, engine_running, send_command
     from core.runconfig import RunOptions

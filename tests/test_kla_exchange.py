@@ -436,7 +436,7 @@ def test_fake_inview_process_serves_tickets_and_stops_on_sigterm(
         [
             sys.executable,
             "-m",
-            "aeni_console.cli",
+            "aeni_console.cli.main",
             "kla",
             "fake-inview",
             "--exchange",
@@ -451,7 +451,7 @@ def test_fake_inview_process_serves_tickets_and_stops_on_sigterm(
     assert bad.returncode == 2 and "'gremlins' is not a fault" in bad.stderr and "Traceback" not in bad.stderr
     proc = subprocess.Popen(
         [
-            sys.executable, "-m", "aeni_console.cli", "kla", "fake-inview", "--exchange", str(exchange.root),
+            sys.executable, "-m", "aeni_console.cli.main", "kla", "fake-inview", "--exchange", str(exchange.root),
             "--speed", "100000", "--seed", "7", "--format", "csv",
         ],
         stdout=subprocess.PIPE,

@@ -16,7 +16,7 @@ import openpyxl
 import pandas as pd
 import pytest
 
-from aeni_console.commands import kla as kla_command
+from aeni_console.cli import kla as kla_command
 from core.errors import InputError
 from drivers.kla.export import KlaExport, read_kla_export
 

@@ -368,7 +368,7 @@ def test_test_sheets_without_result_or_curve_are_refused(tmp_path: Path) -> None
 def test_cli_names_the_format_and_reads_a_file_without_positions(tmp_path: Path) -> None:
     path = write_text(tmp_path / "nopos.csv", [["Test", "Hardness"], ["", "GPa"], [1, 4.5], [2, 4.6]], ",")
     done = subprocess.run(
-        [sys.executable, "-m", "aeni_console.cli", "kla", "read", str(path)],
+        [sys.executable, "-m", "aeni_console.cli.main", "kla", "read", str(path)],
         capture_output=True,
         text=True,
         cwd=ROOT,

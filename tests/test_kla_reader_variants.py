@@ -356,7 +356,7 @@ def test_text_export_without_known_columns_is_refused_by_name(tmp_path: Path) ->
 def _cli(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
-        [sys.executable, "-m", "aeni_console.cli", *args], capture_output=True, text=True, env=env, **kw
+        [sys.executable, "-m", "aeni_console.cli.main", *args], capture_output=True, text=True, env=env, **kw
     )
 
 
@@ -366,7 +366,7 @@ def test_json_piped_into_head_ends_without_a_traceback(tmp_path: Path) -> None:
     rows += [[n, float(n), 0.0, 5.0] for n in range(1, 3001)]
     path = write_csv(tmp_path / "big.csv", rows)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    cmd = f"{sys.executable} -m aeni_console.cli kla read {path} --json | head -n 3"
+    cmd = f"{sys.executable} -m aeni_console.cli.main kla read {path} --json | head -n 3"
     proc = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True, env=env)
     assert proc.stdout.splitlines()[0] == "["
     assert "Traceback" not in proc.stderr and "BrokenPipeError" not in proc.stderr, proc.stderr

@@ -13,7 +13,7 @@ import pytest
 from kla_synth import Material, RecordStyle, Tip, indent, inview_workbook, record_rows, write_record
 from test_kla_layouts import write_xlsx
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.errors import InputError
 from drivers.kla.export import read_kla_export, read_kla_exports
 

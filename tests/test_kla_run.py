@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main as cli_main
+from aeni_console.cli.main import main as cli_main
 from core.journal import JournalReader
 from core.runview import EngineState
 
@@ -29,7 +29,7 @@ FAST_PROFILE = 'extends = "kla-imicro"\n[inview]\nstable_polls = 2\npoll_s = 0.0
 
 
 def aeni(*args: str) -> list[str]:
-    return [sys.executable, "-m", "aeni_console.cli", *args]
+    return [sys.executable, "-m", "aeni_console.cli.main", *args]
 
 
 @pytest.fixture
@@ -265,7 +265,7 @@ def test_a_folder_that_vanishes_after_the_journal_is_made_leaves_no_journal(
     """The folder is checked before the journal is made, but a share can drop between the two."""
     import shutil
 
-    from aeni_console.commands import host as run_cmd
+    from aeni_console.cli import host as run_cmd
 
     exchange = tmp_path / "exchange"
     exchange.mkdir()
@@ -363,7 +363,7 @@ def test_run_on_a_sample_file_through_the_fake_inview(tmp_path: Path, setup: tup
     journal = tmp_path / "runs" / "sample.sqlite"
     fake = fake_inview(exchange, profile, extra=("--sample", str(sample_file)))
     for _ in running(fake):
-        # in-process: the engine's CLI without the `python -m aeni_console.cli` prefix
+        # in-process: the engine's CLI without the `python -m aeni_console.cli.main` prefix
         code = cli_main(kla_run(config, exchange, journal, "--sample", str(sample_file))[3:])
     assert code == 0
     accepted = [e for e in manifest(journal) if e["status"] == "accepted"]

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main as cli_main
+from aeni_console.cli.main import main as cli_main
 from core.profile import load_profile
 from drivers.kla.exchange import Ticket
 from drivers.kla.fake_inview import FakeInView

@@ -9,8 +9,8 @@ from typing import Any
 import pandas as pd
 import pytest
 
-from aeni_console.cli import main
-from aeni_console.commands.simulate import run_simulation
+from aeni_console.cli.main import main
+from aeni_console.cli.simulate import run_simulation
 from core.journal import JournalReader
 from core.run.events import Indent, RunEvent
 

@@ -49,7 +49,7 @@ def test_every_aeni_command_in_the_readme_parses() -> None:
     argparse is the dry form; a placeholder such as RUN or DIR stands where a user's path goes)."""
     import shlex
 
-    from aeni_console.cli import build_parser
+    from aeni_console.cli.main import build_parser
 
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     commands = _aeni_commands(readme)

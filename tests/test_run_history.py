@@ -114,7 +114,7 @@ def test_replay_is_the_live_view_cut_off_after_a_block(tmp_path: Path) -> None:
     block (the lift and stop), and every step counts only the rows up to its block."""
     from test_engine import run_engine
 
-    from aeni_console.journal_source import JournalReplay, JournalSource
+    from aeni_console.console.journal_source import JournalReplay, JournalSource
 
     _, path = run_engine(tmp_path, FakeCampaign(n_blocks=3))
     live = JournalSource(path).snapshot()

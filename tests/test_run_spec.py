@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.errors import InputError
 from core.journal import JournalReader, engine_running
 from core.run.spec import RunSpec, run_spec_from_meta

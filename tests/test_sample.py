@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.errors import InputError
 from core.sample import SAMPLE_TEMPLATE, Sample, load_sample, parse_sample, sample_from_dict
 
@@ -259,7 +259,7 @@ def test_allowed_is_the_one_placement_rule_for_planners_the_check_and_the_map() 
     (planners, final maps) and `aeni sample check` are that function, not copies of it."""
     from dataclasses import replace as dc_replace
 
-    from aeni_console.commands.sample import allowed_lattice
+    from aeni_console.cli.sample import allowed_lattice
     from core.campaign import Campaign, CampaignConfig
     from core.policies.base import DEFAULT_PITCH_UM
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aeni_console.cli import main as cli_main
+from aeni_console.cli.main import main as cli_main
 from core.campaign import Campaign
 from core.errors import InputError
 from core.journal import Journal
@@ -186,7 +186,7 @@ async def test_the_adjust_form_shows_only_the_hold_settings_in_force() -> None:
     from textual.app import App
     from textual.widgets import Select
 
-    from aeni_console.widgets.adjust import AdjustScreen
+    from aeni_console.console.widgets.adjust import AdjustScreen
 
     for policy, fixed_shown, select_shown in (
         ("aeni", False, False),

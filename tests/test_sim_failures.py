@@ -88,7 +88,7 @@ def test_a_bad_rate_is_refused(rate: float) -> None:
 
 def test_an_engine_run_with_failures_completes_its_budget_alone(tmp_path: Path) -> None:
     """auto supervision, the simulated instrument failing 10 % of indents: the run ends by its budget."""
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.journal import JournalReader
     from core.runconfig import RunOptions
 

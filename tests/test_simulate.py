@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
+from aeni_console.cli.main import main
 from core.policies.registry import policy_names
 
 JSON_KEYS = {

@@ -95,7 +95,7 @@ def test_stop_rel_sd_stops_once_the_map_is_known_well_enough() -> None:
 
 
 def test_the_stop_reason_is_journaled(tmp_path: Path) -> None:
-    from aeni_console.commands.run import run_engine
+    from aeni_console.cli.run import run_engine
     from core.journal import JournalReader
     from core.runconfig import RunOptions
 

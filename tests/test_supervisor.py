@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from aeni_console.cli import main
-from aeni_console.commands.host import child_env as _child_env
-from aeni_console.commands.host import engine_argv
-from aeni_console.commands.runs import format_runs, list_runs
-from aeni_console.supervisor import SUPERVISED_ENV, Supervisor, describe_exit, resume_argv, supervisor_pid
+from aeni_console.cli.host import child_env as _child_env
+from aeni_console.cli.host import engine_argv
+from aeni_console.cli.main import main
+from aeni_console.cli.runs import format_runs, list_runs
+from aeni_console.cli.supervisor import SUPERVISED_ENV, Supervisor, describe_exit, resume_argv, supervisor_pid
 from core.journal import JournalReader, engine_running
 from core.notifyconfig import NotifyConfig
 from core.run.spec import RunSpec

@@ -154,7 +154,7 @@ def test_a_resumed_two_map_run_decides_what_the_uninterrupted_one_would() -> Non
 def test_the_console_cycles_through_both_maps_and_the_journal_keeps_them() -> None:
     """The map fields carry the modulus mean and sd where the run learns the modulus map; `m` then cycles on
     to them and H/E; the journal's codec keeps them; a hardness-only run's fields are as before."""
-    from aeni_console.heatmap import FIELD_KEYS, HARDNESS_KEYS, field_array, field_keys_of
+    from aeni_console.console.heatmap import FIELD_KEYS, HARDNESS_KEYS, field_array, field_keys_of
     from core.journal.codec import map_fields_from_bytes, map_fields_to_bytes
 
     c = _campaign(MapWeights(1.0, 1.0))
@@ -184,8 +184,8 @@ async def test_a_modulus_collapse_alarm_reaches_the_console_and_waits(tmp_path: 
     """A run aiming at both maps, whose modulus GP's guard trips (its length-scale floor raised above any
     length-scale it can fit): the engine raises the collapse alarm naming the modulus map, the next block
     waits for the operator in supervised mode, and the console shows the alarm (the hardness map is healthy)."""
-    from aeni_console.app import ConsoleApp
-    from aeni_console.testing import LiveRun, settle, widget_text
+    from aeni_console.console.app import ConsoleApp
+    from aeni_console.testkit.live import LiveRun, settle, widget_text
     from core.model.guard import CollapseRule
 
     def strict_modulus_guard(c: Campaign) -> None:

@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import pytest
 
-from aeni_console.testing import LiveRun
+from aeni_console.testkit.live import LiveRun
 from core.plan import Decision
 from core.runview import Command, CommandKind
 

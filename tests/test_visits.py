@@ -109,7 +109,7 @@ def test_run_file_operator_section_refuses_bad_values(field: str, value: object,
 
 
 def _simulate(policy: str, start: str, budget_s: float) -> dict[str, object]:
-    from aeni_console.commands.simulate import run_simulation
+    from aeni_console.cli.simulate import run_simulation
 
     cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start(start))
     return run_simulation(policy, 0, lattice_n=24, budget_s=budget_s, calendar=cal)
@@ -190,7 +190,7 @@ def test_a_stretch_fills_the_evening_with_arrays_loaded_in_one_visit() -> None:
     """Started on a Monday at 17:00: the first load runs unattended until Tuesday 08:40, so the planner
     plans one stretch of arrays (each one program at one hold; here the space-filling start, which needs
     no model), loaded in one visit; every array still passes the interlock (no refusals)."""
-    from aeni_console.commands.simulate import run_simulation
+    from aeni_console.cli.simulate import run_simulation
     from core.run.events import Decided, RunEvent
 
     decided: list[Decided] = []
@@ -265,7 +265,7 @@ def test_a_stretch_before_the_last_visit_of_the_day_does_not_leave_the_night_idl
     should run to the 17:40 routine visit, but one film array (a program of singles) takes longer than the
     40 min left before 17:50, the last moment a request is still answered. The stretch ends by then or
     fills the night; either way the instrument never waits for the morning with a stretch done at 17:55."""
-    from aeni_console.commands.simulate import run_simulation
+    from aeni_console.cli.simulate import run_simulation
 
     cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 1800.0), parse_start("Mon 17:00"))
     out = run_simulation("aeni", 0, scenario="film", lattice_n=24, budget_s=3 * 3600, calendar=cal)

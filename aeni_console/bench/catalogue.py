@@ -1,7 +1,7 @@
 """The bench's catalogue: its scenarios (paper fields, provocations, the robustness suite, scale) and its
 configuration (seeds, lattice, margin, caps, failures, the operator's calendar).
 
-The protocol (aeni_console.bench.runner) runs it; the report is aeni_console.bench.report.
+The protocol (aeni_console.bench.runner) runs it; the report is aeni_console.reports.bench.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Protocol (the same for every policy, so the comparison is fair):
   as infinitely slow. Medians and quartiles are over seeds.
 
 Runs go to worker processes (joblib) with one torch thread each. ``core`` stays free of plotting: the
-report (figures, RESULTS.md) is ``aeni_console.bench.report``.
+report (figures, RESULTS.md) is ``aeni_console.reports.bench``.
 """
 
 from __future__ import annotations

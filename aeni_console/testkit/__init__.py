@@ -1,0 +1,1 @@
+"""Test support: the real engine driven headless for tests, screenshots and benchmarks."""

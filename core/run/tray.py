@@ -21,6 +21,7 @@ again: no library is indented on a tip that failed its last check.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -108,6 +109,7 @@ class _Load:
     start_s: float
     window: LoadWindow
     ranking: list[str] = field(default_factory=list)
+    ranked: bool = False  # the libraries were ranked for this load (at its visit, or after its first check)
 
 
 class TrayCampaign:
@@ -128,7 +130,7 @@ class TrayCampaign:
                 library_config(config, entry),
                 refit_every=refit_every,
                 wall_s_per_instrument_s=wall_s_per_instrument_s,
-                unattended=self._window_for if unattended is not None else None,
+                unattended=functools.partial(self._share_for, entry.name) if unattended is not None else None,
             )
             self.lanes[entry.name] = Lane(entry, campaign)
         self.reference = tray.reference
@@ -143,6 +145,7 @@ class TrayCampaign:
         self._load: _Load | None = None
         self._now_s = 0.0  # the tray's instrument clock at the last proposal
         self._on: str | None = None  # the sample of the last block that started (where the tip is)
+        self._stretching: str | None = None  # the library whose stretch the load is running
         self._owner: dict[int, str] = {}  # proposed block id -> sample name
         self._shown: Lane = next(iter(self.lanes.values()))  # the library the console's map shows
         self._alarm: str | None = None
@@ -158,8 +161,10 @@ class TrayCampaign:
     def unattended(self, window: Callable[[float], LoadWindow | None] | None) -> None:
         """A real operator's hours (the engine binds them): every library plans its stretches in the load."""
         self._unattended = window
-        for lane in self.lanes.values():
-            lane.campaign.unattended = self._window_for if window is not None else None
+        for name, lane in self.lanes.items():
+            lane.campaign.unattended = (
+                functools.partial(self._share_for, name) if window is not None else None
+            )
 
     @property
     def settings(self) -> PlannerSettings:
@@ -193,11 +198,37 @@ class TrayCampaign:
 
     # -- planning -----------------------------------------------------------------------------------
     def _window_for(self, _own_clock_s: float) -> LoadWindow | None:
-        """What is left of the visit's load, as a library's stretch planner asks for it."""
+        """What is left of the visit's load."""
         if self._load is None:
             return None
         w, gone = self._load.window, self._now_s - self._load.start_s
         return LoadWindow(max(w.fill_s - gone, 0.0), w.last_answer_s - gone, w.next_answer_s - gone)
+
+    def _fits(self, decision: Decision) -> bool:
+        """Whether the next library's block still fits the load: it ends before someone comes again, and not
+        after the day's last answerable moment (else the next request waits the night: better asked now);
+        once that moment has passed, whatever keeps the instrument busy until the next answer fits."""
+        left = self._window_for(self._now_s)
+        if left is None:
+            return False
+        if left.last_answer_s <= 0:
+            return True
+        return decision.predicted_cost_s <= min(left.fill_s, left.last_answer_s)
+
+    def _share_for(self, name: str, own_clock_s: float) -> LoadWindow | None:
+        """A library's share of what is left of the load, as its stretch planner asks for it: the rest split
+        evenly with the libraries ranked after it; the last one of the load keeps the calendar's rule on when
+        the load may end (the libraries before it hand over to the next, so they may end any time)."""
+        left = self._window_for(own_clock_s)
+        if left is None:
+            return None
+        if self._load is not None and self._load.ranked:
+            after = [n for n in self._load.ranking if n != name and not self.lanes[n].done]
+        else:  # ranking now: every active library shares
+            after = [n for n, lane in self.lanes.items() if n != name and not lane.done]
+        if not after:
+            return left
+        return LoadWindow(left.fill_s / (1 + len(after)))
 
     def _charge(self, clock_s: float) -> None:
         """The instrument time since the last proposal belongs to the sample the tip went to."""
@@ -330,8 +361,8 @@ class TrayCampaign:
         if self._check_due():
             self._owner[block_id] = ref
             return self._check_decision(position_um, program_open, block_id), True
-        # the library whose loaded stretch is running goes on with it
-        on = self.lanes.get(self._on or "")
+        # the library whose loaded stretch is running goes on with it (a tip check in between or not)
+        on = self.lanes.get(self._stretching or "")
         if on is not None and not on.done and on.campaign.queued_stretch():
             d = self._offer(on, position_um, program_open, block_id)
             if d is not None:
@@ -340,13 +371,19 @@ class TrayCampaign:
         while in_load and self._load is not None and self._load.ranking:
             # within a visit's load: the next library in the ranking made at the visit
             lane = self.lanes[self._load.ranking.pop(0)]
-            if lane.done or lane.entry.name == self._on:
+            if lane.done or lane.entry.name == self._stretching:
                 continue
             d = self._offer(lane, position_um, program_open, block_id)
-            if d is not None:
-                self._owner[block_id] = lane.entry.name
-                return d, True
-        if in_load and self._unattended is not None:
+            if d is None:
+                continue
+            if not self._fits(d):
+                lane.campaign.drop_stretch()  # it would outrun the load: ask for a visit instead
+                break
+            self._owner[block_id] = self._stretching = lane.entry.name
+            return d, True
+        # the libraries learnt nothing since the visit when only the reference ran: ranked now is as ranked then
+        loaded = in_load and self._load is not None and not self._load.ranked
+        if in_load and not loaded and self._unattended is not None:
             # nothing of this visit's list is left: what comes next is planned now, and someone must load it
             window = self._unattended(self._now_s)
             self._load = None if window is None else _Load(self._now_s, window)
@@ -363,9 +400,9 @@ class TrayCampaign:
             )
             return None, False
         if self._load is not None:
-            self._load.ranking = order[1:]
-        self._owner[block_id] = order[0]
-        return decisions[order[0]], False
+            self._load.ranking, self._load.ranked = order[1:], True
+        self._owner[block_id] = self._stretching = order[0]
+        return decisions[order[0]], loaded
 
     # -- what the operator does -------------------------------------------------------------------------
     def veto(self, decision: Decision, hold_blocks: int = 3) -> None:

@@ -4,6 +4,7 @@ draw it on the stage with the moves between its samples."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import math
 import os
@@ -12,6 +13,7 @@ from typing import Any
 
 from core.errors import InputError
 from core.profile import load_profile
+from core.run.spec import RunSpec
 from core.sample import Sample
 from core.sample.tray import (
     TRAY_TEMPLATE,
@@ -20,11 +22,32 @@ from core.sample.tray import (
     centre_um,
     draw_tray,
     layout_problems,
+    parse_tray,
     read_tray,
     visit_order,
 )
 from core.sample_change import change_s, travel_s
 from drivers.registry import default_sample
+
+
+def tray_spec(spec: RunSpec, path: str, tip_wear_pct_per_h: float | None = None) -> RunSpec:
+    """``aeni run --tray``: the run's spec over the tray in ``path`` (its policy, seed, lattice and settings
+    for every library; the driver's options are the tray's own, e.g. the simulated tip's wear)."""
+    tray = parse_tray(path)
+    if spec.campaign.sample is not None:
+        raise InputError("--sample", "a tray names its samples itself: leave out --sample with --tray")
+    tray, problems = resolve_tray(tray, spec.driver, spec.campaign.seed)
+    if problems:
+        src, _, what = problems[0].partition(": ")
+        raise InputError(src, what)
+    options: dict[str, Any] = {}
+    if tip_wear_pct_per_h is not None:
+        if spec.driver != "sim":
+            raise InputError("--tip-wear-pct-per-h", "only the simulated instrument wears its tip on purpose")
+        options["tip_wear_pct_per_h"] = tip_wear_pct_per_h
+    name = spec.campaign.name if spec.campaign.name != "run" else tray.name
+    campaign = dataclasses.replace(spec.campaign, driver_options=options, name=name)
+    return dataclasses.replace(spec, campaign=campaign, tray=tray)
 
 
 def _cmd_new(args: argparse.Namespace) -> int:

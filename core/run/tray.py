@@ -69,6 +69,10 @@ class TrayDrivers(Protocol):
         ...
 
 
+def _finite(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
 def goal_settings(settings: PlannerSettings, goal: Goal | None) -> PlannerSettings:
     """A library's stopping rule from its goal (its own instrument time for ``budget_s``)."""
     if goal is None:
@@ -478,6 +482,13 @@ class TrayCampaign:
                 "owner": {str(k): v for k, v in self._owner.items()},
                 "ref_avoid": [list(p) for p in self._ref_avoid],
                 "final_check_done": self._final_check_done,
+                # for `aeni status` and the console (core.run.tray_view); a restore recomputes them
+                "indents": {name: len(lane.campaign.indents_xy) for name, lane in self.lanes.items()},
+                "rel_sd_p95_pct": {name: lane.campaign.rel_sd_p95_pct() for name, lane in self.lanes.items()},
+                "checks": [
+                    [c.block_id, c.t_s, _finite(c.median_gpa), _finite(c.deviation_pct), c.passed]
+                    for c in self.checks
+                ],
             },
         }
 

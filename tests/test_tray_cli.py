@@ -12,6 +12,9 @@ import pytest
 from aeni_console.cli.host import create_run_journal, run_engine
 from aeni_console.cli.main import main
 from aeni_console.cli.tray import tray_spec
+from aeni_console.console.app import ConsoleApp
+from aeni_console.console.journal_source import JournalSource
+from aeni_console.testkit.live import settle, widget_text
 from core.campaign import CampaignConfig
 from core.driver import Driver
 from core.journal import JournalReader
@@ -46,22 +49,22 @@ def tray_file(tmp_path: Path) -> Path:
     return p
 
 
-def test_run_status_and_export_of_a_tray(
-    tray_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    journal = tmp_path / "runs" / "night.sqlite"
-    argv = [
-        "run",
-        "--tray",
-        str(tray_file),
-        "--driver",
-        "sim",
-        "--lattice-n",
-        "20",
-        "--journal",
-        str(journal),
-    ]
+@pytest.fixture(scope="module")
+def tray_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
+    """One tray run through ``aeni run --tray``: its journal and the command that made it."""
+    tmp = tmp_path_factory.mktemp("tray")
+    tray = tmp / "tray.toml"
+    tray.write_text(TRAY, encoding="utf-8")
+    journal = tmp / "runs" / "night.sqlite"
+    argv = ["run", "--tray", str(tray), "--driver", "sim", "--lattice-n", "20", "--journal", str(journal)]
     assert main([*argv, "--quiet"]) == 0
+    return journal, argv
+
+
+def test_run_status_and_export_of_a_tray(
+    tray_run: tuple[Path, list[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    journal, argv = tray_run
     capsys.readouterr()
     assert main(["status", str(journal)]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -131,3 +134,22 @@ def test_a_crashed_tray_run_resumes_to_every_goal(tray_file: Path, tmp_path: Pat
     assert tray_state[0]["tray_run"]["indents"] == {"tern": 30, "film": 30}
     assert spec.tray is not None
     assert all(spec.tray.sample_at(r.commanded_x_um, r.commanded_y_um) is not None for r in results)
+
+
+async def test_the_console_shows_the_tray(tray_run: tuple[Path, list[str]]) -> None:
+    journal, _ = tray_run
+    source = JournalSource(journal)
+    app = ConsoleApp(
+        source, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="tester", cursor_blink=False
+    )
+    try:
+        async with app.run_test(size=(100, 30)) as pilot:
+            await settle(pilot)
+            panel = app.tray_panel
+            assert panel.display
+            text = widget_text(panel)
+            assert "tern" in text and "film" in text and "silica" in text
+            assert "30 of 30 indents" in text and "tip check" in text
+            assert "▶" in text  # the current sample (the last block's: the final tip check)
+    finally:
+        source.close()

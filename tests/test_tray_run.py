@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from datetime import datetime
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
@@ -11,13 +12,15 @@ from hypothesis import strategies as st
 from aeni_console.alerts import KINDS, Severity, event_kind
 from core.campaign import CampaignConfig
 from core.interlock_tray import TrayInterlock
-from core.plan import Block, local_grid
+from core.operator import OperatorAvailability, OperatorHours
+from core.plan import STRETCH_CONTINUES, Block, local_grid
 from core.policies.tray import Offer, rank
 from core.run.events import Indent, Logged, RunEvent
 from core.run.headless import run_headless
 from core.run.spec import RunSpec
 from core.runview import EngineState
 from core.sample.tray import Goal, Reference, Tray, TraySample, block_sample, placed_sample
+from core.visits import OperatorCalendar
 from drivers.registry import DRIVERS, default_sample
 
 STAGE = (0.0, 0.0, 100_000.0, 100_000.0)
@@ -161,3 +164,19 @@ def test_the_interlock_refuses_a_block_across_two_samples_or_off_every_sample() 
     assert "on no sample of the tray" in (INTERLOCK.check(gap, (0.0, 0.0), False) or "")
     local = Block(2, "local", 500.0, 500.0, 1, 5.0, 80.0, local_grid(500.0, 500.0, 1, 5.0, 80.0))
     assert "needs a global block" in (INTERLOCK.check(local, (12_000.0, 21_000.0), True) or "")
+
+
+def test_a_night_on_the_calendar_is_one_visit_for_the_whole_tray() -> None:
+    # loaded at 18:00 (the request made at 17:50, answered within the 10 min response) and left for the night
+    cal = OperatorCalendar(
+        OperatorAvailability(OperatorHours.parse("Mon-Fri 08:30-18:00"), 600, 7200),
+        datetime(2026, 11, 23, 17, 50),
+    )
+    spec = RunSpec(campaign=CampaignConfig(seed=0, lattice_n=20), calendar=cal, tray=_tray())
+    tally, run = run_headless(spec, DRIVERS)
+    assert "every library reached its goal" in tally.stop_reason
+    assert run.visits is not None and run.visits.visits == 1 and run.visits.waited_s == 600
+    phases = [d.phase for d in tally.decisions]
+    assert phases[0] == "tip-check" and set(phases[1:]) == {STRETCH_CONTINUES}  # loaded with the first
+    names = {run.tray.tray.sample_at(d.block.center_x_um, d.block.center_y_um).name for d in tally.decisions}  # type: ignore[union-attr]
+    assert names == {"tern", "film", "silica"}

@@ -479,6 +479,7 @@ class TrayCampaign:
                 "reference_s": self._ref_s,
                 "now_s": self._now_s,
                 "on": self._on,
+                "stretching": self._stretching,
                 "owner": {str(k): v for k, v in self._owner.items()},
                 "ref_avoid": [list(p) for p in self._ref_avoid],
                 "final_check_done": self._final_check_done,
@@ -511,6 +512,7 @@ class TrayCampaign:
         self._ref_s = float(run.get("reference_s", 0.0))
         self._now_s = float(run.get("now_s", 0.0))
         self._on = run.get("on")
+        self._stretching = run.get("stretching")
         self._owner = {int(k): str(v) for k, v in run.get("owner", {}).items()}
         self._ref_avoid = [(float(x), float(y)) for x, y in run.get("ref_avoid", [])]
         self._final_check_done = bool(run.get("final_check_done", False))

@@ -88,9 +88,11 @@ def tray_of(seed: int, with_reference: bool = True) -> Tray:
 T0 = MONDAY_1800 - timedelta(seconds=RESPONSE_S)
 
 
-def run_tray(seed: int, lattice_n: int) -> dict[str, float]:
+def run_tray(seed: int, lattice_n: int, with_reference: bool = True) -> dict[str, float]:
     spec = RunSpec(
-        campaign=CampaignConfig(seed=seed, lattice_n=lattice_n), calendar=calendar(T0), tray=tray_of(seed)
+        campaign=CampaignConfig(seed=seed, lattice_n=lattice_n),
+        calendar=calendar(T0),
+        tray=tray_of(seed, with_reference),
     )
     tally, run = run_headless(spec, DRIVERS)
     assert run.visits is not None and run.tray is not None

@@ -83,6 +83,9 @@ def test_run_status_and_export_of_a_tray(
         assert own and {r["sample"] for r in own} == {name}
     assert sum(1 for r in rows if r["sample"] == "tern" and r["status"] == "measured") == 30
     assert (out / "samples" / "film" / "predictions.csv").stat().st_size > 100
+    # one report over several samples would mix their maps: refused, saying where each sample's data is
+    assert main(["report", str(journal), "--out", str(tmp_path / "report")]) == 2
+    assert "aeni export" in capsys.readouterr().err
     # a tray names its own samples; a second --tray run on the same journal is refused
     assert main([*argv, "--quiet"]) == 2
 

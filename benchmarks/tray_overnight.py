@@ -186,8 +186,13 @@ def main() -> int:
         "# A tray overnight against one run after another (issue 40)"
         + (": the tray without its reference" if args.no_reference else ""),
         "",
-        f"Libraries and goals: {goals}; a fused-silica reference checked every {REFERENCE.check_every_h:g} h in "
-        f"the tray. Policy `aeni`, lattice {args.lattice_n}×{args.lattice_n} per sample, simulated instrument.",
+        f"Libraries and goals: {goals}; "
+        + (
+            "no reference in the tray (what the tip checks cost)."
+            if args.no_reference
+            else f"a fused-silica reference checked every {REFERENCE.check_every_h:g} h in the tray."
+        )
+        + f" Policy `aeni`, lattice {args.lattice_n}×{args.lattice_n} per sample, simulated instrument.",
         f"Calendar: start Monday 18:00, operator {HOURS}, response {RESPONSE_S / 60:g} min, a visit every "
         f"{VISIT_EVERY_S / 3600:g} h during hours. Wall clock from Monday 18:00 to the last library's goal.",
         "",

@@ -216,10 +216,9 @@ def main() -> int:
     print(text)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tray_overnight.json").write_text(
-        json.dumps({"lattice_n": args.lattice_n, "runs": rows}, indent=2)
-    )
-    (out / "tray_overnight.md").write_text(text)
+    stem = "tray_overnight_noref" if args.no_reference else "tray_overnight"
+    (out / f"{stem}.json").write_text(json.dumps({"lattice_n": args.lattice_n, "runs": rows}, indent=2))
+    (out / f"{stem}.md").write_text(text)
     return 0
 
 

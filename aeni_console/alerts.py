@@ -60,9 +60,11 @@ KINDS: dict[str, AlertKind] = {
     "silence": AlertKind("the instrument is silent", Severity.WARNING),
     "ended": AlertKind("the run ended", Severity.INFO),
     "failed": AlertKind("the run failed", Severity.FAILURE),
+    "tip": AlertKind("the tip check on the reference failed", Severity.FAILURE),
 }
 # what in a log row is worth an alert, by kind (the engine's and the drivers' words), first match wins
 EVENT_KINDS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("tip", ("tip check failed",)),  # core.tipcheck's words: the run paused on a worn or dirty tip
     ("interlock", ("safety interlock refused",)),
     ("timeout", ("timed out", "timeout")),
     ("deadline", ("deadline",)),

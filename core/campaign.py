@@ -692,6 +692,10 @@ class Campaign:
         """The arrays of the loaded stretch still to run after the current one, in load order."""
         return tuple(d.block for d in self._stretch)
 
+    def drop_stretch(self) -> None:
+        """Forget a stretch that was planned but not loaded (a tray chose another sample's offer)."""
+        self._stretch = []
+
     # -- persistence -----------------------------------------------------------------------------
     def export_state(self) -> dict[str, Any]:
         return {

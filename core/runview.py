@@ -18,6 +18,7 @@ from core.plan import Block, Decision, IndentSpec, PlannerSettings
 # the state machine's names, re-exported for the read side
 from core.run.machine import CommandKind as CommandKind
 from core.run.machine import EngineState as EngineState
+from core.run.tray_view import SampleProgress
 from core.sample.model import Sample
 
 
@@ -150,6 +151,8 @@ class RunSnapshot:
     indents: tuple[IndentMark, ...] = ()
     # AWAITING APPROVAL with an approval_timeout_s: when the wait ends and what the engine does then
     approval_deadline: ApprovalDeadline | None = None
+    # a tray run: a line per sample (core.run.tray_view); empty for a single-sample run
+    tray: tuple[SampleProgress, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,12 @@ from core.errors import InputError
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
 from core.sample import Sample
+from core.sample.tray import Tray, TraySample
 from drivers.kla.driver import make_kla_driver
 from drivers.sim.failures import FailureModes
 from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
 from drivers.sim.scenarios import SCENARIOS, make_scenario
+from drivers.sim.tray import make_tray_driver
 
 if TYPE_CHECKING:
     from core.run.spec import RunSpec
@@ -163,6 +165,32 @@ class Registry:
 
     def evaluator(self, spec: RunSpec, sample: Sample) -> MapEvaluator | None:
         return make_evaluator(spec.driver, sample, spec.driver_options, seed=spec.campaign.seed)
+
+    # -- a tray (core.run.tray.TrayDrivers) ---------------------------------------------------------------
+    def tray_sample(self, spec: RunSpec, entry: TraySample) -> Sample:
+        """A tray sample without a file: the sim driver's built-in one for its scenario (placed by the tray)."""
+        _check_kind(spec.driver)
+        if spec.driver != "sim" or not entry.sim:
+            raise InputError(f"sample {entry.name!r}", "no sample file (a scenario needs --driver sim)")
+        return default_sample("sim", entry.sim, spec.campaign.seed)
+
+    def tray_driver(self, spec: RunSpec, tray: Tray) -> Driver:
+        if spec.driver != "sim":
+            raise InputError(
+                "--driver",
+                "a tray runs on the simulated instrument only in this version (the KLA driver runs "
+                "one sample per run)",
+            )
+        options = spec.campaign.driver_options
+        driver: Driver = make_tray_driver(tray, options, spec.campaign.seed, sim_scenario, spec.speed)
+        return driver
+
+    def tray_evaluator(self, spec: RunSpec, entry: TraySample) -> MapEvaluator | None:
+        """A library's map scorer (its truth laid onto its placed sample) on the sim driver, else None."""
+        if spec.driver != "sim" or entry.reference is not None:
+            return None
+        evaluator: MapEvaluator = sim_scenario(entry.sim, spec.campaign.seed, entry.placed).evaluator()
+        return evaluator
 
 
 DRIVERS = Registry()

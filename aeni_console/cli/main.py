@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "aeni_console.cli.console",
     "aeni_console.cli.bench",
     "aeni_console.cli.sample",
+    "aeni_console.cli.tray",
     "aeni_console.cli.notify",
 )
 

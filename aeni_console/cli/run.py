@@ -28,12 +28,14 @@ from aeni_console.cli.host import (  # re-exported: the engine host's entry poin
     start_engine_process,
 )
 from aeni_console.cli.supervisor import DEFAULT_AUTO_RESUME
+from aeni_console.cli.tray import tray_spec
 from aeni_console.files import check_out_folder
-from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps
+from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps, tray_final_maps
 from core.errors import InputError
 from core.journal import JournalReader, default_journal_path, engine_running, send_command
 from core.operator import parse_when
 from core.run.spec import RunSpec
+from core.run.tray_view import journal_tray, progress_line, tray_progress
 from core.runconfig import load_run_config
 from core.runview import Command, CommandKind, EngineState
 from core.settings import SUPERVISION_MODES, check_adjust, check_hold_in_force, check_veto
@@ -97,6 +99,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     rc = load_run_config(args.config, _overrides(args))
     options = rc.options
     spec = rc.spec()
+    if args.tray:  # several samples, one run (docs/tray.md)
+        spec = tray_spec(spec, args.tray, args.tip_wear_pct_per_h)
     journal = Path(options.journal) if options.journal else default_journal_path(spec.name, options.runs_dir)
     check_new_journal(journal)
     if args.detach:
@@ -192,8 +196,21 @@ def status_line(path: str | Path) -> str:
     return "  ".join(parts)
 
 
+def tray_lines(path: str | Path) -> list[str]:
+    """A line per sample of a tray run (none for a single-sample run)."""
+    with JournalReader(path) as r:
+        tray = journal_tray(r.meta)
+        if tray is None:
+            return []
+        latest = r.latest_campaign_state()
+    return [progress_line(p) for p in tray_progress(tray, None if latest is None else latest[0])]
+
+
 def _cmd_status(args: argparse.Namespace) -> int:
-    print(status_line(resolve_run(args.run)))
+    path = resolve_run(args.run)
+    print(status_line(path))
+    for line in tray_lines(path):
+        print(f"  {line}")
     return 0
 
 
@@ -289,6 +306,14 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
         ind = pd.DataFrame(rows, columns=cols)
         ind = ind.rename(columns={"actual_x_um": "x_um", "actual_y_um": "y_um"})
         ind["export_file"] = _export_files(Path(path), ind)
+        tray = journal_tray(r.meta)
+        if (
+            tray is not None
+        ):  # which sample each indent is on: the tray's own geometry, as the interlock reads it
+            ind["sample"] = [
+                getattr(tray.sample_at(float(x), float(y)), "name", "")
+                for x, y in zip(ind["commanded_x_um"], ind["commanded_y_um"], strict=True)
+            ]
         first = [
             "block_id",
             "x_um",
@@ -308,7 +333,9 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             "wall_utc",
             "session_id",
         ]
-        tables["indents"] = ind.sort_values(["block_id", "indent_index"])[first]
+        tables["indents"] = ind.sort_values(["block_id", "indent_index"])[
+            first + (["sample"] if tray else [])
+        ]
         cols, rows = r.table("blocks")
         tables["blocks"] = pd.DataFrame(rows, columns=cols).drop(columns=["block_json"])
         cols, rows = r.table("decisions")
@@ -368,6 +395,32 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             df.to_parquet(tmp, index=False)
         os.replace(tmp, target)
         written.append(target)
+    if tray is not None:  # a folder per sample with its own indents
+        for s in tray.samples:
+            folder = out / "samples" / s.name
+            folder.mkdir(parents=True, exist_ok=True)
+            own = tables["indents"][tables["indents"]["sample"] == s.name]
+            target = folder / f"indents.{fmt}"
+            tmp = folder / f".indents.{fmt}.tmp"
+            if fmt == "csv":
+                own.to_csv(tmp, index=False)
+            else:
+                own.to_parquet(tmp, index=False)
+            os.replace(tmp, target)
+            written.append(target)
+        for name, lib_maps in tray_final_maps(path).items():
+            columns: dict[str, Any] = (
+                lib_maps.columns() if lib_maps is not None else {c: [] for c in FINAL_MAP_COLUMNS}
+            )
+            target = out / "samples" / name / f"predictions.{fmt}"
+            tmp = target.with_name(f".predictions.{fmt}.tmp")
+            df = pd.DataFrame(columns)
+            if fmt == "csv":
+                df.to_csv(tmp, index=False)
+            else:
+                df.to_parquet(tmp, index=False)
+            os.replace(tmp, target)
+            written.append(target)
     return written
 
 
@@ -480,6 +533,10 @@ def register(subparsers: Any) -> None:
     )
     run.add_argument("config", nargs="?", metavar="CONFIG.toml", help="run configuration (optional)")
     run.add_argument("--sample", help="sample file (sample.toml); default: the scenario's built-in sample")
+    run.add_argument("--tray", metavar="TRAY.toml", help="run every sample of a tray file in one run")
+    run.add_argument(
+        "--tip-wear-pct-per-h", dest="tip_wear_pct_per_h", type=float, help="--tray, driver sim: wear the tip"
+    )
     run.add_argument("--driver", help="instrument driver (sim | kla)")
     run.add_argument("--exchange", help="driver kla: the exchange folder shared with the instrument PC")
     run.add_argument("--policy", help="planning policy")

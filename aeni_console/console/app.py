@@ -36,6 +36,7 @@ from aeni_console.console.widgets.mapview import MapPanel
 from aeni_console.console.widgets.queue import QueuePanel
 from aeni_console.console.widgets.status import StatusBar
 from aeni_console.console.widgets.ticket import AskScreen, TicketPanel
+from aeni_console.console.widgets.tray import TrayPanel
 from core.errors import InputError
 from core.operator import parse_when
 from core.run.machine import allowed
@@ -190,6 +191,8 @@ class ConsoleApp(App[None]):
         self.status_bar = StatusBar(id="status")
         self.map_panel = MapPanel(no_color=self.no_color, id="map")
         self.cost_panel = CostPanel(id="cost")
+        self.tray_panel = TrayPanel(id="tray")
+        self.tray_panel.display = False  # a tray run's samples (shown once a snapshot says it is one)
         self.decision_panel = DecisionPanel(id="decision")
         self.decision_panel.replay = self.replay_mode
         self.ticket_panel = TicketPanel(id="ticket")
@@ -201,6 +204,7 @@ class ConsoleApp(App[None]):
         with Horizontal(id="main"):
             with Vertical(id="left"):
                 yield self.map_panel
+                yield self.tray_panel
                 yield self.cost_panel
             with Vertical(id="right"):
                 yield self.ticket_panel
@@ -214,6 +218,7 @@ class ConsoleApp(App[None]):
         for widget in (
             self.map_panel,
             self.cost_panel,
+            self.tray_panel,
             self.decision_panel,
             self.queue_panel,
             self.drift_panel,
@@ -269,6 +274,8 @@ class ConsoleApp(App[None]):
             self.cost_panel.show(snap)
         if old is None or old.drift != snap.drift:
             self.drift_panel.show(snap)
+        if old is None or old.tray != snap.tray:
+            self.tray_panel.show(snap)
         if (
             old is None
             or old.pending != snap.pending

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from core.errors import InputError
 from core.journal import JournalReader, engine_running, send_command
+from core.run.tray_view import SampleProgress, journal_tray, tray_progress
 from core.runview import Command, IndentMark, MapFields, RunSnapshot
 from core.sample import Sample, sample_from_dict
 
@@ -43,6 +44,7 @@ class JournalSource:
         self._sample = journal_sample(self._reader)
         self._indents: list[IndentMark] = []
         self._indent_rowid = 0
+        self._tray = journal_tray(self._reader.meta)  # a tray run's samples, None for one sample
 
     def changed(self) -> bool:
         """Whether the journal may read differently since the last call: another connection committed
@@ -77,7 +79,11 @@ class JournalSource:
             indents = self._new_indents()
             if upto is not None:
                 indents = tuple(m for m in indents if m.block_id <= upto)
-            return replace(snap, sample=self._sample, indents=indents)
+            tray: tuple[SampleProgress, ...] = ()
+            if self._tray is not None and upto is None:  # (a replay's past block: its state then is not kept)
+                latest = self._reader.latest_campaign_state()
+                tray = tuple(tray_progress(self._tray, None if latest is None else latest[0]))
+            return replace(snap, sample=self._sample, indents=indents, tray=tray)
 
     def map_fields(self, snapshot_id: int) -> MapFields | None:
         with self._lock:

@@ -15,6 +15,9 @@ import numpy as np
 
 from core.campaign import Campaign, campaign_config_from_dict
 from core.journal import JournalReader
+from core.run.spec import run_spec_from_meta
+from core.run.tray import TrayCampaign
+from core.run.tray_view import journal_tray
 
 FINAL_MAP_COLUMNS: tuple[str, ...] = (
     "x_um",
@@ -57,6 +60,8 @@ def final_maps(path: str | Path) -> FinalMaps | None:
     """Both maps of the run at ``path``, or None when it has no hardness map yet (fewer than 2 centres)."""
 
     with JournalReader(path) as r:
+        if journal_tray(r.meta) is not None:
+            return None  # a tray's maps are its libraries' own: tray_final_maps
         config = campaign_config_from_dict(dict(r.meta["config"]))
         latest = r.q.latest_campaign_state()
         observed = r.q.observed_blocks()
@@ -64,6 +69,26 @@ def final_maps(path: str | Path) -> FinalMaps | None:
         return None  # nothing observed yet, or a journal that holds no sample (a test's scripted campaign)
     campaign = Campaign(config)
     campaign.restore(latest[0], observed)
+    return _maps_of(campaign)
+
+
+def tray_final_maps(path: str | Path) -> dict[str, FinalMaps | None]:
+    """Each library's maps of the tray run at ``path`` (empty for a single-sample run)."""
+    with JournalReader(path) as r:
+        tray = journal_tray(r.meta)
+        if tray is None:
+            return {}
+        spec = run_spec_from_meta(r.meta)
+        latest = r.q.latest_campaign_state()
+        observed = r.q.observed_blocks()
+    if latest is None:
+        return {s.name: None for s in tray.libraries}
+    campaign = TrayCampaign(tray, spec.campaign)
+    campaign.restore(latest[0], observed)
+    return {name: _maps_of(lane.campaign) for name, lane in campaign.lanes.items()}
+
+
+def _maps_of(campaign: Campaign) -> FinalMaps | None:
     if campaign.prediction is None:
         return None
     inside = (

@@ -22,6 +22,7 @@ from aeni_console.reports.finalmaps import final_maps
 from core.campaign import campaign_config_from_dict
 from core.errors import InputError
 from core.journal import JournalReader
+from core.run.tray_view import journal_tray
 from core.sample import sample_from_dict
 from drivers.registry import sim_scenario
 from drivers.sim.emulator import truth_modulus_gpa
@@ -668,6 +669,14 @@ def write_report(path: str | Path, out_dir: str | Path) -> list[Path]:
     """Write maps.png, modulus.png, time.png, uncertainty.png, drift.png, decisions.png and summary.md to
     ``out_dir``."""
     _pyplot()  # before reading anything: a missing matplotlib is said at once
+    with JournalReader(path) as r:
+        if journal_tray(r.meta) is not None:
+            # one report over several samples would mix their maps and score one against another's truth
+            raise InputError(
+                str(path),
+                "a tray run has no report yet (one per sample is not built): `aeni status` gives each sample's "
+                "progress, `aeni export` each sample's indents and maps (samples/<name>/)",
+            )
     return render_report(read_run(path), out_dir)
 
 

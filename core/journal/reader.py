@@ -245,6 +245,11 @@ class JournalReader:
             self.conn.execute("COMMIT")
 
     # -- simple reads --------------------------------------------------------------------------
+    def latest_campaign_state(self) -> tuple[dict[str, Any], PlannerSettings] | None:
+        """The planner's last journaled state (a tray's progress per sample, core.run.tray_view)."""
+        with self._read():
+            return self.q.latest_campaign_state()
+
     def results(self) -> list[IndentResult]:
         with self._read():
             return self.q.all_results()

@@ -23,6 +23,14 @@ class StageFrame(Protocol):
 
 
 @runtime_checkable
+class RaisesAlarms(Protocol):
+    """A campaign that can find the run must not go on by itself (a tray's failed tip check): the engine
+    pauses the run and logs the alarm as an error (the alert watcher sends it)."""
+
+    def take_alarm(self) -> str | None: ...
+
+
+@runtime_checkable
 class PlansForAbsence(Protocol):
     """A campaign that sizes its next load by when the operator will next come (core.visits)."""
 

@@ -20,12 +20,15 @@ from typing import TYPE_CHECKING, Protocol
 
 from core.campaign import Campaign
 from core.driver import Driver
+from core.errors import InputError
 from core.interlock import Interlock
+from core.interlock_tray import TrayInterlock
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
 from core.run.engine import Engine
 from core.run.events import RunRecord, Sink
 from core.run.spec import EngineRules, RunSpec
+from core.run.tray import TrayCampaign, TrayDrivers
 from core.sample import Sample
 
 if TYPE_CHECKING:
@@ -80,6 +83,8 @@ class ComposedRun:
     evaluator: MapEvaluator | None
     engine: Engine
     visits: SimulatedOperator | None  # the spec's simulated operator (its calendar), None without one
+    # a tray run (spec.tray): what the engine drives; ``campaign`` is then its first library's
+    tray: TrayCampaign | None = None
 
 
 def resolve_sample(spec: RunSpec, drivers: Drivers) -> RunSpec:
@@ -109,6 +114,8 @@ def compose(
     record (a function of the campaign and the map scorer makes them once those exist). ``driver`` may wrap the instrument (the console tests' gated one); ``prepare`` sees the campaign
     before the engine does (a test's stricter guard).
     """
+    if spec.tray is not None:
+        return _compose_tray(spec, drivers, record, journal, sinks, hosting, driver)
     spec = resolve_sample(spec, drivers)
     visits = spec.calendar.operator() if spec.calendar is not None else None
     campaign = Campaign(
@@ -138,8 +145,50 @@ def compose(
     return ComposedRun(spec, campaign, instrument, evaluator, engine, visits)
 
 
+def _compose_tray(
+    spec: RunSpec,
+    drivers: Drivers,
+    record: Callable[[RunSpec, Campaign], RunRecord],
+    journal: Path | None,
+    sinks: Sequence[Sink] | SinksFor,
+    hosting: Hosting,
+    driver: Callable[[Driver], Driver] | None,
+) -> ComposedRun:
+    """A tray (core.run.tray): its samples placed, one TrayCampaign over a campaign per library, one
+    instrument over the whole stage, every block through the interlock of the sample it is on."""
+    if not isinstance(drivers, TrayDrivers) or spec.tray is None:
+        raise InputError("--tray", "these drivers cannot run a tray")
+    tray = spec.tray.resolved(lambda entry: drivers.tray_sample(spec, entry))
+    spec = dataclasses.replace(spec, tray=tray)
+    visits = spec.calendar.operator() if spec.calendar is not None else None
+    campaign = TrayCampaign(
+        tray,
+        spec.campaign,
+        refit_every=spec.refit_every,
+        wall_s_per_instrument_s=spec.wall_s_per_instrument_s,
+        unattended=visits.unattended if visits is not None else None,
+    )
+    first = next(iter(campaign.lanes.values())).campaign
+    rec = record(spec, first)
+    instrument = drivers.tray_driver(spec, tray)
+    if driver is not None:
+        instrument = driver(instrument)
+    extra = sinks(first, None) if callable(sinks) else sinks
+    engine = engine_for(
+        campaign,
+        instrument,
+        rec,
+        spec.rules,
+        sinks=[*([visits] if visits is not None else []), *extra],
+        hosting=hosting,
+        operator=spec.operator,
+        interlock=TrayInterlock(tray),
+    )
+    return ComposedRun(spec, first, instrument, None, engine, visits, campaign)
+
+
 def engine_for(
-    campaign: Campaign,
+    campaign: Campaign | TrayCampaign,
     driver: Driver,
     record: RunRecord,
     rules: EngineRules = DEFAULT_RULES,
@@ -148,10 +197,14 @@ def engine_for(
     sinks: Sequence[Sink] = (),
     hosting: Hosting = HEADLESS,
     operator: OperatorAvailability | None = None,
+    interlock: Interlock | None = None,
 ) -> Engine:
     """The engine over parts already built (``compose``, and ``core.run.headless.run_auto`` for a campaign a
     test or a benchmark built by hand): the one place an Engine is constructed. Every block passes the
-    interlock of the campaign's sample and profile."""
+    interlock of the campaign's sample and profile (a tray's: of the sample the block is on)."""
+    if interlock is None:
+        assert isinstance(campaign, Campaign), "a tray's engine needs the tray's interlock"
+        interlock = Interlock(campaign.sample, campaign.profile)
     return Engine(
         record,
         campaign,
@@ -161,7 +214,7 @@ def engine_for(
         progress=hosting.progress,
         watch_s=hosting.watch_s,
         map_display_n=hosting.map_display_n,
-        interlock=Interlock(campaign.sample, campaign.profile),
+        interlock=interlock,
         evaluator=evaluator,
         max_refusals=rules.max_refusals,
         approval_timeout_s=rules.approval_timeout_s,

@@ -43,7 +43,7 @@ from core.interlock import Interlock
 from core.metrics import MapEvaluator
 from core.operator import OperatorAvailability
 from core.plan import STRETCH_PHASE, Block, Decision, IndentResult, StepRecord
-from core.run.campaign import CampaignLike, PlansForAbsence
+from core.run.campaign import CampaignLike, PlansForAbsence, RaisesAlarms
 from core.run.campaign import StageFrame as StageFrame
 from core.run.commands import HANDLERS
 from core.run.events import (
@@ -350,6 +350,16 @@ class Engine:
             self._results = []
             self._current = None
             self._next_block_id = block.block_id + 1
+            self._pause_on_alarm(block.block_id)
+
+    def _pause_on_alarm(self, block_id: int) -> None:
+        """A campaign's alarm (a tray's failed tip check) pauses the run before the next block is planned."""
+        alarm = self.campaign.take_alarm() if isinstance(self.campaign, RaisesAlarms) else None
+        if alarm:
+            self._log("error", f"{alarm}: run paused", category="alarm", block_id=block_id)
+            self._say(f"{alarm}: run paused")
+            if self.machine.can(Trigger.PAUSE):
+                self._fire(Trigger.PAUSE)
 
     def _finish(self) -> None:
         if not self._stopping:

@@ -8,6 +8,7 @@ the engine and the planner asked again), and the tally counts refusals and appro
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -31,11 +32,13 @@ from core.run.events import (
 from core.run.history import HistoryFold
 from core.run.records import StoredCommand
 from core.run.spec import EngineRules, RunSpec
+from core.runview import EngineState
 
 if TYPE_CHECKING:
     from core.campaign import Campaign
     from core.driver import Driver
     from core.run.engine import Engine
+    from core.run.tray import TrayCampaign
 
 
 @dataclass
@@ -142,8 +145,19 @@ def run_headless(
     def all_sinks(campaign: Campaign, evaluator: MapEvaluator | None) -> Sequence[Sink]:
         return [*(sinks(campaign, evaluator) if callable(sinks) else sinks), *tail]
 
-    run = compose(spec, drivers, lambda _spec, _campaign: record, sinks=all_sinks, hosting=HEADLESS)
-    _drive(run.engine, run.campaign, run.driver, record, stopper)
+    engines: list[Engine] = []
+
+    def nobody_resumes(seconds: float) -> None:
+        # a pause (a tray's failed tip check) waits for an operator; headless, nobody comes: the run stops
+        if engines and engines[0].state is EngineState.PAUSED:
+            engines[0].request_stop("paused, and nobody at a console to resume it")
+        else:
+            HEADLESS.sleep(seconds)
+
+    hosting = dataclasses.replace(HEADLESS, sleep=nobody_resumes)
+    run = compose(spec, drivers, lambda _spec, _campaign: record, sinks=all_sinks, hosting=hosting)
+    engines.append(run.engine)
+    _drive(run.engine, run.tray or run.campaign, run.driver, record, stopper)
     return record, run
 
 
@@ -177,7 +191,11 @@ def run_auto(
 
 
 def _drive(
-    engine: Engine, campaign: Campaign, driver: Driver, record: RunTally, stopper: _StopWhen | None
+    engine: Engine,
+    campaign: Campaign | TrayCampaign,
+    driver: Driver,
+    record: RunTally,
+    stopper: _StopWhen | None,
 ) -> None:
     if stopper is not None:
         stopper.stop = engine.request_stop

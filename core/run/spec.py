@@ -22,6 +22,7 @@ from core.campaign import CampaignConfig, campaign_config_from_dict, campaign_co
 from core.errors import InputError
 from core.notifyconfig import NotifyConfig
 from core.operator import OperatorAvailability, OperatorHours
+from core.sample.tray import Tray, tray_from_dict
 from core.settings import ON_TIMEOUT, coerce_supervision
 from core.visits import OperatorCalendar
 
@@ -66,6 +67,9 @@ class RunSpec:
     notify: NotifyConfig = field(default_factory=NotifyConfig)
     group: str | None = None  # the OS group that may watch the run (its journal is 0640); None: the owner's
     refit_every: int = 1  # refit only after every so many blocks (the bench's grid never looks at the model)
+    # several samples in one run (core.run.tray); None: the one sample of ``campaign``. A tray's samples take
+    # ``campaign``'s policy, seed, lattice and settings, each with its own sample, goal and driver options
+    tray: Tray | None = None
 
     def __post_init__(self) -> None:
         if self.driver not in ("sim", "kla"):
@@ -97,6 +101,12 @@ class RunSpec:
 
     # -- the one serialisation ---------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
+        d = self._single_dict()
+        if self.tray is not None:  # a single-sample spec's JSON stays as it always was
+            d["tray"] = self.tray.to_dict()
+        return d
+
+    def _single_dict(self) -> dict[str, Any]:
         return {
             "version": SPEC_VERSION,
             "campaign": campaign_config_to_dict(self.campaign),
@@ -127,6 +137,7 @@ class RunSpec:
                 raise InputError(source, f"written by a newer version (run spec {version}); upgrade aeni")
             known = {
                 "campaign", "driver", "speed", "rules", "operator", "calendar", "notify", "group", "refit_every",
+                "tray",
             }  # fmt: skip
             unknown = sorted(set(d) - known)
             if unknown:
@@ -152,6 +163,7 @@ class RunSpec:
                 notify=NotifyConfig.from_mapping(d.get("notify") or {}, source),
                 group=None if d.get("group") is None else str(d["group"]),
                 refit_every=int(d.get("refit_every", 1)),
+                tray=None if d.get("tray") is None else tray_from_dict(d["tray"], source),
             )
         except InputError as exc:
             if exc.source == source:

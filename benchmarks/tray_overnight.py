@@ -40,6 +40,7 @@ from core.run.headless import run_headless  # noqa: E402
 from core.run.spec import RunSpec  # noqa: E402
 from core.run.tray import goal_settings  # noqa: E402
 from core.sample.tray import Goal, Reference, Tray, TraySample, block_sample, placed_sample  # noqa: E402
+from core.sample_change import change_s  # noqa: E402
 from core.visits import OperatorCalendar, SimulatedOperator  # noqa: E402
 from drivers.registry import DRIVERS, default_sample  # noqa: E402
 
@@ -105,6 +106,7 @@ def run_tray(seed: int, lattice_n: int, with_reference: bool = True) -> dict[str
     goal_t = max(lane.done_at_s for lane in tc.lanes.values() if lane.done_at_s is not None)
     wall = v.wall_at(goal_t)
     assert wall is not None
+    change_h = tc.changes * change_s(next(iter(tc.lanes.values())).campaign.profile) / 3600
     return {
         "wall_to_goals_h": (wall - RESPONSE_S) / 3600,
         "visits": v.visits,
@@ -112,6 +114,22 @@ def run_tray(seed: int, lattice_n: int, with_reference: bool = True) -> dict[str
         "stalls": _stalls(v),
         "tip_checks": len(tc.checks),
         "failed_checks": sum(not c.passed for c in tc.checks),
+        **_breakdown(tally.ledger.seconds, tc.reference_s / 3600, tc.changes, change_h),
+        "waits_h": (wall - goal_t) / 3600,
+    }
+
+
+def _breakdown(seconds: dict[str, float], check_h: float, changes: int, change_h: float) -> dict[str, float]:
+    """Instrument time by kind: indenting (approach, load, hold and unload on every sample, the reference's
+    included), the tip checks (everything on the reference: its indents, moves and changes), the sample
+    changes' extra surface find and settle, and the rest (setup, lift, move, engage, drift, comeback)."""
+    indent_h = (seconds.get("indent", 0.0) + seconds.get("hold", 0.0)) / 3600
+    return {
+        "indent_h": indent_h,
+        "check_h": check_h,
+        "changes": changes,
+        "change_h": change_h,
+        "overhead_h": sum(seconds.values()) / 3600 - indent_h,
     }
 
 
@@ -123,7 +141,8 @@ def _stalls(v: SimulatedOperator) -> int:
 
 
 def run_one_after_another(seed: int, lattice_n: int) -> dict[str, float]:
-    wall_s, visits, instrument_s, stalls = 0.0, 0, 0.0, 0
+    wall_s, visits, instrument_s, stalls, waits_s = 0.0, 0, 0.0, 0, 0.0
+    ledger: dict[str, float] = {}
     for k, (name, scenario, offset, goal) in enumerate(LIBRARIES):
         own = placed_sample(default_sample("sim", {"scenario": scenario}, seed), offset, STAGE)
         spec = RunSpec(
@@ -141,6 +160,9 @@ def run_one_after_another(seed: int, lattice_n: int) -> dict[str, float]:
         if k > 0 and v.waited_s > RESPONSE_S + 1.0:
             stalls += 1  # the instrument stood idle with this sample's run still to start
         wall_s += v.wall_s(tally.instrument_s)
+        waits_s += v.waited_s
+        for k2, sec in tally.ledger.seconds.items():
+            ledger[k2] = ledger.get(k2, 0.0) + sec
         visits += v.visits
         instrument_s += tally.instrument_s
         stalls += _stalls(v)
@@ -151,6 +173,8 @@ def run_one_after_another(seed: int, lattice_n: int) -> dict[str, float]:
         "stalls": stalls,
         "tip_checks": 0,
         "failed_checks": 0,
+        **_breakdown(ledger, 0.0, 0, 0.0),
+        "waits_h": waits_s / 3600 - RESPONSE_S / 3600,
     }
 
 
@@ -196,15 +220,23 @@ def main() -> int:
         f"Calendar: start Monday 18:00, operator {HOURS}, response {RESPONSE_S / 60:g} min, a visit every "
         f"{VISIT_EVERY_S / 3600:g} h during hours. Wall clock from Monday 18:00 to the last library's goal.",
         "",
-        "| seed | arm | wall to every goal h | visits | instrument h | stalls | tip checks (failed) |",
-        "|---:|---|---:|---:|---:|---:|---:|",
+        "Instrument time by kind (h): indenting (load, hold, unload; every sample), overhead (setup, lift, move,"
+        " engage, drift settle, comeback: all the rest, so indenting + overhead = instrument), of which the tip"
+        " checks (all time on the reference) and the sample changes' extra surface find and settle; waits: the"
+        " wall clock to every goal the instrument stood waiting for a person.",
+        "",
+        "| seed | arm | wall to every goal h | visits | instrument h | indenting h | overhead h | tip checks h"
+        " (n, failed) | sample changes h (n) | waits h | stalls |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         for arm in ("tray", "one_after_another"):
             a = r[arm]
             lines.append(
                 f"| {r['seed']} | {arm.replace('_', ' ')} | {a['wall_to_goals_h']:.1f} | {a['visits']} | "
-                f"{a['instrument_h']:.1f} | {a['stalls']} | {a['tip_checks']} ({a['failed_checks']}) |"
+                f"{a['instrument_h']:.1f} | {a['indent_h']:.1f} | {a['overhead_h']:.1f} | {a['check_h']:.1f} "
+                f"({a['tip_checks']}, {a['failed_checks']}) | {a['change_h']:.1f} ({a['changes']}) | "
+                f"{a['waits_h']:.1f} | {a['stalls']} |"
             )
     lines += [
         "",

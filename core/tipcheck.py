@@ -20,8 +20,30 @@ from core.plan import Block, IndentResult, local_grid
 from core.sample import Sample
 from core.sample.tray import Reference
 
-CHECK_GRID_G = 3  # 9 indents: the median of 9 at ~1.5 % scatter is known to ~0.6 %, well inside 5 %
 CHECK_PITCH_UM = 10.0  # tens of indent widths at ~100 nm depth; the check grids keep r_excl from each other
+# Fused silica's scatter per indent at ~100 nm depth, % of H: the low end of what calibration round robins see
+# at shallow depth. An assumption to check against the block's own certificate (the simulated block uses it).
+REFERENCE_SCATTER_PCT = 1.5
+# The check's median must be sure enough that a good tip does not pause a night (a false alarm in under 1 check
+# of 100, two-sided z = 2.576) and that a tip worn just past the tolerance is caught (95 % of the time,
+# z = 1.645, once it is off by the tolerance plus that margin: 1.4× the tolerance at the sizes below).
+FALSE_ALARM_Z = 2.576
+CATCH_Z = 1.645
+MIN_CHECK_INDENTS = 3  # a median that one lost or odd indent cannot decide
+
+
+def check_indents(tolerance_pct: float, scatter_pct: float = REFERENCE_SCATTER_PCT) -> int:
+    """Reference indents a check needs to see a drift of ``tolerance_pct`` at ``scatter_pct`` per indent: the
+    median of n has sd ≈ sqrt(π/2)·scatter/√n, and the tolerance must hold both margins,
+    (z_false_alarm + z_catch)·sd ≤ tolerance. 5 % at 1.5 %: 3 (the earlier fixed 3×3 grid spent 9)."""
+    z = FALSE_ALARM_Z + CATCH_Z
+    n = math.ceil(math.pi / 2 * (z * scatter_pct / tolerance_pct) ** 2)
+    return max(n, MIN_CHECK_INDENTS)
+
+
+def check_grid_g(tolerance_pct: float, scatter_pct: float = REFERENCE_SCATTER_PCT) -> int:
+    """The side of the smallest square check grid that holds :func:`check_indents`."""
+    return math.ceil(math.sqrt(check_indents(tolerance_pct, scatter_pct)))
 
 
 @dataclass(frozen=True)
@@ -63,10 +85,11 @@ def check_block(
     position_um: tuple[float, float],
     block_id: int,
     hold_s: float,
+    grid_g: int,
 ) -> Block:
-    """A global 3×3 array at the free place of the reference nearest the tip (r_excl from every earlier
-    indent and from vetoed places)."""
-    h = (CHECK_GRID_G - 1) / 2 * CHECK_PITCH_UM
+    """A global ``grid_g``×``grid_g`` array (:func:`check_grid_g`) at the free place of the reference nearest
+    the tip (r_excl from every earlier indent and from vetoed places)."""
+    h = (grid_g - 1) / 2 * CHECK_PITCH_UM
     lattice = CandidateLattice.build(sample.calibration, sample.lattice_n, grid_halfwidth_um=h)
     xy = lattice.xy_um
     ok = sample.allowed(xy, h) & exclusion_mask(xy, taken_xy_um, max(sample.r_excl_um, CHECK_PITCH_UM), h)
@@ -77,5 +100,5 @@ def check_block(
     free = np.flatnonzero(ok)
     d = np.hypot(xy[free, 0] - position_um[0], xy[free, 1] - position_um[1])
     cx, cy = (float(v) for v in xy[free[int(np.argmin(d))]])
-    indents = local_grid(cx, cy, CHECK_GRID_G, CHECK_PITCH_UM, hold_s)
-    return Block(block_id, "global", cx, cy, CHECK_GRID_G, CHECK_PITCH_UM, hold_s, indents)
+    indents = local_grid(cx, cy, grid_g, CHECK_PITCH_UM, hold_s)
+    return Block(block_id, "global", cx, cy, grid_g, CHECK_PITCH_UM, hold_s, indents)

@@ -167,6 +167,7 @@ def _compose_tray(
         refit_every=spec.refit_every,
         wall_s_per_instrument_s=spec.wall_s_per_instrument_s,
         unattended=visits.unattended if visits is not None else None,
+        plans_unattended=spec.rules.supervision == "auto",
     )
     first = next(iter(campaign.lanes.values())).campaign
     rec = record(spec, first)

@@ -41,7 +41,7 @@ from core.runview import MapFields
 from core.sample.tray import Goal, Tray, TraySample
 from core.sample_change import change_s
 from core.taken import taken_xy_um
-from core.tipcheck import TipCheck, check_block, judge
+from core.tipcheck import TipCheck, check_block, check_grid_g, judge
 
 if TYPE_CHECKING:
     from core.driver import Driver
@@ -125,8 +125,13 @@ class TrayCampaign:
         refit_every: int = 1,
         wall_s_per_instrument_s: float = 1.0,
         unattended: Callable[[float], LoadWindow | None] | None = None,
+        plans_unattended: bool = False,
     ) -> None:
         self.tray = tray
+        # the engine may start blocks it planned itself with nobody asked (supervision ``auto``): when a
+        # load's list runs out before anyone comes again, the tray plans the rest of the absence from the
+        # models the load's arrays built, instead of leaving the instrument idle until a visit
+        self.plans_unattended = plans_unattended
         self.config = config
         self.lanes: dict[str, Lane] = {}
         for entry in tray.libraries:
@@ -155,6 +160,7 @@ class TrayCampaign:
         self._alarm: str | None = None
         self._final_check_done = False
         self.last_stop_reason: str | None = None
+        self.changes = 0  # blocks that started on another sample than the block before (sample changes)
 
     # -- what the engine reads --------------------------------------------------------------------------
     @property
@@ -195,6 +201,11 @@ class TrayCampaign:
         """The sample the tip is on (the last block's)."""
         return self._on
 
+    @property
+    def reference_s(self) -> float:
+        """Instrument seconds spent on the reference (the tip checks, their sample changes included)."""
+        return self._ref_s
+
     def take_alarm(self) -> str | None:
         """A failed tip check's words, once (the engine pauses the run and alerts)."""
         alarm, self._alarm = self._alarm, None
@@ -234,6 +245,12 @@ class TrayCampaign:
             return left
         return LoadWindow(left.fill_s / (1 + len(after)))
 
+    def _unattended_left(self) -> bool:
+        """Whether the engine may plan the next block itself: it may (``plans_unattended``) and the load's
+        absence is not over (no visit is due before the next block would start)."""
+        left = self._window_for(self._now_s)
+        return self.plans_unattended and left is not None and left.fill_s > 0
+
     def _charge(self, clock_s: float) -> None:
         """The instrument time since the last proposal belongs to the sample the tip went to."""
         spent = max(clock_s - self._now_s, 0.0)
@@ -265,8 +282,9 @@ class TrayCampaign:
         profile = self.reference_profile
         taken = np.concatenate(self._ref_taken) if self._ref_taken else np.empty((0, 2))
         block = check_block(
-            self.reference.placed, taken, self._ref_avoid, position_um, block_id, profile.default_hold_s
-        )
+            self.reference.placed, taken, self._ref_avoid, position_um, block_id, profile.default_hold_s,
+            check_grid_g(self.reference.reference.tolerance_pct),  # type: ignore[union-attr]
+        )  # fmt: skip
         cost = self._block_cost(profile, block, position_um, program_open)
         if self._on != self.reference.name and self._on is not None:
             cost += change_s(profile)
@@ -372,6 +390,7 @@ class TrayCampaign:
             if d is not None:
                 self._owner[block_id] = on.entry.name
                 return d, True
+        outran = False
         while in_load and self._load is not None and self._load.ranking:
             # within a visit's load: the next library in the ranking made at the visit
             lane = self.lanes[self._load.ranking.pop(0)]
@@ -382,11 +401,17 @@ class TrayCampaign:
                 continue
             if not self._fits(d):
                 lane.campaign.drop_stretch()  # it would outrun the load: ask for a visit instead
+                outran = True
                 break
             self._owner[block_id] = self._stretching = lane.entry.name
             return d, True
-        # the libraries learnt nothing since the visit when only the reference ran: ranked now is as ranked then
-        loaded = in_load and self._load is not None and not self._load.ranked
+        # the libraries learnt nothing since the visit when only the reference ran: ranked now is as ranked then;
+        # and once the list ran out before anyone comes, an engine that may plan unattended ranks them again
+        # and goes on in the same absence (no visit: nobody is there to load it)
+        replanned = in_load and self._load is not None and self._load.ranked
+        loaded = (
+            in_load and self._load is not None and not outran and (not replanned or self._unattended_left())
+        )
         if in_load and not loaded and self._unattended is not None:
             # nothing of this visit's list is left: what comes next is planned now, and someone must load it
             window = self._unattended(self._now_s)
@@ -403,6 +428,8 @@ class TrayCampaign:
                 f"{name}: {lane.done}" for name, lane in self.lanes.items()
             )
             return None, False
+        if loaded and replanned and not self._fits(decisions[order[0]]):
+            loaded = False  # planned unattended, it would outrun the load: ask for a visit instead
         if self._load is not None:
             self._load.ranking, self._load.ranked = order[1:], True
         self._owner[block_id] = self._stretching = order[0]
@@ -425,6 +452,8 @@ class TrayCampaign:
     # -- learning -------------------------------------------------------------------------------------
     def observe_block(self, block: Block, results: Sequence[IndentResult]) -> Any:
         name = self._owner.pop(block.block_id, None) or self._name_at(block)
+        if self._on is not None and name != self._on:
+            self.changes += 1
         self._on = name
         if name in self.lanes:
             self._shown = self.lanes[name]

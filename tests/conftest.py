@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+from apprise_receiver import Receiver  # noqa: E402 (tests/ is on sys.path once this file is imported)
 
 SHARED = Path(os.environ.get("AENI_SHARED", ROOT.parent / "shared"))
 KLA_DIR = SHARED / "data" / "kla"
@@ -41,3 +44,12 @@ def live_run(tmp_path: Path):  # type: ignore[no-untyped-def]
     yield start
     for run in runs:
         run.close()
+
+
+@pytest.fixture
+def receiver() -> Iterator[Receiver]:
+    """A running apprise json:// receiver on 127.0.0.1 (``tests/apprise_receiver.py``), stopped after the test."""
+    r = Receiver()
+    r.thread.start()
+    yield r
+    r.server.shutdown()

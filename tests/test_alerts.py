@@ -3,18 +3,16 @@ the sender; the URLs stay out of the journal, the log and the engine's command l
 
 from __future__ import annotations
 
-import json
 import os
 import sqlite3
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
+from apprise_receiver import SECRET, Receiver
 
 from aeni_console.alerts import AlertWatcher
 from aeni_console.cli.main import main
@@ -22,43 +20,6 @@ from core.errors import InputError
 from core.journal import append_event
 from core.notifyconfig import NotifyConfig, notify_path_for
 from core.runconfig import RunOptions, load_run_config, make_campaign_config
-
-SECRET = "s3cr3t-token"
-
-
-class Receiver:
-    def __init__(self) -> None:
-        got: list[dict[str, object]] = []
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                body = self.rfile.read(int(self.headers.get("Content-Length", 0)))
-                got.append({"path": self.path, **json.loads(body or b"{}")})
-                self.send_response(200)
-                self.end_headers()
-
-            def log_message(self, *args: object) -> None:
-                pass
-
-        self.got = got
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.port = self.server.server_address[1]
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-
-    @property
-    def url(self) -> str:
-        return f"json://127.0.0.1:{self.port}/{SECRET}"
-
-    def bodies(self) -> list[str]:
-        return [str(m.get("message", "")) for m in self.got]
-
-
-@pytest.fixture
-def receiver() -> Iterator[Receiver]:
-    r = Receiver()
-    r.thread.start()
-    yield r
-    r.server.shutdown()
 
 
 def _wait(pred: object, timeout_s: float = 60.0) -> None:

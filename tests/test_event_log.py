@@ -11,17 +11,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_engine import Crash, FakeCampaign, Operator, cmd, make_driver, new_journal, when
-from test_run_history import _comparable
+from test_engine import FakeCampaign
+from test_run_history import _comparable, crash_then_resume
 
 from core.journal import Journal
 from core.journal.eventlog import events_from_tables, read_events
 from core.journal.schema import SCHEMA_VERSION
 from core.journal.sink import fold_history
-from core.run.engine import Engine
 from core.run.events import ApprovalAsked, Observed, RunEvent
 from core.run.history import HistoryFold
-from core.runview import CommandKind, EngineState
 
 OLD = Path(__file__).parent / "data" / "journal_before_one_loop"
 
@@ -66,53 +64,7 @@ class LogsAlongside:
 
 def test_every_event_is_logged_typed_and_the_tables_rebuild_the_same_history(tmp_path: Path) -> None:
     checker = LogsAlongside()
-    j = new_journal(tmp_path, supervision="supervised")
-    checker.journal = j
-    rules = [
-        when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.VETO)),
-        when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.ADJUST, target_sem_gpa=0.2)),
-        when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
-        when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
-    ]
-    op = Operator(j.path, rules)
-    ticks = {"n": 0}
-
-    def sleep_then_crash(s: float) -> None:
-        op.sleep(s)
-        ticks["n"] += 1
-        if not op.rules and ticks["n"] > 3:
-            raise Crash
-
-    eng = Engine(
-        j,
-        FakeCampaign(n_blocks=4),
-        make_driver(),
-        "step",
-        poll_s=0.01,
-        sleep=sleep_then_crash,
-        watch_s=None,
-        sinks=[checker],
-        approval_timeout_s=3600.0,
-    )
-    op.engine = eng
-    with pytest.raises(Crash):
-        eng.run()
-    j.close()
-    j2 = Journal.open_writer(j.path)
-    checker.journal = j2
-    op2 = Operator(j2.path, [when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE))] * 8)
-    eng2 = Engine(
-        j2,
-        FakeCampaign(n_blocks=4),
-        make_driver(),
-        "supervised",
-        poll_s=0.01,
-        sleep=op2.sleep,
-        watch_s=None,
-        sinks=[checker],
-    )
-    op2.engine = eng2
-    eng2.run()
+    j2 = crash_then_resume(tmp_path, checker, approval_timeout_s=3600.0)
     kinds = [k for (k,) in j2.conn.execute("SELECT kind FROM run_events ORDER BY seq")]
     j2.close()
     assert len(kinds) == len(checker.seen) > 40

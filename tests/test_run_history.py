@@ -5,8 +5,9 @@ run with approvals, a veto, an adjust, a crash while a decision waits and a resu
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import pytest
 from test_engine import Crash, FakeCampaign, Operator, cmd, make_driver, new_journal, when
@@ -43,8 +44,23 @@ class FoldsAlongside:
         self.checked += 1
 
 
-def test_the_journal_folds_to_the_history_of_the_events_it_received(tmp_path: Path) -> None:
-    checker = FoldsAlongside()
+class JournalChecker(Protocol):
+    """A sink after the journal that reads the journal it is given (``journal``) at every event."""
+
+    journal: Journal | None
+
+    def emit(self, event: RunEvent) -> None: ...
+
+
+def crash_then_resume(
+    tmp_path: Path,
+    checker: JournalChecker,
+    approval_timeout_s: float | None = None,
+    on_crash: Callable[[], None] = lambda: None,
+) -> Journal:
+    """A supervised run of four blocks that sees a veto, an adjust and two approvals, dies while its next
+    decision waits (``on_crash`` is called then), and is resumed and approved to the end, ``checker`` after
+    the journal all along. Returns the resumed run's journal, still open."""
     j = new_journal(tmp_path, supervision="supervised")
     checker.journal = j
     rules = [
@@ -54,12 +70,12 @@ def test_the_journal_folds_to_the_history_of_the_events_it_received(tmp_path: Pa
         when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE)),
     ]
     op = Operator(j.path, rules)
-    crash_after = {"ticks": 0}
+    ticks = {"n": 0}
 
     def sleep_then_crash(s: float) -> None:
         op.sleep(s)
-        crash_after["ticks"] += 1
-        if not op.rules and crash_after["ticks"] > 3:  # the next decision waits: the engine dies
+        ticks["n"] += 1
+        if not op.rules and ticks["n"] > 3:  # the next decision waits: the engine dies
             raise Crash
 
     eng = Engine(
@@ -71,12 +87,13 @@ def test_the_journal_folds_to_the_history_of_the_events_it_received(tmp_path: Pa
         sleep=sleep_then_crash,
         watch_s=None,
         sinks=[checker],
+        approval_timeout_s=approval_timeout_s,
     )
     op.engine = eng
     with pytest.raises(Crash):
         eng.run()
     j.close()
-    before = checker.checked
+    on_crash()
     j2 = Journal.open_writer(j.path)
     checker.journal = j2
     op2 = Operator(j2.path, [when(EngineState.AWAITING_APPROVAL, cmd(CommandKind.APPROVE))] * 8)
@@ -92,9 +109,16 @@ def test_the_journal_folds_to_the_history_of_the_events_it_received(tmp_path: Pa
     )
     op2.engine = eng2
     eng2.run()
+    return j2
+
+
+def test_the_journal_folds_to_the_history_of_the_events_it_received(tmp_path: Path) -> None:
+    checker = FoldsAlongside()
+    at_crash: list[int] = []
+    j2 = crash_then_resume(tmp_path, checker, on_crash=lambda: at_crash.append(checker.checked))
     history = fold_history(j2)
     j2.close()
-    assert before > 20 and checker.checked > before
+    assert at_crash[0] > 20 and checker.checked > at_crash[0]
     assert history is not None and history.completed and len(history.observed) == 4
     assert history.pending is None and history.open_block is None
 

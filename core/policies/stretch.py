@@ -18,42 +18,19 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import replace
-from typing import Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core.cost import block_costs_for
 from core.geometry import far_enough
-from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, BlockKind, Decision
+from core.plan import STRETCH_CONTINUES, STRETCH_PHASE, Block, Decision
 from core.policies.base import PlanContext, reachable_mask
-from core.policies.blocks import ScatteredSingles
-from core.policies.greedy import GreedyValue
-from core.policies.parts import PolicyParts
 from core.policies.singles import BOX_FRACTION, in_box, single_sites
 
-
-class ScatteredPlanner(Protocol):
-    """What a stretch asks of the scattered-singles planner (``core.policies.scattered``): its design, its
-    greedy value and how it picks and orders a block, so that a stretch's arrays are its blocks."""
-
-    name: str
-    parts: PolicyParts
-    design: ScatteredSingles
-
-    def value(self, ctx: PlanContext, cand: np.ndarray) -> tuple[GreedyValue, bool]: ...
-
-    def batch(
-        self, value: GreedyValue, xy: np.ndarray, mask: np.ndarray, first: int | None, ctx: PlanContext
-    ) -> tuple[list[int], list[float]]: ...
-
-    def block(
-        self,
-        ctx: PlanContext,
-        kind: BlockKind,
-        pts: np.ndarray,
-        hold_s: float,
-        centre: tuple[float, float] | None,
-    ) -> Block: ...
+if TYPE_CHECKING:
+    # the planner whose blocks a stretch's arrays are (it imports this module to plan one)
+    from core.policies.scattered import ScatteredPlanner
 
 
 MAX_ARRAYS = 60  # a weekend is not filled with more (the run's budget stops it earlier anyway)

@@ -1,7 +1,8 @@
 """Read KLA/Agilent nanoindenter exports into tidy indent records: the public entry of ``readers/``.
 
 The file is sniffed (``readers.sniff``: workbook or text, the program that wrote it) and read by the reader of
-its family (``readers.workbook``: InView/NanoSuite workbooks and results tables).
+its family (``readers.workbook``: InView/NanoSuite workbooks and results tables). The names of the programs
+(``KlaExport.software``) are ``readers.indents``' ``SOFTWARE_*``.
 """
 
 from __future__ import annotations
@@ -13,13 +14,7 @@ from pathlib import Path
 from core.errors import InputError
 from drivers.kla.readers.indents import (
     NO_POSITIONS,
-    SOFTWARE_ANTON_PAAR,
-    SOFTWARE_FISCHERSCOPE,
-    SOFTWARE_HYSITRON,
     SOFTWARE_INVIEW,
-    SOFTWARE_MICRO_MATERIALS,
-    SOFTWARE_NANOSUITE,
-    SOFTWARE_TESTWORKS,
     SOFTWARE_UNKNOWN,
     KlaExport,
     KlaIndent,
@@ -31,13 +26,7 @@ from drivers.kla.readers.workbook import read_workbook
 
 __all__ = [
     "NO_POSITIONS",
-    "SOFTWARE_ANTON_PAAR",
-    "SOFTWARE_FISCHERSCOPE",
-    "SOFTWARE_HYSITRON",
     "SOFTWARE_INVIEW",
-    "SOFTWARE_MICRO_MATERIALS",
-    "SOFTWARE_NANOSUITE",
-    "SOFTWARE_TESTWORKS",
     "SOFTWARE_UNKNOWN",
     "KlaExport",
     "KlaIndent",

@@ -31,7 +31,6 @@ This module takes the CSM values at the sites as arrays, so the emulator calls i
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -41,13 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InputError
-from core.plausible import (
-    MAX_STAGE_UM,
-    check_hardness_gpa,
-    check_modulus_gpa,
-    check_noise_sd_gpa,
-    check_stage_um,
-)
+from drivers.sim.csv_points import check_point, number_rows, read_header
 
 FloatArray = NDArray[np.float64]
 
@@ -306,17 +299,7 @@ def read_fast_table(path: str | Path) -> FastTable | None:
     Only ``x_um``, ``y_um`` and the fast columns are read here; the CSM columns are the truth reader's.
     """
     source = str(path)
-    try:
-        text = Path(path).read_bytes().decode("utf-8-sig")
-    except OSError as exc:
-        raise InputError(source, f"cannot read ({exc.strerror})") from None
-    except UnicodeDecodeError:
-        raise InputError(source, "not a UTF-8 text CSV") from None
-    reader = csv.reader(text.splitlines())
-    try:
-        header = [h.strip().lower() for h in next(reader)]
-    except StopIteration:
-        raise InputError(source, "empty file") from None
+    header, reader = read_header(path)
     present = [c for c in FAST_CSV_COLUMNS if c in header]
     if not present:
         return None
@@ -327,36 +310,10 @@ def read_fast_table(path: str | Path) -> FastTable | None:
         raise InputError(source, "has fast_noise_sd_gpa but no fast_hardness_gpa column")
     if "fast_modulus_noise_sd_gpa" in present and "fast_modulus_gpa" not in present:
         raise InputError(source, "has fast_modulus_noise_sd_gpa but no fast_modulus_gpa column")
-    where = {c: header.index(c) for c in ("x_um", "y_um", *present)}
+    where = ("x_um", "y_um", *present)
     rows: list[list[float]] = []
-    for raw in reader:
-        if not raw or all(not cell.strip() for cell in raw):
-            continue
-        line = reader.line_num
-        if len(raw) != len(header):
-            raise InputError(source, f"line {line}: expected {len(header)} values, found {len(raw)}")
-        values: dict[str, float] = {}
-        for col, i in where.items():
-            cell = raw[i].strip()
-            try:
-                value = float(cell)
-            except ValueError:
-                raise InputError(source, f"line {line}: {col} {cell!r} is not a number") from None
-            if not math.isfinite(value):
-                raise InputError(source, f"line {line}: {col} is {cell}, must be finite")
-            values[col] = value
-        for axis in ("x_um", "y_um"):
-            check_stage_um(source, f"line {line}: {axis}", values[axis], -MAX_STAGE_UM, MAX_STAGE_UM)
-        if "fast_hardness_gpa" in values:
-            h = check_hardness_gpa(source, values["fast_hardness_gpa"], f"line {line}: fast_hardness_gpa")
-            if "fast_noise_sd_gpa" in values:
-                check_noise_sd_gpa(source, values["fast_noise_sd_gpa"], h, f"line {line}: fast_noise_sd_gpa")
-        if "fast_modulus_gpa" in values:
-            e = check_modulus_gpa(source, values["fast_modulus_gpa"], f"line {line}: fast_modulus_gpa")
-            if "fast_modulus_noise_sd_gpa" in values:
-                check_noise_sd_gpa(
-                    source, values["fast_modulus_noise_sd_gpa"], e, f"line {line}: fast_modulus_noise_sd_gpa"
-                )
+    for line, values in number_rows(source, header, reader, where):
+        check_point(source, line, values, prefix="fast_")
         rows.append([values[c] for c in where])
     if len(rows) < 4:
         raise InputError(source, f"needs at least 4 points, found {len(rows)}")

@@ -3,8 +3,6 @@ modulus_noise_sd_gpa] on a lattice or scattered, interpolated (SPEC §4); a bad 
 
 from __future__ import annotations
 
-import csv
-import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -12,13 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from core.errors import InputError
-from core.plausible import (
-    MAX_STAGE_UM,
-    check_hardness_gpa,
-    check_modulus_gpa,
-    check_noise_sd_gpa,
-    check_stage_um,
-)
+from drivers.sim.csv_points import check_point, number_rows, read_header
 from drivers.sim.truth import (
     DEFAULT_MODULUS_REL_SD,
     Bounds,
@@ -140,19 +132,9 @@ class CsvTruth:
             raise InputError(source, "no such truth file")
         if not p.is_file():
             raise InputError(source, "not a regular file (a truth CSV was expected)")
-        try:
-            text = p.read_bytes().decode("utf-8-sig")
-        except OSError as exc:
-            raise InputError(source, f"cannot read ({exc.strerror})") from None
-        except UnicodeDecodeError:
-            raise InputError(source, "not a UTF-8 text CSV") from None
-        reader = csv.reader(text.splitlines())
-        try:
-            header = [h.strip().lower() for h in next(reader)]
-        except StopIteration:
-            raise InputError(
-                source, "empty file: expected a header x_um, y_um, hardness_gpa[, noise_sd_gpa]"
-            ) from None
+        header, reader = read_header(
+            path, "empty file: expected a header x_um, y_um, hardness_gpa[, noise_sd_gpa]"
+        )
         allowed = _CSV_REQUIRED + _CSV_OPTIONAL
         unknown = [h for h in header if h not in allowed]
         if unknown:
@@ -171,39 +153,17 @@ class CsvTruth:
             )
         rows: list[list[float]] = []
         lines: list[int] = []
-        for raw in reader:
-            if not raw or all(not cell.strip() for cell in raw):
-                continue
-            line = reader.line_num
-            if len(raw) != len(header):
-                raise InputError(source, f"line {line}: expected {len(header)} values, found {len(raw)}")
-            values: list[float] = []
-            for col, cell in zip(header, raw, strict=True):
-                try:
-                    value = float(cell.strip())
-                except ValueError:
-                    raise InputError(source, f"line {line}: {col} {cell.strip()!r} is not a number") from None
-                if not math.isfinite(value):
-                    raise InputError(source, f"line {line}: {col} is {cell.strip()}, must be finite")
-                if col == "hardness_gpa" and value <= 0:
-                    raise InputError(source, f"line {line}: hardness_gpa must be > 0, got {value:g}")
-                if col in ("noise_sd_gpa", "modulus_noise_sd_gpa") and value < 0:
-                    raise InputError(source, f"line {line}: {col} must be ≥ 0, got {value:g}")
-                values.append(value)
-            row = dict(zip(header, values, strict=True))
+        for line, row in number_rows(source, header, reader, tuple(header)):
+            if row["hardness_gpa"] <= 0:
+                raise InputError(
+                    source, f"line {line}: hardness_gpa must be > 0, got {row['hardness_gpa']:g}"
+                )
+            for col in ("noise_sd_gpa", "modulus_noise_sd_gpa"):
+                if row.get(col, 0.0) < 0:
+                    raise InputError(source, f"line {line}: {col} must be ≥ 0, got {row[col]:g}")
             # values no real sample has: a unit slip (MPa under hardness_gpa, nm under x_um) is named
-            hardness = check_hardness_gpa(source, row["hardness_gpa"], f"line {line}: hardness_gpa")
-            if "noise_sd_gpa" in row:
-                check_noise_sd_gpa(source, row["noise_sd_gpa"], hardness, f"line {line}: noise_sd_gpa")
-            if "modulus_gpa" in row:
-                modulus = check_modulus_gpa(source, row["modulus_gpa"], f"line {line}: modulus_gpa")
-                if "modulus_noise_sd_gpa" in row:
-                    check_noise_sd_gpa(
-                        source, row["modulus_noise_sd_gpa"], modulus, f"line {line}: modulus_noise_sd_gpa"
-                    )
-            for axis in ("x_um", "y_um"):
-                check_stage_um(source, f"line {line}: {axis}", row[axis], -MAX_STAGE_UM, MAX_STAGE_UM)
-            rows.append(values)
+            check_point(source, line, row)
+            rows.append([row[c] for c in header])
             lines.append(line)
         if len(rows) < 4:
             raise InputError(source, f"needs at least 4 points, found {len(rows)}")

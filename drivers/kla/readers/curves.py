@@ -265,16 +265,23 @@ def csm_average(
             f"test {test}: the file names no calculation depth range; CSM hardness averaged over "
             f"{lo:.0f}-{hi:.0f} nm (10-20 % of the maximum depth)"
         )
-    band = np.zeros(load.size, dtype=bool)
-    band[: peak + 1] = (depth[: peak + 1] >= lo) & (depth[: peak + 1] <= hi)
+    h, e = loading_band_means(depth, peak, lo, hi, curve.hardness_gpa, curve.modulus_gpa)
+    return CurveResult(h, e, p_peak, h_peak)
 
-    def mean(channel: np.ndarray | None) -> float | None:
-        if channel is None:
-            return None
-        values = channel[band & np.isfinite(channel)]
-        return float(values.mean()) if values.size else None
 
-    return CurveResult(mean(curve.hardness_gpa), mean(curve.modulus_gpa), p_peak, h_peak)
+def loading_band_means(
+    depth_nm: np.ndarray, peak: int, lo_nm: float, hi_nm: float, *channels: np.ndarray | None
+) -> list[float | None]:
+    """Each CSM channel's mean over the loading segment's samples (up to index ``peak``) with a depth in
+    [lo_nm, hi_nm], the way InView averages over its calculation depth range; None for a missing channel
+    or one without a finite sample there."""
+    band = np.zeros(depth_nm.size, dtype=bool)
+    band[: peak + 1] = (depth_nm[: peak + 1] >= lo_nm) & (depth_nm[: peak + 1] <= hi_nm)
+    means: list[float | None] = []
+    for channel in channels:
+        values = np.empty(0) if channel is None else channel[band & np.isfinite(channel)]
+        means.append(float(values.mean()) if values.size else None)
+    return means
 
 
 def frame_compliance_from_cycles(sheets: Mapping[str, pd.DataFrame], notes: list[str]) -> float | None:

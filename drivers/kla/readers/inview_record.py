@@ -28,6 +28,7 @@ import pandas as pd
 
 from core.errors import InputError
 from drivers.kla.readers.columns import RESULT_ALIASES, norm_key, unit_factor
+from drivers.kla.readers.curves import loading_band_means
 from drivers.kla.readers.indents import KlaExport, KlaIndent
 from drivers.kla.readers.plausibility import MAX_HARDNESS_GPA, MAX_MODULUS_GPA, implausible
 from drivers.kla.readers.tables import (
@@ -243,16 +244,7 @@ def read_record(path: Path, raw: pd.DataFrame, notes: list[str]) -> tuple[KlaInd
     peak = int(np.nanargmax(np.where(np.isfinite(load), load, -np.inf))) if np.isfinite(load).any() else 0
     end_of_loading = _marker(rec, "end of loading")
     if lo is not None and hi is not None:
-        band = np.zeros(depth.size, dtype=bool)
-        band[: peak + 1] = (depth[: peak + 1] >= lo) & (depth[: peak + 1] <= hi)
-
-        def mean(channel: np.ndarray | None) -> float | None:
-            if channel is None:
-                return None
-            values = channel[band & np.isfinite(channel)]
-            return float(values.mean()) if values.size else None
-
-        h, e = mean(hardness), mean(modulus)
+        h, e = loading_band_means(depth, peak, lo, hi, hardness, modulus)
         where = f"the method's averaging window {lo:g}-{hi:g} nm"
         if h is None:
             failure = f"no valid HARDNESS sample in {lo:g}-{hi:g} nm"

@@ -83,11 +83,36 @@ def test_run_status_and_export_of_a_tray(
         assert own and {r["sample"] for r in own} == {name}
     assert sum(1 for r in rows if r["sample"] == "tern" and r["status"] == "measured") == 30
     assert (out / "samples" / "film" / "predictions.csv").stat().st_size > 100
-    # one report over several samples would mix their maps: refused, saying where each sample's data is
-    assert main(["report", str(journal), "--out", str(tmp_path / "report")]) == 2
-    assert "aeni export" in capsys.readouterr().err
     # a tray names its own samples; a second --tray run on the same journal is refused
     assert main([*argv, "--quiet"]) == 2
+
+
+def test_report_of_a_tray_is_one_per_library_and_a_tray_summary(
+    tray_run: tuple[Path, list[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    pytest.importorskip("matplotlib")
+    journal, _ = tray_run
+    out = tmp_path / "report"
+    assert main(["report", str(journal), "--out", str(out)]) == 0
+    assert not (out / "silica").exists()  # the reference is in the tray summary, not a library report
+    for name in ("tern", "film"):
+        text = (out / name / "summary.md").read_text(encoding="utf-8")
+        # its own indents only (30 each), its own goal, and its map scored against its own truth
+        assert f"# Run report: night/{name}" in text
+        assert "- 30 indents measured" in text
+        assert "- stop reason: indent budget reached (30 of 30 indents)" in text
+        mape = float(text.split("MAPE ")[1].split(" %")[0])
+        assert 0.0 < mape < 40.0
+        assert (out / name / "maps.png").stat().st_size > 5000
+    summary = (out / "summary.md").read_text(encoding="utf-8")
+    rows = {line.split("|")[1].strip(): line for line in summary.splitlines() if line.startswith("| ")}
+    assert "| 30 indents | yes" in rows["tern"] and "| 30 indents | yes" in rows["film"]
+    assert "| reference |" in rows["silica"]
+    checks = [line for line in summary.splitlines() if line.endswith("| passed |")]
+    assert len(checks) >= 2  # before the first library and after the last
+    for line in checks:
+        median = float(line.split("|")[3])
+        assert abs(median / 9.0 - 1.0) < 0.05  # fused silica's nominal 9 GPa within the tolerance
 
 
 def _crash_after(n: int) -> Any:

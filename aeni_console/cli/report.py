@@ -8,6 +8,9 @@ from typing import Any
 
 from aeni_console.cli.run import resolve_run
 from aeni_console.reports.run import write_report
+from aeni_console.reports.tray import write_tray_report
+from core.journal import JournalReader
+from core.run.tray_view import journal_tray
 
 
 def default_out(journal: Path) -> Path:
@@ -19,7 +22,10 @@ def _handler(args: argparse.Namespace) -> int:
 
     path = resolve_run(args.run)
     out = args.out if args.out is not None else default_out(path)
-    written = write_report(path, out)
+    with JournalReader(path) as r:
+        is_tray = journal_tray(r.meta) is not None
+    # a tray: a folder per library with its own report, and the tray's summary (docs/tray.md)
+    written = write_tray_report(path, out) if is_tray else write_report(path, out)
     print(f"wrote {len(written)} files to {out}: {', '.join(p.name for p in written)}")
     return 0
 
@@ -30,7 +36,8 @@ def register(subparsers: Any) -> None:
         help="PNG figures and a Markdown summary of a run (needs the report extra)",
         description="Write a run's figures (maps, instrument time, uncertainty, drift and holds, decisions) "
         "and a Markdown summary. Works on finished and running runs, real or simulated; a simulated "
-        "run's summary adds the map error against the truth. Needs matplotlib (pip install -e '.[report]').",
+        "run's summary adds the map error against the truth. A tray run gets a folder per library with its own "
+        "report and a summary of the tray (goals, indents, instrument time, tip checks). Needs matplotlib (pip install -e '.[report]').",
     )
     p.add_argument("run", metavar="RUN", help="journal path or part of a run name under ./runs")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: RUN.report beside it)")

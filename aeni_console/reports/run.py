@@ -672,11 +672,7 @@ def write_report(path: str | Path, out_dir: str | Path) -> list[Path]:
     with JournalReader(path) as r:
         if journal_tray(r.meta) is not None:
             # one report over several samples would mix their maps and score one against another's truth
-            raise InputError(
-                str(path),
-                "a tray run has no report yet (one per sample is not built): `aeni status` gives each sample's "
-                "progress, `aeni export` each sample's indents and maps (samples/<name>/)",
-            )
+            raise InputError(str(path), "a tray run's report is one per sample (aeni_console.reports.tray)")
     return render_report(read_run(path), out_dir)
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from core.cost import open_program_steps
 from core.errors import InputError
-from core.plan import StepRecord
+from core.plan import Block, IndentSpec, StepRecord
 from core.profile import FastMode, InstrumentProfile
 
 
@@ -162,4 +162,26 @@ def price_fast_array(
         indents_s=indents_s,
         column_changes_s=columns_s,
         steps=tuple(steps),
+    )
+
+
+def fast_block(block_id: int, array: FastArray, keep: np.ndarray | None = None) -> Block:
+    """The array as a plan's block (channel "fast", a global block: it opens its own program), its sites in
+    the instrument's order; ``keep`` (one flag per site) leaves out the sites a sample does not allow (off
+    the sample, near an exclusion or an earlier indent): the interlock would refuse them."""
+    sites = array.sites_um()
+    if keep is not None:
+        sites = sites[np.asarray(keep, dtype=bool)]
+    if not len(sites):
+        raise InputError("fast_array", "no site of the array is allowed on this sample")
+    return Block(
+        block_id=block_id,
+        kind="global",
+        center_x_um=float(array.center_x_um),
+        center_y_um=float(array.center_y_um),
+        grid_g=array.rows,
+        pitch_um=float(array.pitch_um),
+        hold_s=0.0,
+        indents=tuple(IndentSpec(float(x), float(y), 0.0) for x, y in sites),
+        channel="fast",
     )

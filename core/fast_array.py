@@ -185,3 +185,21 @@ def fast_block(block_id: int, array: FastArray, keep: np.ndarray | None = None) 
         indents=tuple(IndentSpec(float(x), float(y), 0.0) for x, y in sites),
         channel="fast",
     )
+
+
+def fast_block_cost_s(
+    profile: InstrumentProfile, block: Block, start_um: tuple[float, float], program_open: bool
+) -> float:
+    """Seconds of a fast ``block`` from ``start_um``: what ``core.cost.block_steps`` charges it, in closed form
+    (the planner prices many arrays per decision)."""
+    fast = fast_mode_of(profile)
+    steps = list(open_program_steps(profile, block.block_id, program_open))
+    first = block.indents[0]
+    seconds = sum(s.seconds for s in steps) + profile.move_s(
+        first.x_um - start_um[0], first.y_um - start_um[1]
+    )
+    if profile.global_jump_s is None:
+        seconds += profile.engage_s * fast.surface_find + profile.drift_settle_s * fast.drift_settle
+    xs = np.array([s.x_um for s in block.indents])
+    columns = int(np.count_nonzero(xs[1:] != xs[:-1]))
+    return float(seconds + fast.indent_s * block.n_indents + fast.column_change_s * columns)

@@ -28,9 +28,8 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
-from core.cost import block_costs_for
-from core.fast_array import FastArray, check_fast_array, fast_block
-from core.geometry import exclusion_mask
+from core.fast_array import FastArray, check_fast_array, fast_block, fast_block_cost_s
+from core.geometry import SafeBand, exclusion_mask
 from core.plan import Decision
 from core.policies.variance import median_noise_var, nearest_lattice, posterior
 
@@ -152,7 +151,10 @@ def candidate_arrays(ctx: PlanContext, design: FastArrays) -> list[tuple[FastArr
     x0, x1, y0, y1 = ctx.calibration.bounds_um
     out: list[tuple[FastArray, np.ndarray]] = []
     for frac in design.extent_fractions:
-        extent = min(frac * fast.max_extent_um, x1 - x0, y1 - y0)
+        # below the safety hop: a left-out site never makes two kept neighbours a hop that needs a
+        # reconfiguration (which an array cannot make)
+        reach = ctx.profile.reconfig_threshold_um - 1e-6
+        extent = min(frac * fast.max_extent_um, x1 - x0, y1 - y0, reach)
         for pitch in design.pitches_um:
             if pitch < fast.min_pitch_um or pitch > extent:
                 continue
@@ -170,6 +172,11 @@ def candidate_arrays(ctx: PlanContext, design: FastArrays) -> list[tuple[FastArr
                         if ctx.sample is not None
                         else ctx.calibration.contains_stage(sites[:, 0], sites[:, 1])
                     )
+                    # the array is one program: every site in the safe band around its centre
+                    band = SafeBand(
+                        ctx.calibration.plane, array.center_x_um, array.center_y_um, ctx.dz_safe_um
+                    )
+                    keep &= band.contains(sites[:, 0], sites[:, 1])
                     if len(ctx.indents_xy_um):
                         keep &= exclusion_mask(sites, ctx.indents_xy_um, ctx.r_excl_um)
                     if keep.any():
@@ -275,9 +282,8 @@ class TwoFidelityPlanner:
         ref_xy = np.column_stack(ctx.calibration.to_stage(ref_uv[:, 0], ref_uv[:, 1]))
         proxies: list[tuple[float, int, float]] = []
         for k, (array, keep) in enumerate(cands):
-            cost = block_costs_for(
-                ctx.profile, fast_block(ctx.block_id, array, keep), ctx.position_um, ctx.program_open
-            )
+            block = fast_block(ctx.block_id, array, keep)
+            cost = fast_block_cost_s(ctx.profile, block, ctx.position_um, ctx.program_open)
             ex, ey = array.extent_um
             inside = (np.abs(ref_xy[:, 0] - array.center_x_um) <= ex / 2 + array.pitch_um) & (
                 np.abs(ref_xy[:, 1] - array.center_y_um) <= ey / 2 + array.pitch_um

@@ -216,3 +216,29 @@ def test_fast_on_with_a_profile_without_a_fast_mode_is_one_line_and_exit_2(
     assert cli_main(["simulate", "--fast", "on", "--profile", str(lab), "--budget-s", "3000", "--json"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "aeni: error: --fast: profile lab has no fast mode (no [fast] section)"
+
+
+def test_the_simulated_instrument_reads_a_fast_array_from_its_fast_channel() -> None:
+    """Each site read once, as the fast channel reads it (a failed one recorded as failed, never a number),
+    on the instrument clock the array is priced at; the same array reads the same again (a resume)."""
+    sc = make_scenario("ternary", 3)
+    array = FastArray(500.0, 500.0, 12, 12, 20.0)
+    block = fast_block(5, array)
+
+    def run() -> tuple[list[IndentResult], float]:
+        driver = sc.make_driver(PROFILE, start_um=(0.0, 0.0))
+        got = [e for e in driver.execute_block(block) if isinstance(e, IndentResult)]
+        return got, driver.clock_s()
+
+    results, clock = run()
+    assert clock == pytest.approx(price_fast_array(PROFILE, array, (0.0, 0.0), False).total_s)
+    assert len(results) == 144 and {r.channel for r in results} == {"fast"}
+    measured = [r for r in results if r.measured]
+    assert all(math.isfinite(r.hardness_gpa) and r.hold_s == 0.0 for r in measured)
+    assert all(math.isnan(r.hardness_gpa) for r in results if not r.measured)
+    # a fast indent reads the CSM map through its size effect and scatter, not as a CSM indent would
+    truth = np.array([float(sc.truth.hardness_gpa(r.actual_x_um, r.actual_y_um)) for r in measured])
+    read = np.array([r.hardness_gpa for r in measured])
+    assert np.corrcoef(truth, read)[0, 1] > 0.5 and not np.allclose(truth, read, rtol=0.02)
+    again, _ = run()
+    assert [r.hardness_gpa for r in again if r.measured] == [r.hardness_gpa for r in measured]

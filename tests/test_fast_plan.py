@@ -132,7 +132,8 @@ def _rates(campaign: Campaign) -> tuple[float, float]:
     assert ctx.prediction is not None and ctx.fidelity is not None
     # a CSM block of 16 singles spread over the sample (the design's own would be placed better still)
     xy = np.random.default_rng(2).uniform(100, 900, (16, 2))
-    block = Block(2, "global", *xy[0], 1, 5.0, 80.0, tuple(IndentSpec(x, y, 80.0) for x, y in xy))
+    sites = tuple(IndentSpec(float(x), float(y), 80.0) for x, y in xy)
+    block = Block(2, "global", float(xy[0, 0]), float(xy[0, 1]), 1, 5.0, 80.0, sites)
     csm = Decision(
         block, policy.name, 0.0, 0.0, block_costs_for(campaign.profile, block, (500.0, 500.0), False)
     )

@@ -22,6 +22,7 @@ import numpy as np
 from core.cost import indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
+from core.fidelity import FastChannel
 from core.geometry import CandidateLattice
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
@@ -178,6 +179,14 @@ class Campaign:
         self.surrogate: HeteroskedasticGP = parts.surrogate.build(
             parts.guard, min(self.lattice.pitch_uv), config.seed
         )
+        # the fast channel and the two-fidelity model, where the policy prices fast arrays (core.fidelity)
+        self.fast: FastChannel | None = None
+        if parts.fast is not None:
+            if self.profile.fast is None:
+                raise InputError(
+                    "--fast", f"profile {self.profile.name} has no fast mode (no [fast] section)"
+                )
+            self.fast = FastChannel(self.surrogate)
         self.modulus_map = ModulusMap(
             parts.surrogate.build(parts.guard, min(self.lattice.pitch_uv), config.seed),
             parts.noise,
@@ -284,7 +293,9 @@ class Campaign:
         hold: float | None = None
         locals_run = 0
         for b in self.blocks:
-            if b.kind == "global":
+            if b.kind == "global" and b.channel == "fast":
+                centre, hold, locals_run = None, None, 0  # a fast array's program serves no CSM indent
+            elif b.kind == "global":
                 centre, hold, locals_run = (b.center_x_um, b.center_y_um), b.hold_s, 0
             else:
                 locals_run += 1
@@ -388,6 +399,7 @@ class Campaign:
             sample=self.sample,
             modulus=self._modulus_view(),
             unattended=self.unattended(clock_s) if self.unattended is not None else None,
+            fidelity=self.fast.view() if self.fast is not None else None,
         )
 
     def propose(
@@ -522,6 +534,15 @@ class Campaign:
             return
         # every indent the instrument made takes its place for the planner, as for the interlock (core.taken)
         self.taken_xy.extend(map(tuple, taken_xy_um(results).tolist()))
+        if block.channel == "fast":
+            # fast indents teach only the two-fidelity model (core.fidelity), never as CSM centres
+            if self.fast is None:
+                raise InputError(
+                    "journal", f"block {block.block_id} is a fast array but this run has no fast mode"
+                )
+            self.fast.record(results)
+            self.blocks.append(block)
+            return
         # a failed or not-run indent carries no value: the model never sees it; a block with no measured
         # indent still ran (the program moved there) but adds no centre, and the fit goes on without it
         results = [r for r in results if r.measured]
@@ -594,7 +615,9 @@ class Campaign:
             assert hyper is not None
             self.surrogate.set_hyper(hyper, self.observations())
         self._last_fit = report
-        self.prediction = self.surrogate.predict(self.lattice.uv)
+        if self.fast is not None and report is not None:
+            self.fast.fit(self.observations(), report, self.calibration.to_uv)
+        self.prediction = self._map_model().predict(self.lattice.uv)
         if self.settings.map_weights.maps_modulus:
             self.modulus_map.fit(self.calibration.to_uv)
         return report
@@ -620,9 +643,13 @@ class Campaign:
         return self._last_fit
 
     # -- views -----------------------------------------------------------------------------------
+    def _map_model(self) -> HeteroskedasticGP | FastChannel:
+        """The CSM map's model: the two-fidelity one once it has a fast channel, else the CSM-only GP."""
+        return self.fast if self.fast is not None and self.fast.active else self.surrogate
+
     def predict_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> Prediction:
         u, v = self.calibration.to_uv(x_um, y_um)
-        return self.surrogate.predict(np.column_stack([u, v]))
+        return self._map_model().predict(np.column_stack([u, v]))
 
     def has_map(self) -> bool:
         return self.prediction is not None
@@ -630,7 +657,7 @@ class Campaign:
     def predict_mean_stage(self, x_um: np.ndarray, y_um: np.ndarray) -> np.ndarray:
         """The map's mean at stage points (what an evaluator scores; cheaper than a full prediction)."""
         u, v = self.calibration.to_uv(x_um, y_um)
-        return self.surrogate.predict_mean(np.column_stack([u, v]))
+        return self._map_model().predict_mean(np.column_stack([u, v]))
 
     def has_modulus_map(self) -> bool:
         """A modulus map exists or can be fitted now (fitted on demand when the planner does not need it)."""
@@ -700,6 +727,7 @@ class Campaign:
     def export_state(self) -> dict[str, Any]:
         return {
             "gp": self.surrogate.hyper,
+            **({"two_fidelity": self.fast.model.hyper} if self.fast is not None and self.fast.active else {}),
             "vetoes": [[v.x_um, v.y_um, v.until_blocks_done] for v in self.vetoes],
             "settings": settings_to_dict(self.settings),
             "blocks_done": len(self.blocks),
@@ -730,5 +758,8 @@ class Campaign:
         hyper = state.get("gp")
         if hyper is not None and len(self.centres) >= 2:
             self.surrogate.set_hyper(hyper, self.observations())
-            self.prediction = self.surrogate.predict(self.lattice.uv)
+            record = state.get("two_fidelity")
+            if self.fast is not None and record is not None:
+                self.fast.restore(record, self.observations(), self.calibration.to_uv)
+            self.prediction = self._map_model().predict(self.lattice.uv)
         self.modulus_map.restore(state.get("modulus"), self.calibration.to_uv)

@@ -98,6 +98,8 @@ def indent_steps(
     """
     spec = block.indents[index]
     to = (spec.x_um, spec.y_um)
+    if block.channel == "fast":
+        return fast_indent_steps(profile, block, index, frm, program_open)
     steps: list[StepRecord] = []
     if index == 0 and block.kind == "global":
         steps.extend(open_program_steps(profile, block.block_id, program_open))
@@ -106,6 +108,40 @@ def indent_steps(
     else:
         steps.extend(_move_steps(profile, frm, to, block.block_id, index, engaged=True))
     steps.extend(_indent_steps(profile, block.block_id, index, spec))
+    return steps
+
+
+def fast_indent_steps(
+    profile: InstrumentProfile,
+    block: Block,
+    index: int,
+    frm: tuple[float, float],
+    program_open: bool,
+) -> list[StepRecord]:
+    """Steps of indent ``index`` of a fast array (SPEC §9; ``core.fast_array`` prices a whole array the same
+    way): the first opens the program (lifted move, surface find and drift settle where the fast mode needs
+    them, inside the flat jump where the profile has one); each costs ``fast.indent_s`` with the step to it,
+    plus ``fast.column_change_s`` where its x differs from the previous site's (a new column)."""
+    fast = profile.fast
+    if fast is None:
+        raise ValueError(
+            f"block {block.block_id} is a fast array but profile {profile.name} has no fast mode"
+        )
+    spec = block.indents[index]
+    steps: list[StepRecord] = []
+    if index == 0:
+        steps.extend(open_program_steps(profile, block.block_id, program_open))
+        s = profile.move_s(spec.x_um - frm[0], spec.y_um - frm[1])
+        if s > 0:
+            steps.append(StepRecord("move", s, block.block_id, index))
+        if profile.global_jump_s is None:
+            if fast.surface_find:
+                steps.append(StepRecord("engage", profile.engage_s, block.block_id, -1))
+            if fast.drift_settle:
+                steps.append(StepRecord("drift", profile.drift_settle_s, block.block_id, -1))
+    elif spec.x_um != block.indents[index - 1].x_um and fast.column_change_s > 0:
+        steps.append(StepRecord("move", fast.column_change_s, block.block_id, index))
+    steps.append(StepRecord("indent", fast.indent_s, block.block_id, index))
     return steps
 
 

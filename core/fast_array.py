@@ -18,7 +18,7 @@ import numpy as np
 
 from core.cost import open_program_steps
 from core.errors import InputError
-from core.plan import StepRecord
+from core.plan import Block, IndentSpec, StepRecord
 from core.profile import FastMode, InstrumentProfile
 
 
@@ -163,3 +163,43 @@ def price_fast_array(
         column_changes_s=columns_s,
         steps=tuple(steps),
     )
+
+
+def fast_block(block_id: int, array: FastArray, keep: np.ndarray | None = None) -> Block:
+    """The array as a plan's block (channel "fast", a global block: it opens its own program), its sites in
+    the instrument's order; ``keep`` (one flag per site) leaves out the sites a sample does not allow (off
+    the sample, near an exclusion or an earlier indent): the interlock would refuse them."""
+    sites = array.sites_um()
+    if keep is not None:
+        sites = sites[np.asarray(keep, dtype=bool)]
+    if not len(sites):
+        raise InputError("fast_array", "no site of the array is allowed on this sample")
+    return Block(
+        block_id=block_id,
+        kind="global",
+        center_x_um=float(array.center_x_um),
+        center_y_um=float(array.center_y_um),
+        grid_g=array.rows,
+        pitch_um=float(array.pitch_um),
+        hold_s=0.0,
+        indents=tuple(IndentSpec(float(x), float(y), 0.0) for x, y in sites),
+        channel="fast",
+    )
+
+
+def fast_block_cost_s(
+    profile: InstrumentProfile, block: Block, start_um: tuple[float, float], program_open: bool
+) -> float:
+    """Seconds of a fast ``block`` from ``start_um``: what ``core.cost.block_steps`` charges it, in closed form
+    (the planner prices many arrays per decision)."""
+    fast = fast_mode_of(profile)
+    steps = list(open_program_steps(profile, block.block_id, program_open))
+    first = block.indents[0]
+    seconds = sum(s.seconds for s in steps) + profile.move_s(
+        first.x_um - start_um[0], first.y_um - start_um[1]
+    )
+    if profile.global_jump_s is None:
+        seconds += profile.engage_s * fast.surface_find + profile.drift_settle_s * fast.drift_settle
+    xs = np.array([s.x_um for s in block.indents])
+    columns = int(np.count_nonzero(xs[1:] != xs[:-1]))
+    return float(seconds + fast.indent_s * block.n_indents + fast.column_change_s * columns)

@@ -16,6 +16,11 @@ BlockKind = Literal["global", "local"]
 # so it is kept away from and priced, never learnt from.
 IndentStatus = Literal["measured", "failed", "not_run", "unverified"]
 INDENT_STATUSES: tuple[IndentStatus, ...] = ("measured", "failed", "not_run", "unverified")
+# which kind of indent: a CSM indent (the map's own measurement) or a fast, load-controlled one of a
+# NanoBlitz-class array (SPEC §9): a cheaper, biased reading of the same map that only the two-fidelity model
+# learns from
+Channel = Literal["csm", "fast"]
+CHANNELS: tuple[Channel, ...] = ("csm", "fast")
 
 # Ledger categories, in the order the console lists them.
 LEDGER_CATEGORIES: tuple[str, ...] = (
@@ -59,6 +64,9 @@ class Block:
     pitch_um: float
     hold_s: float
     indents: tuple[IndentSpec, ...]
+    # "fast": a fast array (core.fast_array): one program of load-controlled indents, priced per indent and
+    # column change, no holds; ``grid_g`` is then its rows and ``pitch_um`` its pitch
+    channel: Channel = "csm"
 
     @property
     def n_indents(self) -> int:
@@ -100,6 +108,7 @@ class IndentResult:
     # displacement at maximum load (nm): the depth Eq. 7's drift error is relative to; None where the
     # instrument did not report it (the drift rules then assume the nominal depth)
     depth_at_max_load_nm: float | None = None
+    channel: Channel = "csm"  # a fast indent is learnt only by the two-fidelity model, never as a CSM value
 
     def __post_init__(self) -> None:
         if self.status == "measured" and not math.isfinite(self.hardness_gpa):
@@ -119,7 +128,14 @@ class IndentResult:
 
     @classmethod
     def unmeasured(
-        cls, block_id: int, indent_index: int, spec: IndentSpec, t_s: float, status: IndentStatus, note: str
+        cls,
+        block_id: int,
+        indent_index: int,
+        spec: IndentSpec,
+        t_s: float,
+        status: IndentStatus,
+        note: str,
+        channel: Channel = "csm",
     ) -> IndentResult:
         """A failed or not-run indent: where it was commanded, when, why; no values."""
         if status == "measured":
@@ -139,6 +155,7 @@ class IndentResult:
             t_s,
             status,
             note,
+            channel=channel,
         )
 
 
@@ -265,6 +282,7 @@ def block_from_dict(d: dict[str, Any]) -> Block:
         indents=tuple(
             IndentSpec(float(s["x_um"]), float(s["y_um"]), float(s["hold_s"])) for s in d["indents"]
         ),
+        channel=d.get("channel", "csm"),
     )
 
 

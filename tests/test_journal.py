@@ -31,6 +31,7 @@ from core.journal import (
     send_command,
     to_json,
 )
+from core.journal.schema import SCHEMA_VERSION
 from core.plan import Alternative, Block, Decision, IndentResult, PlannerSettings, StepRecord, local_grid
 from core.profile import load_profile
 from core.runview import Command, CommandKind, EngineState, MapFields
@@ -287,7 +288,7 @@ def test_unknown_schema_version_is_refused(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(InputError) as info:
         JournalReader(path)
-    assert "schema version 1 is not supported (this program reads version 5" in str(info.value)
+    assert "schema version 1 is not supported (this program reads version 6" in str(info.value)
     assert "docs/journal.md" in str(info.value) and "\n" not in str(info.value)
 
 
@@ -454,4 +455,4 @@ def test_a_version_3_journal_is_read_and_converted_on_resume(tmp_path: Path) -> 
     reader = JournalReader(path)
     assert [r.status for r in reader.results()].count("unverified") == 1 and len(reader.results()) == 26
     version = sqlite3.connect(path).execute("SELECT version FROM schema_version").fetchone()[0]
-    assert version == 5
+    assert version == SCHEMA_VERSION

@@ -110,8 +110,10 @@ def test_every_registered_policy_builds_and_unknown_names_fail() -> None:
         assert make_policy(name).name == name
     with pytest.raises(InputError, match="unknown policy 'nope'"):
         make_policy("nope")
-    with pytest.raises(InputError, match="unknown modifier 'fast'"):
-        make_policy("aeni-paper+fast")
+    with pytest.raises(InputError, match="unknown modifier 'turbo'"):
+        make_policy("aeni-paper+turbo")
+    with pytest.raises(InputError, match="scattered singles"):
+        make_policy("aeni-paper+fast")  # fast arrays are priced beside scattered singles only (issue 36)
     with pytest.raises(InputError, match="replicate grids"):
         make_policy("aeni+tight")  # aeni places singles: a grid setting does not apply
     assert CampaignConfig().policy == "aeni"  # the default everywhere starts here

@@ -64,13 +64,17 @@ def run_simulation(
     sinks: Sequence[Sink] = (),
     map_weights: dict[str, float] | None = None,
     calendar: OperatorCalendar | None = None,
+    fast: bool = False,
 ) -> dict[str, Any]:
     """One campaign; the dict has the CLI's JSON keys (a contract).
 
     The simulated instrument lays the scenario's truth onto the sample (its built-in one by default) and
     its evaluator scores the map; the campaign sees only the sample. ``sinks`` see the run's events.
     With a ``calendar`` a simulated operator loads the blocks, and the run reports its wall clock and visits.
+    ``fast``: the plan prices the profile's fast arrays beside its CSM blocks (the policy's ``+fast``).
     """
+    if fast and not policy.endswith("+fast"):
+        policy = f"{policy}+fast"
 
     config = make_campaign_config(
         scenario="csv" if truth else scenario,
@@ -153,6 +157,8 @@ def run_simulation(
         "profile": campaign.profile.name,
         "instrument_s": result.instrument_s,
         "indents": result.indents,
+        # fast indents the instrument made (measured or failed), and their share of the indents above
+        "fast_indents": 0 if campaign.fast is None else campaign.fast.n + campaign.fast.failed,
         "blocks": result.blocks,
         "reconfigurations": result.ledger.reconfigurations,
         "ledger": result.ledger.as_dict(),
@@ -189,6 +195,7 @@ def _handler(args: argparse.Namespace) -> int:
         progress=not args.json and sys.stderr.isatty(),
         map_weights=args.map_weights,
         calendar=operator_calendar(args),
+        fast=args.fast == "on",
     )
     ledger = out.pop("_ledger_obj")
     if args.json:
@@ -200,7 +207,10 @@ def _handler(args: argparse.Namespace) -> int:
         f"instrument time {out['instrument_s']:,.0f} s ({out['instrument_s'] / 3600:.1f} h); "
         f"grid baseline {out['grid_baseline_s']:,.0f} s"
     )
-    print(f"{out['indents']} indents in {out['blocks']} blocks, {out['reconfigurations']} reconfigurations")
+    fast = f" ({out['fast_indents']} fast)" if out["fast_indents"] else ""
+    print(
+        f"{out['indents']} indents{fast} in {out['blocks']} blocks, {out['reconfigurations']} reconfigurations"
+    )
     if "wall_clock_h" in out:
         print(
             f"wall clock {out['wall_clock_h']:.1f} h from {out['start']}, {out['operator_visits']} operator visits"
@@ -253,6 +263,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="hardness=W,modulus=W",
         help="how much each map's relative error counts in the planner's aim (default hardness=1,modulus=1)",
+    )
+    p.add_argument(
+        "--fast",
+        choices=("off", "on"),
+        default="off",
+        help="on: the plan prices the profile's fast (NanoBlitz-class) arrays beside CSM indents, one "
+        "two-fidelity model learns from both (docs/two-fidelity.md); off (default): CSM indents only",
     )
     add_operator_args(p)
     p.add_argument("--json", action="store_true")

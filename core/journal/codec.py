@@ -10,6 +10,7 @@ import enum
 import io
 import json
 import math
+import sqlite3
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -147,6 +148,8 @@ def result_from_row(r: Sequence[Any]) -> IndentResult:
         status=r[11],
         note=r[12],
         depth_at_max_load_nm=None if r[13] is None else float(r[13]),
+        # a row of a journal before schema 6 (or its event log) has no channel: every indent was a CSM one
+        channel="fast" if len(r) > 14 and r[14] == "fast" else "csm",
     )
 
 
@@ -169,6 +172,7 @@ def result_to_row(r: IndentResult) -> tuple[Any, ...]:
         None
         if r.depth_at_max_load_nm is None or not math.isfinite(r.depth_at_max_load_nm)
         else r.depth_at_max_load_nm,
+        r.channel,
     )
 
 
@@ -176,5 +180,12 @@ APPROVAL_CATEGORY = "approval"  # the log rows of ApprovalAsked events: the cons
 
 INDENT_COLS = (
     "block_id, indent_index, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, hold_s, "
-    "hardness_gpa, modulus_gpa, drift_rate_nm_s, t_s, status, note, depth_at_max_load_nm"
+    "hardness_gpa, modulus_gpa, drift_rate_nm_s, t_s, status, note, depth_at_max_load_nm, channel"
 )
+
+
+def indent_cols(conn: sqlite3.Connection) -> str:
+    """INDENT_COLS as this journal can answer them: one before schema 6 (read, not migrated) has no channel
+    column, and every indent in it was a CSM one."""
+    names = {r[1] for r in conn.execute("PRAGMA table_info(indents)")}
+    return INDENT_COLS if "channel" in names else INDENT_COLS.replace(", channel", ", 'csm'")

@@ -20,9 +20,9 @@ from typing import Any
 from core.driver import InstrumentWait
 from core.errors import InputError
 from core.journal.codec import (
-    INDENT_COLS,
     block_from_dict,
     decision_from_dict,
+    indent_cols,
     result_from_row,
     result_to_row,
     to_json,
@@ -313,7 +313,7 @@ def events_from_tables(conn: sqlite3.Connection) -> Iterator[RunEvent]:
             driver_row[0], driver_row[1], (driver_row[2], driver_row[3]), bool(driver_row[4]), driver_row[5]
         )
     )
-    for r in conn.execute(f"SELECT {INDENT_COLS} FROM indents ORDER BY block_id, indent_index"):
+    for r in conn.execute(f"SELECT {indent_cols(conn)} FROM indents ORDER BY block_id, indent_index"):
         result = result_from_row(r)
         if driver is None:  # every indent is written with the instrument state after it
             raise InputError(

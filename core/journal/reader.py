@@ -19,13 +19,13 @@ from core.cost import indent_steps
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
 from core.driver import InstrumentWait
 from core.journal.codec import (
-    INDENT_COLS,
     BlockRecord,
     DriverState,
     StoredCommand,
     StoredDecision,
     block_from_dict,
     decision_from_dict,
+    indent_cols,
     map_fields_from_bytes,
     result_from_row,
 )
@@ -107,12 +107,15 @@ class Queries:
 
     def results(self, block_id: int) -> list[IndentResult]:
         rows = self.conn.execute(
-            f"SELECT {INDENT_COLS} FROM indents WHERE block_id = ? ORDER BY indent_index", (block_id,)
+            f"SELECT {indent_cols(self.conn)} FROM indents WHERE block_id = ? ORDER BY indent_index",
+            (block_id,),
         )
         return [result_from_row(r) for r in rows]
 
     def all_results(self) -> list[IndentResult]:
-        rows = self.conn.execute(f"SELECT {INDENT_COLS} FROM indents ORDER BY block_id, indent_index")
+        rows = self.conn.execute(
+            f"SELECT {indent_cols(self.conn)} FROM indents ORDER BY block_id, indent_index"
+        )
         return [result_from_row(r) for r in rows]
 
     def block_rows(self, where: str = "", args: tuple[Any, ...] = ()) -> list[tuple[Block, str, int | None]]:

@@ -20,8 +20,9 @@ from core.runview import EngineState
 
 # 2: indents carry a status (measured / failed / not_run) and NULL values when not measured
 # 4: the status may also be 'unverified' (made, but its export was refused); 3 is migrated on resume
-SCHEMA_VERSION = 5
-READABLE_VERSIONS = (3, 4, 5)
+# 6: each indent's channel ('csm' or 'fast', issue 36); earlier journals read as all CSM, migrated on resume
+SCHEMA_VERSION = 6
+READABLE_VERSIONS = (3, 4, 5, 6)
 SQLITE_MAGIC = b"SQLite format 3\x00"
 LOG_TAIL = 200
 BUSY_TIMEOUT_MS = 10_000
@@ -51,7 +52,8 @@ CREATE TABLE indents (
     drift_rate_nm_s REAL, t_s REAL NOT NULL,
     status TEXT NOT NULL CHECK (status IN ('measured', 'failed', 'not_run', 'unverified')), note TEXT NOT NULL,
     depth_at_max_load_nm REAL, wall_utc TEXT NOT NULL, session_id INTEGER,
-    last_step_id INTEGER, PRIMARY KEY (block_id, indent_index));
+    last_step_id INTEGER, channel TEXT NOT NULL DEFAULT 'csm' CHECK (channel IN ('csm', 'fast')),
+    PRIMARY KEY (block_id, indent_index));
 CREATE TABLE steps (
     step_id INTEGER PRIMARY KEY, block_id INTEGER NOT NULL, indent_index INTEGER NOT NULL,
     category TEXT NOT NULL, seconds REAL NOT NULL, t_end_s REAL NOT NULL, wall_utc TEXT NOT NULL,
@@ -189,9 +191,9 @@ def migrate(conn: sqlite3.Connection, rebuild_events: Callable[[sqlite3.Connecti
 
     3 -> 4: the indents table's status check gains 'unverified' (SQLite cannot alter a CHECK, so the table
     is rebuilt from the new definition). 4 -> 5: the event log (``run_events``), rebuilt from the tables by
-    ``rebuild_events`` (core.journal.eventlog)."""
+    ``rebuild_events`` (core.journal.eventlog). 5 -> 6: the indents' channel, every earlier indent a CSM one."""
     row = conn.execute("SELECT version FROM schema_version").fetchone()
-    if row is None or int(row[0]) not in (3, 4):
+    if row is None or int(row[0]) not in (3, 4, 5):
         return
     conn.execute("BEGIN IMMEDIATE")
     try:
@@ -199,12 +201,19 @@ def migrate(conn: sqlite3.Connection, rebuild_events: Callable[[sqlite3.Connecti
             start = SCHEMA_SQL.index("CREATE TABLE indents")
             create = SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)]
             conn.execute(create.replace("CREATE TABLE indents", "CREATE TABLE indents_v4", 1))
-            conn.execute("INSERT INTO indents_v4 SELECT * FROM indents")
+            cols = ", ".join(r[1] for r in conn.execute("PRAGMA table_info(indents)"))
+            conn.execute(f"INSERT INTO indents_v4 ({cols}) SELECT {cols} FROM indents")
             conn.execute("DROP TABLE indents")
             conn.execute("ALTER TABLE indents_v4 RENAME TO indents")
-        start = SCHEMA_SQL.index("CREATE TABLE run_events")
-        conn.execute(SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)])
-        rebuild_events(conn)
+        if "channel" not in {r[1] for r in conn.execute("PRAGMA table_info(indents)")}:
+            conn.execute(
+                "ALTER TABLE indents ADD COLUMN channel TEXT NOT NULL DEFAULT 'csm' "
+                "CHECK (channel IN ('csm', 'fast'))"
+            )
+        if int(row[0]) in (3, 4):
+            start = SCHEMA_SQL.index("CREATE TABLE run_events")
+            conn.execute(SCHEMA_SQL[start : SCHEMA_SQL.index(";", start)])
+            rebuild_events(conn)
         conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
         conn.execute("COMMIT")
     except BaseException:

@@ -521,7 +521,7 @@ class JournalWriter:
             last = c.execute("SELECT MAX(step_id) FROM steps").fetchone()[0]
             c.execute(
                 f"INSERT INTO indents ({INDENT_COLS}, wall_utc, session_id, last_step_id) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (*result_to_row(result), utc_now(), self.session_id, last),
             )
             self._driver_state(c, driver_state)

@@ -126,7 +126,10 @@ class TwoFidelityGP:
         min_fast_cells: int = MIN_FAST_CELLS,
         lengthscale_prior: bool = True,
         threads: int = 1,
+        csm_gp: HeteroskedasticGP | None = None,
     ) -> None:
+        """``csm_gp``: a CSM-only GP fitted elsewhere (a campaign's own surrogate, with its noise rules): the
+        model then reads it and ``fit_levels`` fits only the fast channel and the CSM level."""
         if guard not in GUARDS:
             raise InputError("surrogate.guard", f"unknown guard {guard!r}; allowed: {', '.join(GUARDS)}")
         if min_fast_cells < 1:
@@ -142,7 +145,7 @@ class TwoFidelityGP:
             "lengthscale_prior": lengthscale_prior,
             "threads": threads,
         }
-        self.csm_gp = HeteroskedasticGP(**common)
+        self.csm_gp = HeteroskedasticGP(**common) if csm_gp is None else csm_gp
         self.fast_gp = HeteroskedasticGP(**common, ski_above=1)  # always the interpolated GP
         self.kernel: KernelName = kernel
         self.floor_uv = float(lengthscale_floor_uv)
@@ -217,7 +220,13 @@ class TwoFidelityGP:
     def fit(self, csm: Observations, fast: Observations | None) -> TwoFidelityReport:
         """Fit the CSM-only GP, the fast GP and the CSM level (warm from the previous fit)."""
         t0 = time.perf_counter()
-        csm_report = self.csm_gp.fit(csm)
+        return self.fit_levels(csm, fast, self.csm_gp.fit(csm), t0)
+
+    def fit_levels(
+        self, csm: Observations, fast: Observations | None, csm_report: FitReport, t0: float | None = None
+    ) -> TwoFidelityReport:
+        """The fast GP and the CSM level on a CSM-only GP already fitted to ``csm`` (its ``csm_report``)."""
+        t0 = time.perf_counter() if t0 is None else t0
         if fast is None or fast.n < self.min_fast_cells or csm.n < MIN_CSM_CENTRES:
             self._cond = None
             return TwoFidelityReport(
@@ -362,6 +371,51 @@ class TwoFidelityGP:
                 ]
             )
         return var.numpy() * self._scale**2
+
+    def csm_variance_after_csm(
+        self, uv: np.ndarray, sites_uv: np.ndarray, sites_noise_var_gpa2: np.ndarray
+    ) -> np.ndarray:
+        """The CSM map's latent variance (GPa²) at ``uv`` if CSM values at ``sites_uv`` were added, each with
+        its noise variance, every hyperparameter held (y-free): what a CSM block buys, on the same scale as
+        ``csm_variance_after_fast``."""
+        if self._cond is None or self._p is None or self._theta is None:
+            raise RuntimeError("TwoFidelityGP.csm_variance_after_csm: no fast channel in this fit")
+        p = self._p
+        xa = torch.as_tensor(np.array(sites_uv, dtype=float).reshape(-1, 2), dtype=DTYPE)
+        noise = torch.as_tensor(np.asarray(sites_noise_var_gpa2, dtype=float).ravel(), dtype=DTYPE)
+        if noise.shape[0] != xa.shape[0] or not bool(torch.all(noise > 0)):
+            raise InputError("sites_noise_var_gpa2", "one noise variance > 0 per site is needed")
+        assert p.noise_fixed is not None
+        with torch.no_grad():
+            after = replace(
+                p,
+                x=torch.cat([p.x, xa]),
+                y=torch.cat([p.y, torch.zeros(xa.shape[0], dtype=DTYPE)]),
+                noise_fixed=torch.cat([p.noise_fixed, noise / self._scale**2]),
+                noise_scale=torch.ones(p.n + xa.shape[0], dtype=DTYPE),
+            ).condition(self._theta)
+            xs_all = torch.as_tensor(np.array(uv, dtype=float).reshape(-1, 2), dtype=DTYPE)
+            var = torch.cat(
+                [
+                    after.mean_var(xs_all[i : i + PREDICT_CHUNK])[1]
+                    for i in range(0, xs_all.shape[0], PREDICT_CHUNK)
+                ]
+            )
+        return var.numpy() * self._scale**2
+
+    def predict_mean(self, uv: np.ndarray) -> np.ndarray:
+        """The CSM map's mean (GPa) at ``uv`` (what an evaluator scores)."""
+        if self._cond is None:
+            return self.csm_gp.predict_mean(uv)
+        xs_all = torch.as_tensor(np.array(uv, dtype=float).reshape(-1, 2), dtype=DTYPE)
+        with torch.no_grad():
+            mean = torch.cat(
+                [
+                    self._cond.mean(xs_all[i : i + PREDICT_CHUNK])
+                    for i in range(0, xs_all.shape[0], PREDICT_CHUNK)
+                ]
+            )
+        return np.asarray(mean.numpy() * self._scale + self._loc, dtype=float)
 
     def predict_fast(self, uv: np.ndarray) -> Prediction:
         """The fast channel's own map (what a fast indent reads), from the fast data alone."""

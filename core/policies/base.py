@@ -21,6 +21,7 @@ from core.profile import InstrumentProfile
 if TYPE_CHECKING:
     from core.geometry import Calibration, CandidateLattice
     from core.model import Prediction
+    from core.policies.fidelity import FidelityView
     from core.policies.parts import PolicyParts
     from core.sample import Sample
 
@@ -95,6 +96,8 @@ class PlanContext:
     # how long the next load runs before anyone comes again, and when it must not end (core.visits); None:
     # attended, as always before
     unattended: LoadWindow | None = None
+    # the two-fidelity model's view (core.policies.fidelity) once fast data are in; None: the CSM-only GP
+    fidelity: FidelityView | None = None
 
     @property
     def fixed_hold_s(self) -> float:

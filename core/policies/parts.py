@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from core.policies.acquisition import Acquisition, CostWeighted, UncertaintyExploration
 from core.policies.blocks import BlockDesign, ReplicateGrid
+from core.policies.fidelity import FastArrays
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
 from core.policies.noise import NoiseModel
@@ -21,6 +22,8 @@ class PolicyParts:
     blocks: BlockDesign = field(default_factory=ReplicateGrid)
     hold: HoldRule = field(default_factory=HoldRule)
     guard: CollapseGuard = field(default_factory=CollapseGuard)
+    # fast arrays priced beside the CSM blocks (core.policies.fidelity; the profile's [fast] mode); None: CSM only
+    fast: FastArrays | None = None
 
     @property
     def needs_covariance(self) -> bool:

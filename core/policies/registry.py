@@ -29,6 +29,7 @@ from core.policies.acquisition import (
     UncertaintyExploration,
 )
 from core.policies.blocks import ReplicateGrid, ScatteredSingles
+from core.policies.fidelity import FastArrays, TwoFidelityPlanner
 from core.policies.grid import GridPolicy
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
@@ -158,6 +159,11 @@ MODIFIERS: dict[str, tuple[str, Callable[[PolicyParts], PolicyParts]]] = {
         "there (acquisition)",
         lambda p: _ivr(p, bend_weight=BENDS_WEIGHT),
     ),
+    "fast": (
+        "fast (NanoBlitz-class) arrays priced beside the CSM blocks, learnt by the two-fidelity model "
+        "(block design; the profile's [fast] mode)",
+        lambda p: replace(_singles(p), fast=FastArrays()),
+    ),
     "even": (
         "no weighting to the map's structure: pure variance reduction (acquisition)",
         lambda p: _ivr(p, structure_weight=0.0),
@@ -261,5 +267,7 @@ def make_policy(name: str, facts: RunFacts | None = None) -> Policy:
     if name == "grid":
         return GridPolicy()
     if isinstance(parts.blocks, ScatteredSingles):
+        if parts.fast is not None:
+            return TwoFidelityPlanner(name, parts, ScatteredPlanner(name, parts), parts.fast)
         return ScatteredPlanner(name, parts)
     return BayesPlanner(name, parts)

@@ -15,6 +15,8 @@ from core.driver import DriverAborted, DriverEvent, InstrumentState
 from core.plan import Block, IndentResult, StepRecord
 from core.profile import InstrumentProfile
 from drivers.sim.failures import INVALID_VALUE, FailureModes
+from drivers.sim.fast_channel import FastPhysics, FastReadings
+from drivers.sim.fast_measure import read_fast_block
 
 if TYPE_CHECKING:
     from drivers.sim.emulator import Emulator
@@ -40,6 +42,8 @@ class SimulatedDriver(InstrumentState):
         # the emulated physics (drift) runs on a clock without crash-recovery time, so a resumed run
         # measures what an uninterrupted one would have
         self._physics_s = clock_s
+        # the emulator's fast channel (fast arrays), where the profile has a fast mode
+        self.fast_physics = FastPhysics(profile.fast.peak_load_mn) if profile.fast is not None else None
 
     # -- state -----------------------------------------------------------------------------
     def physics_clock_s(self) -> float:
@@ -85,9 +89,14 @@ class SimulatedDriver(InstrumentState):
             for i in range(start_index, block.n_indents):
                 yield IndentResult.unmeasured(
                     block.block_id, i, block.indents[i], self._clock_s, "not_run",
-                    "surface not found (simulated instrument fault)",
+                    "surface not found (simulated instrument fault)", block.channel,
                 )  # fmt: skip
             return
+        fast: FastReadings | None = None
+        if block.channel == "fast":
+            if self.fast_physics is None:
+                raise ValueError(f"block {block.block_id} is a fast array but the profile has no fast mode")
+            fast = read_fast_block(self.emulator, self.fast_physics, block)
         stop_after = block.n_indents // 2 if fault == "aborted" else block.n_indents
         if start_index > 0 and not self._open and start_index < stop_after:
             # resuming inside a block after a crash: re-engage where we are
@@ -97,6 +106,7 @@ class SimulatedDriver(InstrumentState):
                 yield IndentResult.unmeasured(
                     block.block_id, i, block.indents[i], self._clock_s, "not_run",
                     f"array aborted after {stop_after} of {block.n_indents} indents (simulated instrument fault)",
+                    block.channel,
                 )  # fmt: skip
                 continue
             steps = indent_steps(self.profile, block, i, self._pos, self._open)
@@ -105,32 +115,63 @@ class SimulatedDriver(InstrumentState):
             spec = block.indents[i]
             self._pos = (spec.x_um, spec.y_um)
             self._open = True
-            m = self.emulator.measure(spec.x_um, spec.y_um, spec.hold_s, self._physics_s, block.block_id, i)
-            if self.failures.invalid(block.block_id, i):
-                # the indent was made, its value is not: recorded as failed, never learned from
-                yield IndentResult.unmeasured(
-                    block.block_id, i, spec, self._clock_s, "failed",
-                    f"invalid value {INVALID_VALUE:g} (simulated instrument fault)",
-                )  # fmt: skip
+            if fast is not None:
+                yield self._fast_result(block, i, fast)
             else:
-                yield IndentResult(
-                    block_id=block.block_id,
-                    indent_index=i,
-                    commanded_x_um=spec.x_um,
-                    commanded_y_um=spec.y_um,
-                    actual_x_um=m.actual_x_um,
-                    actual_y_um=m.actual_y_um,
-                    hold_s=spec.hold_s,
-                    hardness_gpa=m.hardness_gpa,
-                    modulus_gpa=m.modulus_gpa,
-                    drift_rate_nm_s=m.drift_rate_nm_s,
-                    t_s=self._clock_s,
-                    depth_at_max_load_nm=m.depth_at_max_load_nm,
-                )
+                yield self._csm_result(block, i)
             if self._abort.is_set():
                 # the current indent is finished: lift and stop
                 yield from self.end_program()
                 raise DriverAborted(f"aborted after indent {i} of block {block.block_id}")
+
+    def _csm_result(self, block: Block, i: int) -> IndentResult:
+        spec = block.indents[i]
+        m = self.emulator.measure(spec.x_um, spec.y_um, spec.hold_s, self._physics_s, block.block_id, i)
+        if self.failures.invalid(block.block_id, i):
+            # the indent was made, its value is not: recorded as failed, never learned from
+            return IndentResult.unmeasured(
+                block.block_id, i, spec, self._clock_s, "failed",
+                f"invalid value {INVALID_VALUE:g} (simulated instrument fault)",
+            )  # fmt: skip
+        return IndentResult(
+            block_id=block.block_id,
+            indent_index=i,
+            commanded_x_um=spec.x_um,
+            commanded_y_um=spec.y_um,
+            actual_x_um=m.actual_x_um,
+            actual_y_um=m.actual_y_um,
+            hold_s=spec.hold_s,
+            hardness_gpa=m.hardness_gpa,
+            modulus_gpa=m.modulus_gpa,
+            drift_rate_nm_s=m.drift_rate_nm_s,
+            t_s=self._clock_s,
+            depth_at_max_load_nm=m.depth_at_max_load_nm,
+        )
+
+    def _fast_result(self, block: Block, i: int, fast: FastReadings) -> IndentResult:
+        """One fast indent of the array's readings: a failed one is recorded as failed, never as a number;
+        a fast indent reports no drift rate (nothing measures it in a ~1 s test)."""
+        spec = block.indents[i]
+        if fast.failed[i] or self.failures.invalid(block.block_id, i):
+            return IndentResult.unmeasured(
+                block.block_id, i, spec, self._clock_s, "failed",
+                "no valid unloading curve (simulated fast indent)", "fast",
+            )  # fmt: skip
+        return IndentResult(
+            block_id=block.block_id,
+            indent_index=i,
+            commanded_x_um=spec.x_um,
+            commanded_y_um=spec.y_um,
+            actual_x_um=float(fast.x_um[i]),
+            actual_y_um=float(fast.y_um[i]),
+            hold_s=0.0,
+            hardness_gpa=float(fast.hardness_gpa[i]),
+            modulus_gpa=float(fast.modulus_gpa[i]),
+            drift_rate_nm_s=float("nan"),
+            t_s=self._clock_s,
+            depth_at_max_load_nm=float(fast.depth_nm[i]),
+            channel="fast",
+        )
 
     def end_program(self) -> Iterator[StepRecord]:
         if self._open:

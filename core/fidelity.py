@@ -1,0 +1,109 @@
+"""A run's fast channel: its fast indents and the two-fidelity model that learns the CSM map from both.
+
+The campaign keeps its CSM-only GP (its noise rules, its guard, its journal record) and, where the policy
+prices fast arrays (``PolicyParts.fast``), one ``FastChannel``: the measured fast indents (failed ones are
+kept apart, never learnt from) and a ``TwoFidelityGP`` built on the campaign's own GP, so the CSM level is
+fitted on the same CSM fit. Once the fast data are enough (``MIN_FAST_CELLS`` cells), the map the run shows,
+scores and plans on is the two-fidelity one; before, the CSM-only GP's. The collapse guard covers both
+channels (the fast GP's own guard; the same rule on δ's length-scales).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
+from core.model.two_fidelity import TwoFidelityGP, TwoFidelityReport, fast_observations
+from core.plan import IndentResult
+
+ToUv = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+class TwoFidelityView:
+    """The planner's ``FidelityView`` of a fitted two-fidelity model (``core.policies.fidelity``)."""
+
+    mode = "two-fidelity"
+
+    def __init__(self, model: TwoFidelityGP) -> None:
+        self.model = model
+
+    def variance(self, uv: np.ndarray) -> np.ndarray:
+        return np.asarray(self.model.predict(uv).epistemic_sd ** 2, dtype=float)
+
+    def variance_after_csm(self, uv: np.ndarray, sites_uv: np.ndarray, noise_var: np.ndarray) -> np.ndarray:
+        return self.model.csm_variance_after_csm(uv, sites_uv, noise_var)
+
+    def variance_after_fast(self, uv: np.ndarray, cells_uv: np.ndarray, noise_var: np.ndarray) -> np.ndarray:
+        return self.model.csm_variance_after_fast(uv, cells_uv, noise_var)
+
+    def fast_noise_var(self, uv: np.ndarray) -> np.ndarray:
+        return np.asarray(self.model.fast_gp.predict_noise_sd(uv) ** 2, dtype=float)
+
+
+class FastChannel:
+    """The fast indents of a run and the two-fidelity model over them and the campaign's CSM GP."""
+
+    def __init__(self, csm_gp: HeteroskedasticGP) -> None:
+        self.model = TwoFidelityGP(
+            kernel=csm_gp.kernel,
+            lengthscale_floor_uv=csm_gp.floor_uv,
+            collapse_drop_ratio=csm_gp.collapse_drop_ratio,
+            guard=csm_gp.guard,
+            csm_gp=csm_gp,
+        )
+        self.xy_um: list[tuple[float, float]] = []  # measured fast indents (actual positions)
+        self.hardness_gpa: list[float] = []
+        self.modulus_gpa: list[float] = []
+        self.failed = 0  # fast indents the instrument made without a value (recorded, never learnt)
+        self.last_report: TwoFidelityReport | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.hardness_gpa)
+
+    @property
+    def active(self) -> bool:
+        """The two-fidelity map is the run's map (enough fast cells and CSM centres to learn a bias)."""
+        return self.model.mode == "two-fidelity"
+
+    def record(self, results: Sequence[IndentResult]) -> None:
+        for r in results:
+            if not r.measured:
+                self.failed += 1
+                continue
+            self.xy_um.append((r.actual_x_um, r.actual_y_um))
+            self.hardness_gpa.append(r.hardness_gpa)
+            self.modulus_gpa.append(r.modulus_gpa)
+
+    def observations(self, to_uv: ToUv) -> Observations | None:
+        if not self.hardness_gpa:
+            return None
+        xy = np.array(self.xy_um, dtype=float)
+        u, v = to_uv(xy[:, 0], xy[:, 1])
+        return fast_observations(np.column_stack([u, v]), np.array(self.hardness_gpa))
+
+    def fit(self, csm: Observations, csm_report: FitReport, to_uv: ToUv) -> TwoFidelityReport:
+        """The fast GP and the CSM level on the campaign's CSM fit (``csm_report``)."""
+        self.last_report = self.model.fit_levels(csm, self.observations(to_uv), csm_report)
+        return self.last_report
+
+    def restore(self, record: object, csm: Observations, to_uv: ToUv) -> None:
+        """Condition on the data with the journaled record (a resumed run maps and plans as before)."""
+        self.model.set_hyper(record, csm, self.observations(to_uv))
+
+    def predict(self, uv: np.ndarray) -> Prediction:
+        return self.model.predict(uv)
+
+    def predict_mean(self, uv: np.ndarray) -> np.ndarray:
+        return self.model.predict_mean(uv)
+
+    def bias_gpa(self, uv: np.ndarray) -> np.ndarray:
+        """The learnt bias E[H_csm − H_fast] (GPa) at ``uv``; NaN where the model has no fast channel yet."""
+        if not self.active:
+            return np.full(len(np.asarray(uv).reshape(-1, 2)), np.nan)
+        return self.model.bias_gpa(uv)
+
+    def view(self) -> TwoFidelityView | None:
+        return TwoFidelityView(self.model) if self.active else None

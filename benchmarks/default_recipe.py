@@ -26,8 +26,8 @@ sys.path.insert(0, str(ROOT))
 
 from aeni_console.bench.harness import (  # noqa: E402
     BenchConfig,
+    BenchRun,
     RunRecord,
-    RunSpec,
     records_to_json,
     run_one,
 )
@@ -64,7 +64,7 @@ def main() -> int:
     for seed in args.seeds:
         for cal in modes:
             key = "cal" if cal else "plain"
-            spec = RunSpec(
+            spec = BenchRun(
                 sc,
                 "grid",
                 seed,

@@ -26,8 +26,8 @@ sys.path.insert(0, str(ROOT))
 
 from aeni_console.bench.harness import (  # noqa: E402
     BenchConfig,
+    BenchRun,
     RunRecord,
-    RunSpec,
     records_to_json,
     run_one,
 )
@@ -64,7 +64,7 @@ def main() -> int:
     for seed in args.seeds:
         for cal in modes:
             key = "cal" if cal else "plain"
-            spec = RunSpec(
+            spec = BenchRun(
                 sc,
                 "grid",
                 seed,
@@ -97,7 +97,8 @@ def main() -> int:
                 print(
                     f"{key:5} seed {seed} {p:24} t(H) {r.t_hit_s} t(E) {r.t_hit_modulus_s} t(both) {both} "
                     f"grid {grid.t_hit_s} / {grid.t_hit_modulus_s} wall_h {r.wall_clock_h} "
-                    f"visits {r.operator_visits} cpu-wall {r.wall_s:.0f} s",
+                    f"visits {r.operator_visits} to both: wall_h {r.wall_clock_both_h} visits {r.operator_visits_both} "
+                    f"cpu-wall {r.wall_s:.0f} s",
                     flush=True,
                 )
             config = replace(

@@ -567,6 +567,7 @@ def test_the_bench_scores_both_maps_and_a_hardness_only_run_writes_what_it_wrote
     assert aeni.target_mape_modulus_pct == grid.final_mape_modulus_pct
     table = "\n".join(two_maps_table([grid, aeni]))
     assert "## Both maps: hardness and modulus" in table and "| ternary | aeni |" in table
+    assert "speed-up to both, median (worst seed)" in table
     data = records_to_json([grid, aeni], config, 1.0)
     assert all("trajectory_modulus" in r for r in data["runs"])
     # hardness only (modulus=0): no modulus is scored, and nothing of it is written

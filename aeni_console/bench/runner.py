@@ -117,6 +117,9 @@ class RunRecord:
     # MAPE) and the operator's visits by then; None: no calendar, or the target was never reached
     wall_clock_h: float | None = None
     operator_visits: int | None = None
+    # the same to both maps' targets (the later of the two hits), where both are scored
+    wall_clock_both_h: float | None = None
+    operator_visits_both: int | None = None
 
 
 # -- one run -------------------------------------------------------------------------------------------
@@ -300,6 +303,12 @@ def run_one(spec: BenchRun) -> RunRecord:
         wall = operator.wall_at(t_hit)
         wall_h = None if wall is None else wall / 3600.0
         visits = operator.visits_at(t_hit)
+    wall_both_h: float | None = None
+    visits_both: int | None = None
+    if operator is not None and t_hit is not None and t_hit_e is not None:
+        wall_both = operator.wall_at(max(t_hit, t_hit_e))
+        wall_both_h = None if wall_both is None else wall_both / 3600.0
+        visits_both = operator.visits_at(max(t_hit, t_hit_e))
     h = evaluator.truth_gpa
     maps = _maps(campaign) if spec.keep_maps and campaign.prediction is not None else None
     return RunRecord(
@@ -336,6 +345,8 @@ def run_one(spec: BenchRun) -> RunRecord:
         trajectory_modulus=modulus,
         wall_clock_h=wall_h,
         operator_visits=visits,
+        wall_clock_both_h=wall_both_h,
+        operator_visits_both=visits_both,
     )
 
 

@@ -174,7 +174,7 @@ def records_to_json(records: Sequence[RunRecord], config: BenchConfig, wall_s: f
     for r in records:
         d = asdict(replace(r, maps=None))
         d.pop("maps")
-        for key in ("wall_clock_h", "operator_visits"):
+        for key in ("wall_clock_h", "operator_visits", "wall_clock_both_h", "operator_visits_both"):
             if d[key] is None:
                 d.pop(key)  # a bench without a calendar writes the file it always wrote
         # MAPE to 1e-6 %: a report rendered again from this file finds the same looser-target times

@@ -143,7 +143,10 @@ class PosteriorCov:
     """Posterior covariance of the latent map between a reference lattice R and candidate centres C.
 
     Holds C(R, cand) and the candidates' variances; ``condition_on`` folds in a planned (not yet measured)
-    grid, so the next pick sees what the earlier picks will already have taught.
+    grid, so the next pick sees what the earlier picks will already have taught. Each planned pick is a
+    rank-one downdate kept as its two factors (over R and over the candidates) rather than applied to the
+    m × k matrix: a greedy block of b picks then costs b matrix-vector products instead of b rewrites and
+    squarings of C(R, cand), and the integrated reduction (``spread``) is updated exactly from the factors.
     """
 
     post: _ExactPosterior
@@ -151,11 +154,13 @@ class PosteriorCov:
     ref_w: np.ndarray  # (m,) weights, summing to 1
     cand_uv: np.ndarray  # (k, 2)
     f_cand: np.ndarray  # (r, k) the candidates' factors (``_ExactPosterior.factor``)
-    cov_rc: np.ndarray  # (m, k)
+    cov_rc0: np.ndarray  # (m, k) before any planned pick
     var_c: np.ndarray  # (k,)
     downdates: list[np.ndarray] = field(
         default_factory=list
     )  # planned picks, as rank-1 updates over candidates
+    ref_downdates: list[np.ndarray] = field(default_factory=list)  # the same picks' factors over R, (m,)
+    spread_c: np.ndarray | None = None  # Σ_x w(x)·C(x, c)² once computed (kept through conditioning)
 
     @classmethod
     def build(
@@ -178,15 +183,21 @@ class PosteriorCov:
         var_c = np.maximum(post.var(f_cand), 1e-12 * post.os)
         return cls(post, ref_uv, ref_w / ref_w.sum(), cand_uv, f_cand, cov_rc, var_c)
 
-    def __post_init__(self) -> None:
-        self._spread: np.ndarray | None = None
+    @property
+    def cov_rc(self) -> np.ndarray:
+        """C(R, cand) with the planned picks folded in (materialised: for tests and inspection)."""
+        out = self.cov_rc0.copy()
+        for a, u in zip(self.ref_downdates, self.downdates, strict=True):
+            out -= np.outer(a, u)
+        return out
 
     @property
     def spread(self) -> np.ndarray:
         """Σ_x w(x)·C(x, c)² per candidate: how much of the map each candidate is correlated with."""
-        if self._spread is None:
-            self._spread = np.asarray(self.ref_w @ (self.cov_rc * self.cov_rc), dtype=float)
-        return self._spread
+        if self.spread_c is None:
+            c = self.cov_rc
+            self.spread_c = np.asarray(self.ref_w @ (c * c), dtype=float)
+        return self.spread_c
 
     def gain(self, noise_var: np.ndarray | float) -> np.ndarray:
         """IVR of every candidate measured with the given noise variance (GPa², per candidate)."""
@@ -200,9 +211,11 @@ class PosteriorCov:
             self.ref_w,
             self.cand_uv[cols],
             self.f_cand[:, cols],
-            self.cov_rc[:, cols],
+            self.cov_rc0[:, cols],
             self.var_c[cols],
             [u[cols] for u in self.downdates],
+            list(self.ref_downdates),
+            None if self.spread_c is None else self.spread_c[cols],
         )
 
     def cov_with(self, j: int) -> np.ndarray:
@@ -212,22 +225,40 @@ class PosteriorCov:
             row = row - u[j] * u
         return np.asarray(row, dtype=float)
 
+    def _ref_column(self, j: int) -> np.ndarray:
+        """C(R, candidate j) with the planned picks folded in."""
+        col = self.cov_rc0[:, j].copy()
+        for a, u in zip(self.ref_downdates, self.downdates, strict=True):
+            col -= u[j] * a
+        return col
+
     def condition_on(self, j: int, noise_var: float) -> PosteriorCov:
-        """The covariance after candidate j is measured with ``noise_var`` (a new object; self is unchanged)."""
+        """The covariance after candidate j is measured with ``noise_var`` (a new object; self is unchanged).
+
+        With C' = C − a uᵀ (a = C(R, j)/√d, u = C(cand, j)/√d): Σ w C'² = Σ w C² − 2u·((w a)ᵀC) + u²·Σ w a²."""
         cj = self.cov_with(j)
-        denom = float(self.var_c[j] + noise_var)
-        u = cj / math.sqrt(denom)
-        cov_rc = self.cov_rc - np.outer(self.cov_rc[:, j] / math.sqrt(denom), u)
+        root = math.sqrt(float(self.var_c[j] + noise_var))
+        u = cj / root
+        a = self._ref_column(j) / root
         var_c = np.maximum(self.var_c - u * u, 1e-12 * self.post.os)
+        spread = None
+        if self.spread_c is not None:
+            wa = self.ref_w * a
+            cross = wa @ self.cov_rc0
+            for a_i, u_i in zip(self.ref_downdates, self.downdates, strict=True):
+                cross -= float(wa @ a_i) * u_i
+            spread = np.maximum(self.spread_c - 2.0 * u * cross + u * u * float(wa @ a), 0.0)
         return PosteriorCov(
             self.post,
             self.ref_uv,
             self.ref_w,
             self.cand_uv,
             self.f_cand,
-            cov_rc,
+            self.cov_rc0,
             var_c,
             [*self.downdates, u],
+            [*self.ref_downdates, a],
+            spread,
         )
 
 

@@ -22,6 +22,7 @@ from core.campaign import Campaign
 from core.driver import Driver
 from core.interlock import Interlock
 from core.metrics import MapEvaluator
+from core.operator import Attendance
 from core.profile import InstrumentProfile
 from core.run.engine import Engine
 from core.run.events import RunRecord, Sink
@@ -115,7 +116,7 @@ def compose(
         spec.campaign,
         refit_every=spec.refit_every,
         wall_s_per_instrument_s=spec.wall_s_per_instrument_s,
-        unattended=visits.unattended if visits is not None else None,
+        attendance=Attendance(visits.unattended if visits is not None else None),
     )
     if prepare is not None:
         prepare(campaign)

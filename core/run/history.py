@@ -114,10 +114,11 @@ class HistoryFold:
 
     # -- the live feeder --------------------------------------------------------------------------
     def emit(self, event: RunEvent) -> None:
-        """One event as the engine emits it."""
+        """One event as the engine emits it: any event says an engine ran (a log whose first row is an
+        instrument state still has that state restored)."""
         plan: PlanState | None = None
+        self.session()
         if isinstance(event, StateChanged):
-            self.session()
             self.state_changed(event.state.value, event.completed, event.stop_reason)
         elif isinstance(event, Decided):
             self.decided(event.decision_id, event.decision, event.status, event.why)
@@ -143,8 +144,6 @@ class HistoryFold:
             plan = event.plan
         elif isinstance(event, PlanChanged):
             plan = event.plan
-        else:
-            self.started = True  # SessionBegan, Logged, Waiting, CommandDone, SessionEnded
         if plan is not None:
             self.planner(plan.state, plan.settings)
 

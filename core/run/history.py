@@ -6,8 +6,8 @@ rows each event became (``core.journal.sink.fold_history``) through the same ste
 two to the same answer at every point of a run.
 
 The fold's state per kind depends only on that kind's order (the latest plan, the latest instrument
-state, a block's latest status, a decision's resolution), so a feeder may give the kinds one after the
-other, each in the order it was written.
+state, a block's latest status, a decision's resolution). The console's view is the other fold over the
+same log (core.journal.snapshot).
 """
 
 from __future__ import annotations

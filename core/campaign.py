@@ -134,12 +134,14 @@ class Campaign:
         refit_every: int = 1,
         wall_s_per_instrument_s: float = 1.0,
         attendance: Attendance | None = None,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
         """``refit_every`` > 1 refits only after every so many blocks (the bench's grid, which never looks at
         the model); ``wall_s_per_instrument_s``: how much wall time an instrument second takes (1 on a real
         instrument, 1/speed on a sped-up simulation, 0 as fast as possible), for ``stop_at``; ``attendance``:
         when anyone next comes (a simulated operator, core.visits, or the run's operator as the engine
-        follows them), None: the run is planned as if someone were always there."""
+        follows them), None: the run is planned as if someone were always there; ``wall_clock``: the local
+        wall clock ``stop_at`` is read on (UNIX seconds)."""
         if refit_every < 1:
             raise InputError("refit_every", f"{refit_every!r} is not allowed: expected a whole number ≥ 1")
         sample = sample or config.sample
@@ -206,7 +208,7 @@ class Campaign:
         self.last_stop_reason: str | None = None
         self.budget_note = ""  # how the last block was sized to fit a budget, for the stop reason
         # stop_at runs on the local wall clock
-        self.wall_clock: Callable[[], float] = time.time
+        self.wall_clock = wall_clock
         self.wall_s_per_instrument_s = wall_s_per_instrument_s
         self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
         self.refit_every = refit_every

@@ -58,12 +58,11 @@ def final_maps(path: str | Path) -> FinalMaps | None:
 
     with JournalReader(path) as r:
         config = campaign_config_from_dict(dict(r.meta["config"]))
-        latest = r.q.latest_campaign_state()
-        observed = r.q.observed_blocks()
-    if latest is None or config.sample is None:
-        return None  # nothing observed yet, or a journal that holds no sample (a test's scripted campaign)
+        history = r.history()  # the resume's fold of the run's events
+    if history is None or history.plan is None or config.sample is None:
+        return None  # nothing planned yet, or a journal that holds no sample (a test's scripted campaign)
     campaign = Campaign(config)
-    campaign.restore(latest[0], observed)
+    campaign.restore(history.plan[0], history.observed)
     if campaign.prediction is None:
         return None
     inside = (

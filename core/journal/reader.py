@@ -19,7 +19,6 @@ from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
 from core.journal.codec import (
     INDENT_COLS,
     BlockRecord,
-    DriverState,
     StoredCommand,
     StoredDecision,
     block_from_dict,
@@ -38,9 +37,10 @@ from core.journal.schema import (
     user_name,
 )
 from core.journal.snapshot import SnapshotFold
-from core.plan import Block, Decision, IndentResult, PlannerSettings
+from core.plan import Block, Decision, IndentResult
 from core.profile import profile_from_dict
-from core.run.events import RunEvent
+from core.run.events import RunEvent, RunHistory
+from core.run.history import HistoryFold
 from core.runview import (
     ApprovalDeadline,
     DriftStatus,
@@ -86,23 +86,6 @@ class Queries:
             )
         return out
 
-    def latest_driver_state(self) -> DriverState | None:
-        row = self.conn.execute(
-            "SELECT clock_s, physics_clock_s, x_um, y_um, program_open, reason FROM driver_states "
-            "ORDER BY id DESC LIMIT 1"
-        ).fetchone()
-        if row is None:
-            return None
-        return DriverState(row[0], row[1], (row[2], row[3]), bool(row[4]), row[5])
-
-    def latest_campaign_state(self) -> tuple[dict[str, Any], PlannerSettings] | None:
-        row = self.conn.execute(
-            "SELECT state_json, settings_json FROM campaign_states ORDER BY id DESC LIMIT 1"
-        ).fetchone()
-        if row is None:
-            return None
-        return json.loads(row[0]), settings_from_dict(json.loads(row[1]))
-
     def results(self, block_id: int) -> list[IndentResult]:
         rows = self.conn.execute(
             f"SELECT {INDENT_COLS} FROM indents WHERE block_id = ? ORDER BY indent_index", (block_id,)
@@ -119,9 +102,6 @@ class Queries:
         )
         return [(block_from_dict(json.loads(j)), s, d) for j, s, d in rows]
 
-    def observed_blocks(self) -> list[tuple[Block, list[IndentResult]]]:
-        return [(b, self.results(b.block_id)) for b, _, _ in self.block_rows("WHERE status = 'observed'")]
-
     def open_block(self) -> tuple[Block, str, int] | None:
         """The latest block that was planned but not yet observed, with its status and indents done."""
         rows = self.block_rows("WHERE status != 'observed'")
@@ -132,14 +112,6 @@ class Queries:
             "SELECT COUNT(*) FROM indents WHERE block_id = ?", (block.block_id,)
         ).fetchone()
         return block, status, int(done[0])
-
-    def decision(self, decision_id: int) -> StoredDecision | None:
-        row = self.conn.execute(
-            "SELECT decision_id, decision_json, status, needs_approval_reason, t_s FROM decisions "
-            "WHERE decision_id = ?",
-            (decision_id,),
-        ).fetchone()
-        return self._stored_decision(row)
 
     def _stored_decision(self, row: Sequence[Any] | None) -> StoredDecision | None:
         if row is None:
@@ -152,25 +124,6 @@ class Queries:
             "WHERE status = 'pending' ORDER BY decision_id DESC LIMIT 1"
         ).fetchone()
         return self._stored_decision(row)
-
-    def last_accepted_decision(self) -> StoredDecision | None:
-        row = self.conn.execute(
-            "SELECT decision_id, decision_json, status, needs_approval_reason, t_s FROM decisions "
-            "WHERE status IN ('approved', 'auto') ORDER BY decision_id DESC LIMIT 1"
-        ).fetchone()
-        return self._stored_decision(row)
-
-    def recovery_seconds(self) -> float:
-        row = self.conn.execute(
-            "SELECT COALESCE(SUM(seconds), 0) FROM steps WHERE category = 'recovery'"
-        ).fetchone()
-        return float(row[0])
-
-    def max_block_id(self) -> int:
-        row = self.conn.execute(
-            "SELECT MAX(m) FROM (SELECT MAX(block_id) AS m FROM blocks UNION ALL SELECT MAX(block_id) FROM decisions)"
-        ).fetchone()
-        return -1 if row[0] is None else int(row[0])
 
 
 def drift_status(
@@ -368,6 +321,15 @@ class JournalReader:
         for s, wall, event in self._rows(self._replay.seq, seq):
             self._replay.emit(event, s, wall)
         return self._replay
+
+    def history(self) -> RunHistory | None:
+        """The run so far as a resume folds it (core.run.history), from the same events; None: no engine
+        has run on it yet. The report rebuilds the final maps from it."""
+        fold = HistoryFold()
+        with self._read():
+            for _, _, event in self._rows(0):
+                fold.emit(event)
+        return fold.history()
 
     def replay_blocks(self) -> list[int]:
         """The blocks a replay steps through: every observed block with indents, in order."""

@@ -27,7 +27,7 @@ from core.geometry import CandidateLattice
 from core.metrics import MapScore
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.modulus import ModulusMap, drift_corrected_modulus_gpa, modulus_values_of
-from core.operator import LoadWindow
+from core.operator import Attendance
 from core.plan import Block, Decision, IndentResult, PlannerSettings, decision_from_dict
 from core.policies.base import (
     DEFAULT_PITCH_UM,
@@ -35,6 +35,7 @@ from core.policies.base import (
     ModulusView,
     PlanContext,
     PlansStretches,
+    Policy,
     base_mask,
 )
 from core.policies.registry import RECOMMENDED, RunFacts, make_policy
@@ -133,13 +134,15 @@ class Campaign:
         *,
         refit_every: int = 1,
         wall_s_per_instrument_s: float = 1.0,
-        unattended: Callable[[float], LoadWindow | None] | None = None,
+        attendance: Attendance | None = None,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
         """``refit_every`` > 1 refits only after every so many blocks (the bench's grid, which never looks at
         the model); ``wall_s_per_instrument_s``: how much wall time an instrument second takes (1 on a real
-        instrument, 1/speed on a sped-up simulation, 0 as fast as possible), for ``stop_at``; ``unattended``:
-        how long the next load runs before anyone comes again (a simulated operator, core.visits), None: the
-        run is planned as if someone were always there."""
+        instrument, 1/speed on a sped-up simulation, 0 as fast as possible), for ``stop_at``; ``attendance``:
+        when anyone next comes (a simulated operator, core.visits, or the run's operator as the engine
+        follows them), None: the run is planned as if someone were always there; ``wall_clock``: the local
+        wall clock ``stop_at`` is read on (UNIX seconds)."""
         if refit_every < 1:
             raise InputError("refit_every", f"{refit_every!r} is not allowed: expected a whole number ≥ 1")
         sample = sample or config.sample
@@ -161,8 +164,14 @@ class Campaign:
         # are avoided as it makes them
         self.placement_mask = sample.allowed(self.lattice.xy_um, 2 * DEFAULT_PITCH_UM)
         self.placement_mask.flags.writeable = False
-        self.policy = make_policy(config.policy, RunFacts.of(self.profile))
-        parts = self.policy.parts
+        # the policy as ``aeni`` reads the run: its block design plans stretches once the run knows when its
+        # operator comes (registry.run_recipe); both made now, the attendance picks (planners keep no state)
+        self._policies = (
+            make_policy(config.policy, RunFacts.of(self.profile, has_calendar=False)),
+            make_policy(config.policy, RunFacts.of(self.profile, has_calendar=True)),
+        )
+        self.attendance = attendance or Attendance()
+        parts = self._policies[0].parts
         self.noise = parts.noise
         self._needs_covariance = parts.needs_covariance
         self.settings = config.settings
@@ -208,28 +217,16 @@ class Campaign:
         self.last_stop_reason: str | None = None
         self.budget_note = ""  # how the last block was sized to fit a budget, for the stop reason
         # stop_at runs on the local wall clock
-        self.wall_clock: Callable[[], float] = time.time
+        self.wall_clock = wall_clock
         self.wall_s_per_instrument_s = wall_s_per_instrument_s
         self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
         self.refit_every = refit_every
-        # how long the next load runs before anyone comes again (a simulated operator, core.visits); None:
-        # the run is planned as if someone were always there. A calendar makes the policy again (the setter)
-        self._unattended: Callable[[float], LoadWindow | None] | None = None
-        self.unattended = unattended
         self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
 
     @property
-    def unattended(self) -> Callable[[float], LoadWindow | None] | None:
-        return self._unattended
-
-    @unattended.setter
-    def unattended(self, window: Callable[[float], LoadWindow | None] | None) -> None:
-        """A calendar is a fact of the run that ``aeni`` reads (registry.run_recipe): the policy is made
-        again from it (planners keep no state of their own; their block design is all that changes)."""
-        had = self._unattended is not None
-        self._unattended = window
-        if had != (window is not None):
-            self.policy = make_policy(self.config.policy, RunFacts.of(self.profile, window is not None))
+    def policy(self) -> Policy:
+        """The policy the next proposal uses (with stretches once the run knows when its operator comes)."""
+        return self._policies[self.attendance.known]
 
     # -- static facts ----------------------------------------------------------------------------
     @functools.cached_property
@@ -398,7 +395,7 @@ class Campaign:
             placement_mask=self.placement_mask,
             sample=self.sample,
             modulus=self._modulus_view(),
-            unattended=self.unattended(clock_s) if self.unattended is not None else None,
+            unattended=self.attendance.window(clock_s),
             fidelity=self.fast.view() if self.fast is not None else None,
         )
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import re
 from bisect import bisect_right
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 
@@ -178,6 +179,30 @@ class LoadWindow:
     fill_s: float
     last_answer_s: float = math.inf
     next_answer_s: float = math.inf
+
+
+class Attendance:
+    """When anyone will next come to the instrument, as the planner asks it before it designs a load.
+
+    One object shared by the campaign (which reads it) and the engine (which follows the operator's word: an
+    away-until, the run file's hours on the local clock); the campaign is never reconfigured for it. Without
+    a window the run is planned as if someone were always there."""
+
+    def __init__(self, window: Callable[[float], LoadWindow | None] | None = None) -> None:
+        self._window = window
+
+    @property
+    def known(self) -> bool:
+        """The run knows when its operator is there (a calendar, an [operator] section, an away-until)."""
+        return self._window is not None
+
+    def window(self, clock_s: float) -> LoadWindow | None:
+        """The next load's window for a request at instrument time ``clock_s`` (None: always attended)."""
+        return None if self._window is None else self._window(clock_s)
+
+    def follow(self, window: Callable[[float], LoadWindow | None] | None) -> None:
+        """The operator's availability changed: later loads are planned by ``window``."""
+        self._window = window
 
 
 @dataclass(frozen=True)

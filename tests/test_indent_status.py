@@ -166,10 +166,6 @@ def test_the_campaign_learns_only_from_measured_indents(tmp_path: Path) -> None:
     assert (campaign.observations().median_gpa == before.median_gpa).all()
 
 
-@pytest.mark.xfail(
-    reason="KNOWN REGRESSION of this round's merge (issue 35): a resume from the event log no longer asks an unrestorable driver to be put back; to mend next session",
-    strict=False,
-)
 def test_a_driver_that_cannot_be_restored_cannot_resume_a_run(tmp_path: Path) -> None:
     j = new_journal(tmp_path)
     j.begin_session(

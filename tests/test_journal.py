@@ -34,6 +34,7 @@ from core.journal import (
 from core.journal.schema import SCHEMA_VERSION
 from core.plan import Alternative, Block, Decision, IndentResult, PlannerSettings, StepRecord, local_grid
 from core.profile import load_profile
+from core.run.events import Decided, FitSummary, Indent, Observed, PlanState, StateChanged
 from core.runview import Command, CommandKind, EngineState, MapFields
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,27 +78,42 @@ def fill(j: Journal, n_blocks: int, g: int = 5) -> None:
             3000.0,
             alternatives=(Alternative(1.0, 2.0, "local", 0.1, 0.2, 30.0),),
         )
-        did = j.record_decision(d, t, "auto")
-        j.record_block_planned(b, did, t, {"blocks_done": bid}, PlannerSettings())
+        j.emit(
+            Decided(
+                t,
+                bid + 1,
+                d,
+                "auto",
+                "",
+                "",
+                PlanState(bid, "planned", {"blocks_done": bid}, PlannerSettings()),
+            )
+        )
         for i in range(b.n_indents):
             t += 120.0
-            j.record_indent(
-                result(b, i, t),
-                [(StepRecord("indent", 40.0, bid, i), t - 80), (StepRecord("hold", 80.0, bid, i), t)],
-                DriverState(t, t, (b.indents[i].x_um, b.indents[i].y_um), True, "indent"),
+            j.emit(
+                Indent(
+                    t,
+                    result(b, i, t),
+                    ((StepRecord("indent", 40.0, bid, i), t - 80), (StepRecord("hold", 80.0, bid, i), t)),
+                    DriverState(t, t, (b.indents[i].x_um, b.indents[i].y_um), True, "indent"),
+                )
             )
         xs = np.linspace(0, 1000, 50)
         z = np.full((50, 50), 5.0, dtype=np.float32)
-        j.record_observation(
-            bid,
-            t,
-            j.next_snapshot_id(),
-            {"ls": [0.1, 0.2]},
-            {"mape_pct": 3.0, "lengthscales_um": [100.0, 200.0], "collapse_alarm": False},
-            MapFields(0, xs, xs, z, z, z, z),
-            {"blocks_done": bid + 1},
-            PlannerSettings(beta=1.5),
-            text=f"block {bid} observed",
+        fit = FitSummary(3.0, None, fitted=True, lengthscales_um=(100.0, 200.0))
+        plan = PlanState(bid, "observed", {"blocks_done": bid + 1}, PlannerSettings(beta=1.5))
+        j.emit(
+            Observed(
+                t,
+                bid,
+                j.next_snapshot_id(),
+                {"ls": [0.1, 0.2]},
+                fit,
+                MapFields(0, xs, xs, z, z, z, z),
+                plan,
+                f"block {bid} observed",
+            )
         )
 
 
@@ -113,7 +129,7 @@ def test_create_and_snapshot(tmp_path: Path) -> None:
         assert snap.n_indents == 0 and snap.queue == () and snap.grid_baseline_s == 286392.0
         assert snap.settings.beta == 2.0  # from the config until the planner records its own
     fill(j, 3)
-    j.set_state(EngineState.RUNNING)
+    j.emit(StateChanged(0.0, EngineState.RUNNING))
     with JournalReader(path) as r:
         snap = r.snapshot()
         assert snap.state == EngineState.RUNNING and not snap.finished and snap.can_command
@@ -132,10 +148,24 @@ def test_create_and_snapshot(tmp_path: Path) -> None:
 def test_queue_etas_follow_the_cost_model(tmp_path: Path) -> None:
     j = make_journal(tmp_path / "q.sqlite")
     b = block(0, "global", 2)
-    did = j.record_decision(Decision(b, "p", 1.0, 1.0, 1.0), 0.0, "auto")
-    j.record_block_planned(b, did, 0.0)
-    j.record_indent(
-        result(b, 0, 500.0), [], DriverState(500.0, 500.0, (b.indents[0].x_um, b.indents[0].y_um), True, "i")
+    j.emit(
+        Decided(
+            0.0,
+            1,
+            Decision(b, "p", 1.0, 1.0, 1.0),
+            "auto",
+            "",
+            "",
+            PlanState(0, "planned", {}, PlannerSettings()),
+        )
+    )
+    j.emit(
+        Indent(
+            500.0,
+            result(b, 0, 500.0),
+            (),
+            DriverState(500.0, 500.0, (b.indents[0].x_um, b.indents[0].y_um), True, "i"),
+        )
     )
     with JournalReader(j.path) as r:
         q = r.snapshot().queue
@@ -380,7 +410,7 @@ def test_snapshot_of_a_large_journal_reads_everything(tmp_path: Path) -> None:
     j = make_journal(tmp_path / "big.sqlite")
     j.conn.execute("PRAGMA synchronous = OFF")  # test data: 2,000 fsyncs would only slow the suite
     fill(j, 80)
-    j.set_state(EngineState.RUNNING)
+    j.emit(StateChanged(0.0, EngineState.RUNNING))
     with JournalReader(j.path) as r:
         for _ in range(3):
             s = r.snapshot()

@@ -4,6 +4,8 @@ relative epistemic sd), with the reason journaled."""
 from __future__ import annotations
 
 import datetime
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +16,12 @@ from core.runconfig import parse_run_config
 from drivers.registry import default_sample, make_driver
 
 
-def _campaign(settings: PlannerSettings, seed: int = 0) -> Campaign:
+def _campaign(
+    settings: PlannerSettings, seed: int = 0, wall_clock: Callable[[], float] = time.time
+) -> Campaign:
     sample = default_sample("sim", {"scenario": "ternary"}, seed)
-    return Campaign(CampaignConfig(policy="aeni", seed=seed, settings=settings, sample=sample))
+    config = CampaignConfig(policy="aeni", seed=seed, settings=settings, sample=sample)
+    return Campaign(config, wall_clock=wall_clock)
 
 
 def _local(hour: int, minute: int, days: int = 0) -> float:
@@ -37,9 +42,7 @@ def _run_block(c: Campaign, driver: object, block_id: int) -> bool:
 def test_stop_at_runs_the_last_block_that_ends_before_it_and_says_so() -> None:
     wall = [_local(7, 0)]
     settings = PlannerSettings(stop_at="07:30", budget_s=1e9)
-    c = _campaign(settings)
-    c.wall_clock = lambda: wall[0]
-    c.stop_at_epoch_s = c._resolve_stop_at("07:30")  # as if the run started at 07:00
+    c = _campaign(settings, wall_clock=lambda: wall[0])  # the run starts at 07:00
     assert c.stop_at_epoch_s == _local(7, 30)
     driver = make_driver("sim", c.sample, c.profile, {"scenario": "ternary"}, seed=0)
     ends = []
@@ -59,13 +62,11 @@ def test_stop_at_runs_the_last_block_that_ends_before_it_and_says_so() -> None:
 
 
 def test_stop_at_means_the_next_such_time_and_a_resumed_run_keeps_it() -> None:
-    c = _campaign(PlannerSettings(stop_at="08:00"))
-    c.wall_clock = lambda: _local(9, 0)
-    assert c._resolve_stop_at("08:00") == _local(8, 0, days=1)  # 08:00 has passed today: tomorrow's
-    c.stop_at_epoch_s = _local(8, 0)
-    state = c.export_state()
-    again = _campaign(PlannerSettings(stop_at="08:00"))
-    again.wall_clock = lambda: _local(9, 0)
+    c = _campaign(PlannerSettings(stop_at="08:00"), wall_clock=lambda: _local(9, 0))
+    assert c.stop_at_epoch_s == _local(8, 0, days=1)  # 08:00 has passed today: tomorrow's
+    state = _campaign(PlannerSettings(stop_at="08:00"), wall_clock=lambda: _local(7, 0)).export_state()
+    assert state["stop_at_epoch_s"] == _local(8, 0)  # started at 07:00: today's 08:00
+    again = _campaign(PlannerSettings(stop_at="08:00"), wall_clock=lambda: _local(9, 0))
     again.restore(state, [])
     assert again.stop_at_epoch_s == _local(8, 0)  # resumed after 08:00: the run is over, not tomorrow's
     assert "stop_at 08:00" in (again.stop_reason(0.0) or "")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -12,7 +11,7 @@ import pytest
 
 from core.errors import InputError
 from core.journal import JournalReader
-from core.operator import LoadWindow, OperatorAvailability, OperatorHours, parse_start
+from core.operator import Attendance, LoadWindow, OperatorAvailability, OperatorHours, parse_start
 from core.runconfig import parse_run_config
 from core.runview import CommandKind, EngineState
 from core.visits import OperatorCalendar, SimulatedOperator
@@ -141,10 +140,10 @@ def test_away_until_makes_the_engine_plan_for_nobody_until_then(tmp_path: Path) 
     seen: list[LoadWindow | None] = []
 
     class Listening(FakeCampaign):
-        unattended: Callable[[float], LoadWindow | None] | None = None
+        attendance = Attendance()
 
         def propose(self, clock_s: float, *a: Any) -> Any:
-            seen.append(None if self.unattended is None else self.unattended(clock_s))
+            seen.append(self.attendance.window(clock_s))
             return super().propose(clock_s, *a)
 
     now = datetime(2024, 1, 1, 17, 0)  # a Monday, 17:00
@@ -245,18 +244,19 @@ def test_aeni_reads_the_run_its_calendar_and_its_profile() -> None:
     assert blocks("aeni+stretch", RunFacts.of(imicro, has_calendar=True)).stretch_min_s == 3 * 3600
 
 
-def test_a_campaign_makes_its_policy_again_when_it_learns_of_a_calendar() -> None:
+def test_a_campaign_plans_stretches_once_its_attendance_knows_a_calendar() -> None:
     from core.campaign import Campaign
     from core.runconfig import make_campaign_config
     from drivers.registry import sim_scenario
 
     config = make_campaign_config(scenario="ternary", policy="aeni", seed=0, lattice_n=12)
-    campaign = Campaign(config, sim_scenario(config.driver_options, 0, None).sample)
+    attendance = Attendance()
+    campaign = Campaign(config, sim_scenario(config.driver_options, 0, None).sample, attendance=attendance)
     assert campaign.policy.parts.blocks.stretch_min_s is None  # type: ignore[union-attr]
     cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start("Mon 17:00"))
-    campaign.unattended = cal.operator().unattended
+    attendance.follow(cal.operator().unattended)  # what the engine does when the operator's word changes
     assert campaign.policy.parts.blocks.stretch_min_s == 0.0  # type: ignore[union-attr]
-    campaign.unattended = None
+    attendance.follow(None)
     assert campaign.policy.parts.blocks.stretch_min_s is None  # type: ignore[union-attr]
 
 

@@ -1,15 +1,14 @@
 """The console's sources backed by a real run journal: a live run, and a finished run to step through.
 
 ``JournalSource`` is a thin, lock-guarded wrapper over ``core.journal.JournalReader`` (one reader per
-console, used from the feed thread). ``JournalReplay`` steps through the same view cut off just after
-each observed block (``JournalReader.snapshot(upto=...)``): one set of rules for the live console and
-replay, so an operator can walk a run block by block and see the map, the ledger and the decision that
+console, used from the feed thread), whose view is the fold of the run's events (core.journal.snapshot).
+``JournalReplay`` steps through the same fold stopped just after each observed block
+(``JournalReader.snapshot(upto=...)``): one set of rules for the live console and replay, so an operator can walk a run block by block and see the map, the ledger and the decision that
 came next as the console showed them.
 """
 
 from __future__ import annotations
 
-import math
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -17,7 +16,7 @@ from pathlib import Path
 from core.errors import InputError
 from core.journal import JournalReader, engine_running, send_command
 from core.run.tray_view import SampleProgress, journal_tray, tray_progress
-from core.runview import Command, IndentMark, MapFields, RunSnapshot
+from core.runview import Command, MapFields, RunSnapshot
 from core.sample import Sample, sample_from_dict
 
 
@@ -42,8 +41,6 @@ class JournalSource:
         self._reader = JournalReader(self.path)
         self._seen: tuple[int, bool] | None = None
         self._sample = journal_sample(self._reader)
-        self._indents: list[IndentMark] = []
-        self._indent_rowid = 0
         self._tray = journal_tray(self._reader.meta)  # a tray run's samples, None for one sample
 
     def changed(self) -> bool:
@@ -58,32 +55,15 @@ class JournalSource:
         self._seen = now
         return True
 
-    def _new_indents(self) -> tuple[IndentMark, ...]:
-        """Every indent so far, read incrementally (an indent row is written once and never changes)."""
-        rows = self._reader.conn.execute(
-            "SELECT rowid, block_id, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um, status "
-            "FROM indents WHERE rowid > ? ORDER BY rowid",
-            (self._indent_rowid,),
-        ).fetchall()
-        for rowid, bid, cx, cy, ax, ay, status in rows:
-            self._indent_rowid = rowid
-            seen = ax is not None and ay is not None and math.isfinite(ax) and math.isfinite(ay)
-            x, y = (ax, ay) if seen else (cx, cy)  # where the tip went, else where it was sent
-            self._indents.append(IndentMark(float(x), float(y), int(bid), str(status)))
-        return tuple(self._indents)
-
     def snapshot(self, upto: int | None = None) -> RunSnapshot:
-        """The run now, or (``upto``) just after that observed block, with the sample and the indents so far."""
+        """The run now, or (``upto``) just after that observed block, with the sample it was planned on."""
         with self._lock:
             snap = self._reader.snapshot(self.reader_user, upto)
-            indents = self._new_indents()
-            if upto is not None:
-                indents = tuple(m for m in indents if m.block_id <= upto)
             tray: tuple[SampleProgress, ...] = ()
             if self._tray is not None and upto is None:  # (a replay's past block: its state then is not kept)
                 latest = self._reader.latest_campaign_state()
                 tray = tuple(tray_progress(self._tray, None if latest is None else latest[0]))
-            return replace(snap, sample=self._sample, indents=indents, tray=tray)
+            return replace(snap, sample=self._sample, tray=tray)
 
     def map_fields(self, snapshot_id: int) -> MapFields | None:
         with self._lock:

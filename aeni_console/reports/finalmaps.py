@@ -63,12 +63,11 @@ def final_maps(path: str | Path) -> FinalMaps | None:
         if journal_tray(r.meta) is not None:
             return None  # a tray's maps are its libraries' own: tray_final_maps
         config = campaign_config_from_dict(dict(r.meta["config"]))
-        latest = r.q.latest_campaign_state()
-        observed = r.q.observed_blocks()
-    if latest is None or config.sample is None:
-        return None  # nothing observed yet, or a journal that holds no sample (a test's scripted campaign)
+        history = r.history()  # the resume's fold of the run's events
+    if history is None or history.plan is None or config.sample is None:
+        return None  # nothing planned yet, or a journal that holds no sample (a test's scripted campaign)
     campaign = Campaign(config)
-    campaign.restore(latest[0], observed)
+    campaign.restore(history.plan[0], history.observed)
     return _maps_of(campaign)
 
 
@@ -79,12 +78,11 @@ def tray_final_maps(path: str | Path) -> dict[str, FinalMaps | None]:
         if tray is None:
             return {}
         spec = run_spec_from_meta(r.meta)
-        latest = r.q.latest_campaign_state()
-        observed = r.q.observed_blocks()
-    if latest is None:
+        history = r.history()
+    if history is None or history.plan is None:
         return {s.name: None for s in tray.libraries}
     campaign = TrayCampaign(tray, spec.campaign)
-    campaign.restore(latest[0], observed)
+    campaign.restore(history.plan[0], history.observed)
     return {name: _maps_of(lane.campaign) for name, lane in campaign.lanes.items()}
 
 

@@ -123,8 +123,9 @@ def write_tray_report(path: str | Path, out_dir: str | Path) -> list[Path]:
             raise InputError(str(path), "not a tray run: `aeni report` writes its single-sample report")
         config = run_spec_from_meta(r.meta).campaign
         blocks = [b for b, _, _ in r.q.block_rows()]
-        latest = r.q.latest_campaign_state()
-        observed = r.q.observed_blocks()
+        history = r.history()  # the resume's fold of the run's events
+        latest = None if history is None else history.plan
+        observed = [] if history is None else history.observed
         s_cols, s_rows = r.table("steps")
         g_cols, g_rows = r.table("gp_snapshots")
         on = _block_samples(tray, blocks)

@@ -7,7 +7,8 @@ so a crash loses at most the indent in flight. See docs/journal.md for the schem
 
 The package follows the file's seams: ``schema`` (tables, version, opening, the lock), ``codec`` (records
 in and out), ``reader`` (queries and the consoles' view), ``writer`` (the engine's transactions and
-the console's command row) and ``sink`` (the journal as the engine's run record: events in, the resume fold out).
+the console's command row), ``eventlog`` (every event, typed, in order), ``snapshot`` (the console's fold over
+it) and ``sink`` (the journal as the engine's run record: events in, the resume fold out).
 """
 
 from core.journal.codec import (

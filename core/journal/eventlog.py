@@ -4,14 +4,15 @@ Each event is one row (its kind, its instrument time, its fields as JSON) writte
 as the rows the console and the exports read (core.journal.sink), so the two never disagree. A resume
 folds the log in order (core.run.history); nothing is decoded from log text by category.
 
-A journal written before the log existed (schema 3 or 4) gets one when an engine reopens it: the events
-are rebuilt from its tables (``events_from_tables``) kind by kind, each kind in the order it was written,
-which is all the resume fold reads of them (core.run.history).
+A journal written before the log existed (schema 3 or 4) gets one when an engine reopens it (a reader
+rebuilds it in memory until then): the events are rebuilt from its tables (``events_from_tables``), each
+table in the order it was written, merged by instrument time, so both folds read them as they happened.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import json
 import sqlite3
 from collections.abc import Callable, Iterator
@@ -273,35 +274,23 @@ def read_events(conn: sqlite3.Connection, until_seq: int | None = None) -> Itera
 
 
 # -- a journal made before the log: its events rebuilt from its tables ----------------------------------
+# where an event falls among others at the same instrument time and block: a block is decided, planned,
+# its steps lead to its indents, it ends, it is observed (the next block's decision follows at that time)
+_RANK = {Decided: 0, Resolved: 0, BlockStarted: 1, Steps: 2, Indent: 3, BlockEnded: 4, Observed: 5}
+_Keyed = tuple[tuple[float, int, int], RunEvent]
+
+
 def events_from_tables(conn: sqlite3.Connection) -> Iterator[RunEvent]:
-    """What an engine emitted on a journal made before the event log, as far as its tables hold it: kind
-    by kind, each kind in the order it was written (the resume fold depends on no more)."""
+    """What an engine emitted on a journal made before the event log, as far as its tables hold it, in the
+    order it happened: each table in the order it was written, merged by instrument time (then block, then
+    the order above). The resume fold reads each kind in its own order; the console's fold and its replay
+    read them in this one. The instrument's state is known only after the last row: every event carries it."""
     if conn.execute("SELECT COUNT(*) FROM sessions").fetchone()[0] == 0:
         return
     yield SessionBegan(0.0, "start")
-    row = conn.execute("SELECT state, completed, stop_reason FROM engine_state").fetchone()
-    if row is not None:
-        yield StateChanged(0.0, EngineState(row[0]), None, bool(row[1]), str(row[2] or ""))
     plans = _plans_by_block(conn)
     # a block or a refit with no planner state of its own carries the last one (the log ends with it)
     last_plan = next(reversed(plans.values()), None)
-    for did, t_s, decision_json, status, why, by, cid in conn.execute(
-        "SELECT decision_id, t_s, decision_json, status, needs_approval_reason, resolved_by, command_id "
-        "FROM decisions ORDER BY decision_id"
-    ):
-        decision = decision_from_dict(json.loads(decision_json))
-        yield Decided(t_s, int(did), decision, "auto" if status == "auto" else "pending", why, "")
-        if status not in ("auto", "pending"):
-            yield Resolved(t_s, int(did), status, by or "", cid)
-    blocks = []
-    for block_json, status, did, t_s, finished_t_s in conn.execute(
-        "SELECT block_json, status, decision_id, planned_t_s, finished_t_s FROM blocks ORDER BY block_id"
-    ):
-        block = block_from_dict(json.loads(block_json))
-        blocks.append((block, status, finished_t_s))
-        plan = plans.get((block.block_id, "planned")) or plans.get((block.block_id, None)) or last_plan
-        if plan is not None:
-            yield BlockStarted(t_s, block, -1 if did is None else int(did), plan, ("approved", "", None))
     driver_row = conn.execute(
         "SELECT clock_s, physics_clock_s, x_um, y_um, program_open, reason FROM driver_states "
         "ORDER BY id DESC LIMIT 1"
@@ -313,45 +302,90 @@ def events_from_tables(conn: sqlite3.Connection) -> Iterator[RunEvent]:
             driver_row[0], driver_row[1], (driver_row[2], driver_row[3]), bool(driver_row[4]), driver_row[5]
         )
     )
-    for r in conn.execute(f"SELECT {indent_cols(conn)} FROM indents ORDER BY block_id, indent_index"):
-        result = result_from_row(r)
-        if driver is None:  # every indent is written with the instrument state after it
-            raise InputError(
-                "journal", f"indent {result.block_id}/{result.indent_index} has no instrument state"
+
+    def keyed(event: RunEvent, block_id: int) -> _Keyed:
+        return (float(event.t_s), block_id, _RANK[type(event)]), event
+
+    def decisions() -> Iterator[_Keyed]:
+        for did, t_s, decision_json, status, why, by, cid in conn.execute(
+            "SELECT decision_id, t_s, decision_json, status, needs_approval_reason, resolved_by, command_id "
+            "FROM decisions ORDER BY decision_id"
+        ).fetchall():
+            decision = decision_from_dict(json.loads(decision_json))
+            bid = decision.block.block_id
+            yield keyed(
+                Decided(t_s, int(did), decision, "auto" if status == "auto" else "pending", why, ""), bid
             )
-        yield Indent(result.t_s, result, (), driver)
-    for block, status, finished_t_s in blocks:
-        if status not in ("planned", "running", "observed"):
-            yield BlockEnded(finished_t_s or 0.0, block.block_id, status, finished_t_s is not None)
-    for sid, bid, t_s, hyper_json, summary_json in conn.execute(
-        "SELECT snapshot_id, block_id, t_s, hyper_json, summary_json FROM gp_snapshots ORDER BY snapshot_id"
-    ):
-        plan = plans.get((int(bid), "observed")) or plans.get((int(bid), None)) or last_plan
-        if plan is not None:
+            if status not in ("auto", "pending"):
+                yield keyed(Resolved(t_s, int(did), status, by or "", cid), bid)
+
+    ended: list[_Keyed] = []
+
+    def blocks() -> Iterator[_Keyed]:
+        for block_json, status, did, t_s, finished_t_s in conn.execute(
+            "SELECT block_json, status, decision_id, planned_t_s, finished_t_s FROM blocks ORDER BY block_id"
+        ).fetchall():
+            block = block_from_dict(json.loads(block_json))
+            plan = plans.get((block.block_id, "planned")) or plans.get((block.block_id, None)) or last_plan
+            if plan is not None:
+                started = BlockStarted(
+                    t_s, block, -1 if did is None else int(did), plan, ("approved", "", None)
+                )
+                yield keyed(started, block.block_id)
+            if status not in ("planned", "running", "observed"):
+                end = BlockEnded(finished_t_s or t_s, block.block_id, status, finished_t_s is not None)
+                ended.append(keyed(end, block.block_id))
+
+    def indents() -> Iterator[_Keyed]:
+        for r in conn.execute(
+            f"SELECT {indent_cols(conn)} FROM indents ORDER BY block_id, indent_index"
+        ).fetchall():
+            result = result_from_row(r)
+            if driver is None:  # every indent is written with the instrument state after it
+                raise InputError(
+                    "journal", f"indent {result.block_id}/{result.indent_index} has no instrument state"
+                )
+            yield keyed(Indent(result.t_s, result, (), driver), result.block_id)
+
+    def steps() -> Iterator[_Keyed]:
+        if driver is None:
+            return
+        for bid, idx, cat, sec, t_end in conn.execute(
+            "SELECT block_id, indent_index, category, seconds, t_end_s FROM steps ORDER BY step_id"
+        ).fetchall():
+            yield keyed(Steps(t_end, ((StepRecord(cat, sec, int(bid), int(idx)), t_end),), driver), int(bid))
+
+    def observed() -> Iterator[_Keyed]:
+        for sid, bid, t_s, hyper_json, summary_json in conn.execute(
+            "SELECT snapshot_id, block_id, t_s, hyper_json, summary_json FROM gp_snapshots ORDER BY snapshot_id"
+        ).fetchall():
+            plan = plans.get((int(bid), "observed")) or plans.get((int(bid), None)) or last_plan
+            if plan is None:
+                continue
             summary = json.loads(summary_json)
             known = {f.name for f in dataclasses.fields(FitSummary)}
             fit = _fit_from(
                 {k: v for k, v in summary.items() if k in known} | {"fitted": "lengthscales_um" in summary}
             )
-            yield Observed(t_s, int(bid), int(sid), json.loads(hyper_json), fit, None, plan, "")
-    steps = tuple(
-        (StepRecord(cat, sec, int(bid), int(idx)), t_end)
-        for bid, idx, cat, sec, t_end in conn.execute(
-            "SELECT block_id, indent_index, category, seconds, t_end_s FROM steps ORDER BY step_id"
-        )
-    )
-    if driver is not None and steps:
-        yield Steps(steps[-1][1], steps, driver)
+            yield keyed(
+                Observed(t_s, int(bid), int(sid), json.loads(hyper_json), fit, None, plan, ""), int(bid)
+            )
+
+    started = list(blocks())  # fills ``ended`` too
+    streams = (decisions(), iter(started), indents(), steps(), iter(ended), observed())
+    for _, event in heapq.merge(*streams, key=lambda k: k[0]):
+        yield event
+    row = conn.execute("SELECT state, completed, stop_reason FROM engine_state").fetchone()
     latest = conn.execute(
         "SELECT block_id, point, state_json, settings_json FROM campaign_states ORDER BY id DESC LIMIT 1"
     ).fetchone()
     if latest is not None:
-        yield PlanChanged(
-            0.0,
-            PlanState(
-                int(latest[0]), latest[1], json.loads(latest[2]), settings_from_dict(json.loads(latest[3]))
-            ),
+        plan = PlanState(
+            int(latest[0]), latest[1], json.loads(latest[2]), settings_from_dict(json.loads(latest[3]))
         )
+        yield PlanChanged(0.0, plan)
+    if row is not None:
+        yield StateChanged(0.0, EngineState(row[0]), None, bool(row[1]), str(row[2] or ""))
 
 
 def _plans_by_block(conn: sqlite3.Connection) -> dict[tuple[int, str | None], PlanState]:

@@ -8,7 +8,6 @@ import math
 import os
 import pwd
 import sqlite3
-import statistics
 import time
 from collections.abc import Iterator, Sequence
 from datetime import datetime
@@ -17,10 +16,8 @@ from typing import Any
 
 from core.cost import indent_steps
 from core.drift import AREA_ERROR_THRESHOLD_PCT, area_error_pct
-from core.driver import InstrumentWait
 from core.journal.codec import (
     BlockRecord,
-    DriverState,
     StoredCommand,
     StoredDecision,
     block_from_dict,
@@ -29,7 +26,7 @@ from core.journal.codec import (
     map_fields_from_bytes,
     result_from_row,
 )
-from core.journal.eventlog import decode
+from core.journal.eventlog import decode, events_from_tables
 from core.journal.schema import (
     LOG_TAIL,
     TABLES,
@@ -39,9 +36,11 @@ from core.journal.schema import (
     engine_running,
     user_name,
 )
-from core.plan import LEDGER_CATEGORIES, Block, Decision, IndentResult, PlannerSettings, StepRecord
+from core.journal.snapshot import SnapshotFold
+from core.plan import Block, Decision, IndentResult, PlannerSettings
 from core.profile import profile_from_dict
-from core.run.events import Waiting
+from core.run.events import RunEvent, RunHistory
+from core.run.history import HistoryFold
 from core.runview import (
     ApprovalDeadline,
     DriftStatus,
@@ -51,7 +50,6 @@ from core.runview import (
     MapFields,
     QueueItem,
     RunSnapshot,
-    TestedCenter,
 )
 from core.settings import settings_from_dict
 
@@ -88,23 +86,6 @@ class Queries:
             )
         return out
 
-    def latest_driver_state(self) -> DriverState | None:
-        row = self.conn.execute(
-            "SELECT clock_s, physics_clock_s, x_um, y_um, program_open, reason FROM driver_states "
-            "ORDER BY id DESC LIMIT 1"
-        ).fetchone()
-        if row is None:
-            return None
-        return DriverState(row[0], row[1], (row[2], row[3]), bool(row[4]), row[5])
-
-    def latest_campaign_state(self) -> tuple[dict[str, Any], PlannerSettings] | None:
-        row = self.conn.execute(
-            "SELECT state_json, settings_json FROM campaign_states ORDER BY id DESC LIMIT 1"
-        ).fetchone()
-        if row is None:
-            return None
-        return json.loads(row[0]), settings_from_dict(json.loads(row[1]))
-
     def results(self, block_id: int) -> list[IndentResult]:
         rows = self.conn.execute(
             f"SELECT {indent_cols(self.conn)} FROM indents WHERE block_id = ? ORDER BY indent_index",
@@ -124,9 +105,6 @@ class Queries:
         )
         return [(block_from_dict(json.loads(j)), s, d) for j, s, d in rows]
 
-    def observed_blocks(self) -> list[tuple[Block, list[IndentResult]]]:
-        return [(b, self.results(b.block_id)) for b, _, _ in self.block_rows("WHERE status = 'observed'")]
-
     def open_block(self) -> tuple[Block, str, int] | None:
         """The latest block that was planned but not yet observed, with its status and indents done."""
         rows = self.block_rows("WHERE status != 'observed'")
@@ -137,14 +115,6 @@ class Queries:
             "SELECT COUNT(*) FROM indents WHERE block_id = ?", (block.block_id,)
         ).fetchone()
         return block, status, int(done[0])
-
-    def decision(self, decision_id: int) -> StoredDecision | None:
-        row = self.conn.execute(
-            "SELECT decision_id, decision_json, status, needs_approval_reason, t_s FROM decisions "
-            "WHERE decision_id = ?",
-            (decision_id,),
-        ).fetchone()
-        return self._stored_decision(row)
 
     def _stored_decision(self, row: Sequence[Any] | None) -> StoredDecision | None:
         if row is None:
@@ -157,25 +127,6 @@ class Queries:
             "WHERE status = 'pending' ORDER BY decision_id DESC LIMIT 1"
         ).fetchone()
         return self._stored_decision(row)
-
-    def last_accepted_decision(self) -> StoredDecision | None:
-        row = self.conn.execute(
-            "SELECT decision_id, decision_json, status, needs_approval_reason, t_s FROM decisions "
-            "WHERE status IN ('approved', 'auto') ORDER BY decision_id DESC LIMIT 1"
-        ).fetchone()
-        return self._stored_decision(row)
-
-    def recovery_seconds(self) -> float:
-        row = self.conn.execute(
-            "SELECT COALESCE(SUM(seconds), 0) FROM steps WHERE category = 'recovery'"
-        ).fetchone()
-        return float(row[0])
-
-    def max_block_id(self) -> int:
-        row = self.conn.execute(
-            "SELECT MAX(m) FROM (SELECT MAX(block_id) AS m FROM blocks UNION ALL SELECT MAX(block_id) FROM decisions)"
-        ).fetchone()
-        return -1 if row[0] is None else int(row[0])
 
 
 def drift_status(
@@ -217,9 +168,9 @@ class JournalReader:
         )  # a journal of schema 3 or 4 not yet reopened by an engine has none
         self.profile = profile_from_dict(self._meta["profile"])
         self.owner_uid = self.path.stat().st_uid
-        self._tested: dict[int, TestedCenter] = {}
-        self._drift_seen_rowid = 0
-        self._drift_events: list[tuple[float, float]] = []
+        self._live = SnapshotFold()  # the run so far, advanced by each read
+        self._replay: SnapshotFold | None = None  # the run up to a replay's block
+        self._rebuilt: list[tuple[int, str, RunEvent]] | None = None  # a log-less journal's events
 
     def close(self) -> None:
         self.conn.close()
@@ -249,13 +200,10 @@ class JournalReader:
 
     # -- simple reads --------------------------------------------------------------------------
     def latest_campaign_state(self) -> tuple[dict[str, Any], PlannerSettings] | None:
-        """The planner's last journaled state (a tray's progress per sample, core.run.tray_view)."""
+        """The planner's last state in the run's events (a tray's progress per sample, core.run.tray_view)."""
         with self._read():
-            return self.q.latest_campaign_state()
-
-    def results(self) -> list[IndentResult]:
-        with self._read():
-            return self.q.all_results()
+            plan = self._fold().plan
+        return None if plan is None else (plan.state, plan.settings)
 
     def state(self) -> tuple[EngineState, bool]:
         """The engine state and whether the engine process has ended."""
@@ -300,12 +248,6 @@ class JournalReader:
         rows = self.conn.execute(f"SELECT {', '.join(cols)} FROM commands ORDER BY command_id").fetchall()
         return [dict(zip(cols, r, strict=True)) for r in rows]
 
-    def decisions(self) -> list[StoredDecision]:
-        rows = self.conn.execute(
-            "SELECT decision_id, decision_json, status, needs_approval_reason, t_s FROM decisions ORDER BY decision_id"
-        ).fetchall()
-        return [d for d in (self.q._stored_decision(r) for r in rows) if d is not None]
-
     def events(self, limit: int | None = None) -> list[LogEvent]:
         sql = "SELECT wall_utc, t_s, level, text FROM events ORDER BY event_id DESC"
         rows = self.conn.execute(sql + (f" LIMIT {int(limit)}" if limit else "")).fetchall()
@@ -316,46 +258,6 @@ class JournalReader:
             raise KeyError(name)
         cur = self.conn.execute(f"SELECT * FROM {name}")
         return [d[0] for d in cur.description], cur.fetchall()
-
-    def blocks(self) -> list[BlockRecord]:
-        """Every planned block in order with its decision, indents, steps and fit: what replay walks."""
-        with self._read() as c:
-            decisions = {d.decision_id: d.decision for d in self.decisions()}
-            results: dict[int, list[IndentResult]] = {}
-            for r in self.q.all_results():
-                results.setdefault(r.block_id, []).append(r)
-            steps: dict[int, list[StepRecord]] = {}
-            for bid, idx, cat, sec in c.execute(
-                "SELECT block_id, indent_index, category, seconds FROM steps ORDER BY step_id"
-            ):
-                steps.setdefault(bid, []).append(StepRecord(cat, sec, bid, idx))
-            snaps = {
-                bid: (sid, json.loads(summ))
-                for sid, bid, summ in c.execute(
-                    "SELECT snapshot_id, block_id, summary_json FROM gp_snapshots"
-                )
-            }
-            rows = c.execute(
-                "SELECT block_json, status, decision_id, planned_t_s, finished_t_s FROM blocks ORDER BY block_id"
-            ).fetchall()
-        out = []
-        for bj, status, did, t0, t1 in rows:
-            block = block_from_dict(json.loads(bj))
-            sid, summary = snaps.get(block.block_id, (None, {}))
-            out.append(
-                BlockRecord(
-                    block=block,
-                    status=status,
-                    decision=decisions.get(did) if did is not None else None,
-                    results=tuple(results.get(block.block_id, ())),
-                    steps=tuple(steps.get(block.block_id, ())),
-                    snapshot_id=sid,
-                    fit_summary=summary,
-                    planned_t_s=t0,
-                    finished_t_s=t1,
-                )
-            )
-        return out
 
     # -- the console's whole view ----------------------------------------------------------------
     def _owner_view(self, reader_user: str | int | None) -> tuple[str, bool]:
@@ -370,42 +272,6 @@ class JournalReader:
             except KeyError:
                 reader_uid = None
         return owner, reader_uid == self.owner_uid
-
-    def _tested_centres(self, c: sqlite3.Connection, upto: int | None) -> tuple[TestedCenter, ...]:
-        new = c.execute(
-            "SELECT b.block_id, b.center_x_um, b.center_y_um FROM blocks b WHERE b.status = 'observed' "
-            "AND b.block_id > ?",
-            (max(self._tested, default=-1),),
-        ).fetchall()
-        for bid, cx, cy in new:
-            hs = [
-                r[0]
-                for r in c.execute(
-                    "SELECT hardness_gpa FROM indents WHERE block_id = ? AND status = 'measured'", (bid,)
-                )
-            ]
-            if hs:
-                self._tested[bid] = TestedCenter(cx, cy, bid, float(statistics.median(hs)))
-        return tuple(self._tested[k] for k in sorted(self._tested) if upto is None or k <= upto)
-
-    def _drift(
-        self, c: sqlite3.Connection, last: Decision | None, upto: int | None, t_end: float
-    ) -> DriftStatus:
-        for rowid, t_s, rate in c.execute(
-            "SELECT rowid, t_s, drift_rate_nm_s FROM indents WHERE rowid > ? ORDER BY rowid",
-            (self._drift_seen_rowid,),
-        ):
-            self._drift_seen_rowid = rowid
-            if rate is not None and area_error_pct(rate) >= AREA_ERROR_THRESHOLD_PCT:
-                self._drift_events.append((t_s, rate))
-        row = c.execute(
-            "SELECT drift_rate_nm_s FROM indents WHERE drift_rate_nm_s IS NOT NULL AND block_id <= ? "
-            "ORDER BY block_id DESC, indent_index DESC LIMIT 1",
-            (_ALL if upto is None else upto,),
-        ).fetchone()
-        rate = None if row is None else float(row[0])
-        events = tuple(e for e in self._drift_events if upto is None or e[0] <= t_end + 1e-6)
-        return drift_status(rate, last, events)
 
     def _queue(
         self, current: Block | None, done: int, nxt: Block | None, pos: tuple[float, float], is_open: bool
@@ -422,128 +288,170 @@ class JournalReader:
                 items.append(QueueItem(block.block_id, i, spec, block.grid_g, eta))
         return tuple(items)
 
+    # -- the run's events, folded (core.journal.snapshot) ------------------------------------------
+    def _rows(self, after: int, until: int | None = None) -> Iterator[tuple[int, str, RunEvent]]:
+        """The log's events after seq ``after`` (up to ``until``), each with its seq and wall time. A
+        journal of schema 3 or 4 no engine has reopened has no log: its events are rebuilt from its
+        tables in memory, as the engine's migration writes them (core.journal.eventlog)."""
+        if not self._has_event_log:
+            self._has_event_log = bool(
+                self.conn.execute(
+                    "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'run_events'"
+                ).fetchone()
+            )
+            if self._has_event_log:  # an engine migrated it meanwhile: fold its log from the start
+                self._live = SnapshotFold()
+                if after > 0:
+                    return
+        if not self._has_event_log:
+            if self._rebuilt is None:
+                self._rebuilt = [(i, "", e) for i, e in enumerate(events_from_tables(self.conn), start=1)]
+            yield from (r for r in self._rebuilt if r[0] > after and (until is None or r[0] <= until))
+            return
+        sql = "SELECT seq, wall_utc, kind, t_s, body_json FROM run_events WHERE seq > ?"
+        args: tuple[Any, ...] = (after,)
+        if until is not None:
+            sql += " AND seq <= ?"
+            args = (after, until)
+        for seq, wall, kind, t_s, body in self.conn.execute(sql + " ORDER BY seq", args).fetchall():
+            yield int(seq), str(wall), decode(kind, t_s, body)
+
+    def _fold(self) -> SnapshotFold:
+        """The run so far: the live fold, advanced by the events written since the last read (call inside
+        a read transaction)."""
+        for seq, wall, event in self._rows(self._live.seq):
+            self._live.emit(event, seq, wall)
+        return self._live
+
+    def _fold_until(self, seq: int) -> SnapshotFold:
+        """The run as it was at event ``seq`` (a replay steps forward through one fold, else starts again)."""
+        if self._replay is None or self._replay.seq > seq:
+            self._replay = SnapshotFold()
+        for s, wall, event in self._rows(self._replay.seq, seq):
+            self._replay.emit(event, s, wall)
+        return self._replay
+
+    def history(self) -> RunHistory | None:
+        """The run so far as a resume folds it (core.run.history), from the same events; None: no engine
+        has run on it yet. The report rebuilds the final maps from it."""
+        fold = HistoryFold()
+        with self._read():
+            for _, _, event in self._rows(0):
+                fold.emit(event)
+        return fold.history()
+
     def replay_blocks(self) -> list[int]:
         """The blocks a replay steps through: every observed block with indents, in order."""
-        rows = self.conn.execute(
-            "SELECT block_id FROM blocks b WHERE status = 'observed' "
-            "AND EXISTS (SELECT 1 FROM indents i WHERE i.block_id = b.block_id) ORDER BY block_id"
-        ).fetchall()
-        return [int(r[0]) for r in rows]
+        with self._read():
+            return self._fold().replay_blocks()
+
+    def blocks(self) -> list[BlockRecord]:
+        """Every planned block in order with its decision, indents, steps and fit: what replay walks."""
+        with self._read():
+            return self._fold().block_records()
+
+    def decisions(self) -> list[StoredDecision]:
+        with self._read():
+            fold = self._fold()
+        return [fold.decisions[k] for k in sorted(fold.decisions)]
+
+    def results(self) -> list[IndentResult]:
+        """Every indent row of the run (the measurements as recorded, in block and indent order)."""
+        with self._read():
+            return self.q.all_results()
 
     def snapshot(self, reader_user: str | int | None = None, upto: int | None = None) -> RunSnapshot:
         """The console's whole view, read in one consistent transaction: the run now, or (``upto``, a block
         of :meth:`replay_blocks`) the run as it was just after that block was observed (replay).
 
-        One set of rules for both: a replay is the same view with every row after its block left out.
+        Both are the fold of the run's events (core.journal.snapshot): a replay is the fold stopped at the
+        block's ``Observed`` event. Only what is not an engine event is read beside it: the engine row's
+        state while no event has said one, the sessions' wall time and the log panel's lines.
         """
         owner, can_command = self._owner_view(reader_user)
-        cut = _ALL if upto is None else upto  # the last block whose rows count
         with self._read() as c:
+            live_fold = self._fold()
             eng = self.q.engine_row()
-            ds = self.q.latest_driver_state()
-            ledger = dict.fromkeys(LEDGER_CATEGORIES, 0.0)
-            n_reconf = 0
-            for cat, total, n in c.execute(
-                "SELECT category, SUM(seconds), COUNT(*) FROM steps "
-                + (
-                    ""
-                    if upto is None
-                    else "WHERE block_id IN (SELECT block_id FROM blocks WHERE block_id <= ?) "
-                )
-                + "GROUP BY category",
-                () if upto is None else (upto,),
-            ):
-                ledger[cat] = round(float(total), 6)
-                if cat == "reconfigure":
-                    n_reconf = int(n)
-            n_indents, n_blocks = c.execute(
-                "SELECT COUNT(*), COUNT(DISTINCT block_id) FROM indents WHERE block_id <= ?", (cut,)
-            ).fetchone()
-            last_indent = c.execute(
-                "SELECT t_s, commanded_x_um, commanded_y_um, actual_x_um, actual_y_um FROM indents "
-                "WHERE block_id <= ? ORDER BY block_id DESC, indent_index DESC LIMIT 1",
-                (cut,),
-            ).fetchone()
             if upto is None:
-                open_blk = self.q.open_block()
-                pending = self.q.pending_decision()
-                last = self.q.last_accepted_decision()
-                t_end = ds.clock_s if ds else 0.0
-            else:  # replay: no block open; the decision that came next waits; the block's own was the last
-                open_blk = None
-                nxt = c.execute(
-                    "SELECT decision_id FROM blocks WHERE block_id > ? ORDER BY block_id LIMIT 1", (upto,)
-                ).fetchone()
-                pending = None if nxt is None or nxt[0] is None else self.q.decision(int(nxt[0]))
-                own = c.execute(
-                    "SELECT decision_id, finished_t_s FROM blocks WHERE block_id = ?", (upto,)
-                ).fetchone()
-                last = None if own is None or own[0] is None else self.q.decision(int(own[0]))
-                t_end = float(own[1]) if own is not None and own[1] is not None else float(last_indent[0])
-            gp_row = c.execute(
-                "SELECT snapshot_id, summary_json FROM gp_snapshots WHERE block_id <= ? "
-                "ORDER BY snapshot_id DESC LIMIT 1",
-                (cut,),
-            ).fetchone()
-            cs = c.execute("SELECT settings_json FROM campaign_states ORDER BY id DESC LIMIT 1").fetchone()
+                fold = live_fold
+            elif upto in live_fold.observed_at:
+                fold = self._fold_until(live_fold.observed_at[upto])
+            else:
+                raise KeyError(f"block {upto} was not observed: no replay step ends there")
             sessions = c.execute("SELECT started_unix, ended_unix FROM sessions").fetchall()
-            tested = self._tested_centres(c, upto)
-            drift = self._drift(c, last.decision if last else None, upto, t_end)
+            first_wall = c.execute("SELECT wall_utc FROM events ORDER BY event_id LIMIT 1").fetchone()
+            if upto is None:
+                t_end = fold.driver.clock_s if fold.driver else 0.0
+            else:
+                own_block = fold.blocks[upto]
+                last_r = fold.last_indent
+                t_end = (
+                    float(own_block.finished_t_s)
+                    if own_block.finished_t_s is not None
+                    else float(last_r.t_s if last_r else 0.0)
+                )
             log_rows = c.execute(
                 "SELECT wall_utc, t_s, level, text FROM events "
                 + ("" if upto is None else "WHERE t_s <= ? ")
                 + "ORDER BY event_id DESC LIMIT ?",
                 (LOG_TAIL,) if upto is None else (t_end + 1e-6, LOG_TAIL),
             ).fetchall()
-            first_wall = c.execute("SELECT wall_utc FROM events ORDER BY event_id LIMIT 1").fetchone()
-            # the instrument's wait and the approval's deadline, as the typed events the engine emitted
-            wait_row, asked_row = None, None
-            if self._has_event_log:
-                wait_row = c.execute(
-                    "SELECT t_s, body_json FROM run_events WHERE kind = 'Waiting' ORDER BY seq DESC LIMIT 1"
-                ).fetchone()
-                asked_row = c.execute(
-                    "SELECT wall_utc, body_json FROM run_events WHERE kind = 'ApprovalAsked' "
-                    "ORDER BY seq DESC LIMIT 1"
-                ).fetchone()
-        state, finished = self._effective_state(eng)
+        # the state the events say (a replay shows the run's, as it ended or is now); the command watcher
+        # marks 'stopping' on the engine row at once, before the engine says so
+        said = live_fold.state
+        if said is None or (eng["state"] == "stopping" and said is EngineState.RUNNING):
+            eng_state = dict(eng)
+        else:
+            eng_state = {**eng, "state": said.value}
+        state, finished = self._effective_state(eng_state)
         live = upto is None and not finished
-        waiting = live and state is EngineState.WAITING_FOR_INSTRUMENT and wait_row is not None
+        open_blk = fold.open_block() if upto is None else None
+        if upto is None:
+            pending, last = fold.pending(), fold.last_accepted()
+        else:  # replay: no block open; the decision that came next waits; the block's own was the last
+            later = [k for k in live_fold.blocks if k > upto]
+            pending = live_fold.decision_of(min(later)) if later else None
+            last = fold.decision_of(upto)
+        waiting = live and state is EngineState.WAITING_FOR_INSTRUMENT and fold.wait is not None
         deadline = None
-        if live and state is EngineState.AWAITING_APPROVAL and pending is not None and asked_row:
-            deadline = ApprovalDeadline.from_record(asked_row[0], asked_row[1])
-            if deadline.decision_id != pending.decision_id:
-                deadline = None  # the deadline of an earlier wait (this one has none)
+        asked = fold.asked
+        if (
+            live
+            and state is EngineState.AWAITING_APPROVAL
+            and pending is not None
+            and asked is not None
+            and asked.decision_id == pending.decision_id  # else the deadline of an earlier wait
+        ):
+            began = datetime.fromisoformat(asked.wall_utc.replace("Z", "+00:00")).timestamp()
+            deadline = ApprovalDeadline(asked.decision_id, began + asked.timeout_s, asked.on_timeout)
         current = open_blk[0] if open_blk and open_blk[1] in ("planned", "running", "aborted") else None
         done = open_blk[2] if open_blk and current is not None else 0
+        ds = fold.driver
         if upto is None:
             pos = ds.position_um if ds else (0.0, 0.0)
             is_open = ds.program_open if ds else False
             at = ds.position_um if ds else None
         else:  # just after the block's last indent
-            pos, is_open = (float(last_indent[1]), float(last_indent[2])), True
-            ax, ay = last_indent[3], last_indent[4]
-            seen = ax is not None and ay is not None and math.isfinite(ax) and math.isfinite(ay)
-            at = (float(ax), float(ay)) if seen else pos  # where the tip went, else where it was sent
+            r = fold.last_indent
+            assert r is not None  # a replay step is an observed block with indents
+            pos, is_open = (float(r.commanded_x_um), float(r.commanded_y_um)), True
+            seen = math.isfinite(r.actual_x_um) and math.isfinite(r.actual_y_um)
+            at = (float(r.actual_x_um), float(r.actual_y_um)) if seen else pos
         queue = (
             ()
             if finished and upto is None
             else self._queue(current, done, pending.decision.block if pending else None, pos, is_open)
         )
-        summary: dict[str, Any] = json.loads(gp_row[1]) if gp_row else {}
+        sid, summary = fold.fit if fold.fit is not None else (None, {})
         gp = GpStatus(
-            lengthscales_um=tuple(summary.get("lengthscales_um", ()) or ()),
-            noise_lengthscales_um=tuple(summary.get("noise_lengthscales_um", ()) or ()),
+            lengthscales_um=tuple(summary.get("lengthscales_um", ()) or ()),  # type: ignore[arg-type]
+            noise_lengthscales_um=tuple(summary.get("noise_lengthscales_um", ()) or ()),  # type: ignore[arg-type]
             collapse_alarm=bool(summary.get("collapse_alarm", False)),
             collapse_reason=str(summary.get("collapse_reason", "")),
-            refit_s=summary.get("refit_s"),
-            snapshot_id=int(gp_row[0]) if gp_row else None,
+            refit_s=summary.get("refit_s"),  # type: ignore[arg-type]
+            snapshot_id=sid,
         )
-        settings = (
-            settings_from_dict(json.loads(cs[0]))
-            if cs
-            else settings_from_dict(dict(self._meta.get("config", {}).get("settings", {})))
-        )
+        settings = fold.settings or settings_from_dict(dict(self._meta.get("config", {}).get("settings", {})))
         if upto is None:
             now = time.time()
             wall_s = float(sum((e if e is not None else now) - s for s, e in sessions))
@@ -555,37 +463,40 @@ class JournalReader:
             run_name=self.name,
             journal_path=str(self.path),
             state=state,
-            supervision=str(eng["supervision"]),
+            supervision=str(fold.supervision or eng["supervision"]),
             policy=str(cfg.get("policy", "")),
             profile_name=self.profile.name,
             owner=owner,
             can_command=can_command and live,
             instrument_s=float(t_end),
             wall_s=wall_s,
-            n_indents=int(n_indents),
-            n_blocks=int(n_blocks),
-            reconfigurations=n_reconf,
-            ledger=ledger,
+            n_indents=fold.n_indents,
+            n_blocks=fold.n_blocks,
+            reconfigurations=fold.reconfigurations,
+            ledger=fold.rounded_ledger(),
             grid_baseline_s=float(self._meta.get("grid_baseline_s", 0.0)),
             queue=queue,
             current_block=current,
             pending=pending.decision if pending else None,
             last_decision=last.decision if last else None,
-            drift=drift,
+            drift=drift_status(
+                fold.last_drift_rate_nm_s, last.decision if last else None, tuple(fold.drift_events)
+            ),
             gp=gp,
-            mape_pct=summary.get("mape_pct"),
-            max_found_gpa=summary.get("max_found_gpa"),
-            tested=tested,
+            mape_pct=summary.get("mape_pct"),  # type: ignore[arg-type]
+            max_found_gpa=summary.get("max_found_gpa"),  # type: ignore[arg-type]
+            tested=tuple(fold.tested),
             settings=settings,
             log=tuple(LogEvent(w, t, lv, tx) for w, t, lv, tx in reversed(log_rows)),
             stage_bounds_um=(float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])),
             reverse_x=self.profile.reverse_x,
             finished=finished,
             allowed_holds_s=self.profile.allowed_holds_s,
-            instrument_wait=_wait(wait_row) if waiting and wait_row is not None else None,
+            instrument_wait=fold.wait if waiting else None,
             reconfig_threshold_um=self.profile.reconfig_threshold_um,
             position_um=at,
             approval_deadline=deadline,
+            indents=fold.indents_upto(upto),
         )
 
 
@@ -596,9 +507,3 @@ def _wall_seconds(a: str, b: str) -> float:
     except ValueError:
         return 0.0
     return max((end - start).total_seconds(), 0.0)
-
-
-def _wait(row: tuple[float, str]) -> InstrumentWait:
-    event = decode("Waiting", row[0], row[1])
-    assert isinstance(event, Waiting)
-    return event.wait

@@ -3,7 +3,7 @@ the engine never probes it."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from core.metrics import MapScore
@@ -13,7 +13,7 @@ from core.runview import MapFields
 
 if TYPE_CHECKING:
     from core.model import FitReport
-    from core.operator import LoadWindow
+    from core.operator import Attendance
 
 
 class StageFrame(Protocol):
@@ -32,9 +32,11 @@ class RaisesAlarms(Protocol):
 
 @runtime_checkable
 class PlansForAbsence(Protocol):
-    """A campaign that sizes its next load by when the operator will next come (core.visits)."""
+    """A campaign that sizes its next load by when the operator will next come (core.visits): the engine
+    tells its attendance what the operator says (it never reconfigures the campaign)."""
 
-    unattended: Callable[[float], LoadWindow | None] | None
+    @property
+    def attendance(self) -> Attendance: ...
 
 
 class CampaignLike(Protocol):

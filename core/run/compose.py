@@ -24,6 +24,7 @@ from core.errors import InputError
 from core.interlock import Interlock
 from core.interlock_tray import TrayInterlock
 from core.metrics import MapEvaluator
+from core.operator import Attendance
 from core.profile import InstrumentProfile
 from core.run.engine import Engine
 from core.run.events import RunRecord, Sink
@@ -122,7 +123,7 @@ def compose(
         spec.campaign,
         refit_every=spec.refit_every,
         wall_s_per_instrument_s=spec.wall_s_per_instrument_s,
-        unattended=visits.unattended if visits is not None else None,
+        attendance=Attendance(visits.unattended if visits is not None else None),
     )
     if prepare is not None:
         prepare(campaign)
@@ -166,7 +167,7 @@ def _compose_tray(
         spec.campaign,
         refit_every=spec.refit_every,
         wall_s_per_instrument_s=spec.wall_s_per_instrument_s,
-        unattended=visits.unattended if visits is not None else None,
+        attendance=Attendance(visits.unattended if visits is not None else None),
         plans_unattended=spec.rules.supervision == "auto",
     )
     first = next(iter(campaign.lanes.values())).campaign

@@ -191,7 +191,7 @@ class Engine:
         operator = self.operator  # every change of the operator's availability binds these again
         assert operator is not None
         if isinstance(self.campaign, PlansForAbsence):
-            self.campaign.unattended = lambda _clock_s: unattended_after(operator, now())
+            self.campaign.attendance.follow(lambda _clock_s: unattended_after(operator, now()))
         # a ticket handed to the operator waits from when they can answer it (at night: from the morning)
         if isinstance(self.driver, WaitsFromAnswer):
             self.driver.wait_from_answer(lambda: operator.answer_delay_s(now()))

@@ -6,8 +6,8 @@ rows each event became (``core.journal.sink.fold_history``) through the same ste
 two to the same answer at every point of a run.
 
 The fold's state per kind depends only on that kind's order (the latest plan, the latest instrument
-state, a block's latest status, a decision's resolution), so a feeder may give the kinds one after the
-other, each in the order it was written.
+state, a block's latest status, a decision's resolution). The console's view is the other fold over the
+same log (core.journal.snapshot).
 """
 
 from __future__ import annotations
@@ -114,10 +114,11 @@ class HistoryFold:
 
     # -- the live feeder --------------------------------------------------------------------------
     def emit(self, event: RunEvent) -> None:
-        """One event as the engine emits it."""
+        """One event as the engine emits it: any event says an engine ran (a log whose first row is an
+        instrument state still has that state restored)."""
         plan: PlanState | None = None
+        self.session()
         if isinstance(event, StateChanged):
-            self.session()
             self.state_changed(event.state.value, event.completed, event.stop_reason)
         elif isinstance(event, Decided):
             self.decided(event.decision_id, event.decision, event.status, event.why)
@@ -143,8 +144,6 @@ class HistoryFold:
             plan = event.plan
         elif isinstance(event, PlanChanged):
             plan = event.plan
-        else:
-            self.started = True  # SessionBegan, Logged, Waiting, CommandDone, SessionEnded
         if plan is not None:
             self.planner(plan.state, plan.settings)
 

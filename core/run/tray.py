@@ -33,7 +33,7 @@ from core.campaign import Campaign, CampaignConfig
 from core.cost import block_steps
 from core.metrics import MapScore
 from core.modulus import ModulusMap
-from core.operator import LoadWindow
+from core.operator import Attendance, LoadWindow
 from core.plan import STRETCH_CONTINUES, Block, Decision, IndentResult, PlannerSettings
 from core.policies.tray import Offer, rank, relative_value
 from core.profile import InstrumentProfile, load_profile
@@ -116,6 +116,26 @@ class _Load:
     ranked: bool = False  # the libraries were ranked for this load (at its visit, or after its first check)
 
 
+class _LaneAttendance(Attendance):
+    """A library's share of the tray's attendance: known when the tray's is; its window is the library's
+    share of the tray's load; what the operator says goes to the tray's."""
+
+    def __init__(self, tray: Attendance, share: Callable[[float], LoadWindow | None]) -> None:
+        super().__init__(None)
+        self._tray = tray
+        self._share = share
+
+    @property
+    def known(self) -> bool:
+        return self._tray.known
+
+    def window(self, clock_s: float) -> LoadWindow | None:
+        return self._share(clock_s) if self._tray.known else None
+
+    def follow(self, window: Callable[[float], LoadWindow | None] | None) -> None:
+        self._tray.follow(window)
+
+
 class TrayCampaign:
     def __init__(
         self,
@@ -124,7 +144,7 @@ class TrayCampaign:
         *,
         refit_every: int = 1,
         wall_s_per_instrument_s: float = 1.0,
-        unattended: Callable[[float], LoadWindow | None] | None = None,
+        attendance: Attendance | None = None,
         plans_unattended: bool = False,
     ) -> None:
         self.tray = tray
@@ -133,13 +153,16 @@ class TrayCampaign:
         # models the load's arrays built, instead of leaving the instrument idle until a visit
         self.plans_unattended = plans_unattended
         self.config = config
+        # when anyone next comes: the engine follows the operator's word on it; each library plans its
+        # stretches in its share of the tray's load
+        self.attendance = attendance or Attendance()
         self.lanes: dict[str, Lane] = {}
         for entry in tray.libraries:
             campaign = Campaign(
                 library_config(config, entry),
                 refit_every=refit_every,
                 wall_s_per_instrument_s=wall_s_per_instrument_s,
-                unattended=functools.partial(self._share_for, entry.name) if unattended is not None else None,
+                attendance=_LaneAttendance(self.attendance, functools.partial(self._share_for, entry.name)),
             )
             self.lanes[entry.name] = Lane(entry, campaign)
         self.reference = tray.reference
@@ -150,7 +173,6 @@ class TrayCampaign:
         self._ref_taken: list[np.ndarray] = []
         self._ref_avoid: list[tuple[float, float]] = []
         self._ref_s = 0.0  # instrument seconds spent on the reference
-        self._unattended = unattended
         self._load: _Load | None = None
         self._now_s = 0.0  # the tray's instrument clock at the last proposal
         self._on: str | None = None  # the sample of the last block that started (where the tip is)
@@ -163,19 +185,6 @@ class TrayCampaign:
         self.changes = 0  # blocks that started on another sample than the block before (sample changes)
 
     # -- what the engine reads --------------------------------------------------------------------------
-    @property
-    def unattended(self) -> Callable[[float], LoadWindow | None] | None:
-        return self._unattended
-
-    @unattended.setter
-    def unattended(self, window: Callable[[float], LoadWindow | None] | None) -> None:
-        """A real operator's hours (the engine binds them): every library plans its stretches in the load."""
-        self._unattended = window
-        for name, lane in self.lanes.items():
-            lane.campaign.unattended = (
-                functools.partial(self._share_for, name) if window is not None else None
-            )
-
     @property
     def settings(self) -> PlannerSettings:
         return self._shown.campaign.settings
@@ -360,14 +369,14 @@ class TrayCampaign:
                 if reason is not None:
                     lane.done, lane.done_at_s = reason, self._now_s
         left = self._window_for(0.0)
-        in_load = self._unattended is not None and left is not None and left.fill_s > 0
-        if not in_load and self._unattended is not None:
-            window = self._unattended(clock_s)
+        in_load = self.attendance.known and left is not None and left.fill_s > 0
+        if not in_load and self.attendance.known:
+            window = self.attendance.window(clock_s)
             self._load = None if window is None else _Load(clock_s, window)
         decision, loaded = self._next(position_um, program_open, block_id, in_load)
-        if decision is not None and in_load and not loaded and self._unattended is not None:
+        if decision is not None and in_load and not loaded and self.attendance.known:
             # nothing of this visit's list is left: what comes next is planned now, and someone must load it
-            window = self._unattended(clock_s)
+            window = self.attendance.window(clock_s)
             self._load = (
                 None if window is None else _Load(clock_s, window, self._load.ranking if self._load else [])
             )
@@ -412,9 +421,9 @@ class TrayCampaign:
         loaded = (
             in_load and self._load is not None and not outran and (not replanned or self._unattended_left())
         )
-        if in_load and not loaded and self._unattended is not None:
+        if in_load and not loaded and self.attendance.known:
             # nothing of this visit's list is left: what comes next is planned now, and someone must load it
-            window = self._unattended(self._now_s)
+            window = self.attendance.window(self._now_s)
             self._load = None if window is None else _Load(self._now_s, window)
         order, decisions = self._ranked(position_um, program_open, block_id)
         for name, lane in self.lanes.items():

@@ -87,3 +87,18 @@ def check_out_folder(path: str | Path) -> Path:
     if p.exists() and not p.is_dir():
         raise InputError(str(p), "is a file; --out takes a folder (it is created when missing)")
     return make_folder(p, "output folder")
+
+
+def write_new_file(path: str | Path, text: str, *, force: bool = False) -> Path:
+    """A template written whole or not at all; an existing file only replaced when asked (``--force``)."""
+    p = Path(path)
+    if p.exists() and not force:
+        raise InputError(str(p), "already exists (use --force to overwrite it)")
+    tmp = p.with_name(f".{p.name}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, p)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(str(p), f"cannot write ({exc.strerror or exc})") from None
+    return p

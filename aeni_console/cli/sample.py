@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from core.errors import InputError
+from aeni_console.files import write_new_file
 from core.geometry import CandidateLattice
 from core.policies.base import DEFAULT_PITCH_UM
 from core.profile import load_profile
@@ -19,17 +17,7 @@ from core.sample import SAMPLE_TEMPLATE, CircleExclusion, grid_baseline_s, load_
 
 
 def _cmd_new(args: argparse.Namespace) -> int:
-
-    path = Path(args.file)
-    if path.exists() and not args.force:
-        raise InputError(str(path), "already exists (use --force to overwrite it)")
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(SAMPLE_TEMPLATE, encoding="utf-8")
-        os.replace(tmp, path)  # the file is there whole, or not at all
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(str(path), f"cannot write ({exc.strerror or exc})") from None
+    path = write_new_file(args.file, SAMPLE_TEMPLATE, force=args.force)
     print(f"wrote {path}: edit the corners, safety distances and exclusions, then `aeni sample check {path}`")
     return 0
 

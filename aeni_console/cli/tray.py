@@ -7,10 +7,9 @@ import argparse
 import dataclasses
 import itertools
 import math
-import os
-from pathlib import Path
 from typing import Any
 
+from aeni_console.files import write_new_file
 from core.errors import InputError
 from core.profile import load_profile
 from core.run.spec import RunSpec
@@ -51,16 +50,7 @@ def tray_spec(spec: RunSpec, path: str, tip_wear_pct_per_h: float | None = None)
 
 
 def _cmd_new(args: argparse.Namespace) -> int:
-    path = Path(args.file)
-    if path.exists() and not args.force:
-        raise InputError(str(path), "already exists (use --force to overwrite it)")
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(TRAY_TEMPLATE, encoding="utf-8")
-        os.replace(tmp, path)  # the file is there whole, or not at all
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(str(path), f"cannot write ({exc.strerror or exc})") from None
+    path = write_new_file(args.file, TRAY_TEMPLATE, force=args.force)
     print(f"wrote {path}: point each sample at its sample file and goal, then `aeni tray check {path}`")
     return 0
 

@@ -154,7 +154,8 @@ def check_journal_file(path: str | Path) -> None:
         raise InputError(src, "no such journal file")
     if not os.access(p, os.R_OK):
         raise InputError(src, "cannot read journal (Permission denied)")
-    if p.stat().st_size < 100:  # shorter than SQLite's header (SQLite would take an empty file as a new database)
+    # shorter than SQLite's header: not a journal (SQLite would take an empty file for a new database)
+    if p.stat().st_size < 100:
         raise InputError(src, "not a journal: the file is not an SQLite database (truncated or another file)")
     wal = Path(f"{p}-wal")
     # a file without its -wal has nothing pending: read it immutable, so checking creates no sidecars
@@ -181,7 +182,9 @@ def _refusal(p: Path, wal: Path, exc: sqlite3.DatabaseError) -> InputError:
     except OSError as err:
         return InputError(src, f"cannot read journal ({err.strerror})")
     if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
-        return InputError(src, "not a journal: the file is not an SQLite database (truncated or another file)")
+        return InputError(
+            src, "not a journal: the file is not an SQLite database (truncated or another file)"
+        )
     page_size = int.from_bytes(head[16:18], "big")
     page_size = 65536 if page_size == 1 else page_size
     n_pages = int.from_bytes(head[28:32], "big")

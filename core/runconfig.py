@@ -236,6 +236,8 @@ def run_spec(campaign: CampaignConfig, options: RunOptions, notify: NotifyConfig
             max_refusals=options.max_refusals,
             approval_timeout_s=options.approval_timeout_s,
             on_timeout=options.on_timeout,
+            auto_resume=options.auto_resume,
+            resume_backoff_s=options.resume_backoff_s,
         ),
         operator=options.operator,
         notify=notify or NotifyConfig(),

@@ -253,7 +253,7 @@ def test_why_text_gives_each_missed_fields_even_design_limit_from_its_own_json(
     read from benchmarks/results/oracle_bound_<field>.json: here small files in a tmp folder."""
     from dataclasses import replace
 
-    from aeni_console.bench import report
+    from aeni_console.reports import bench as report
 
     def oracle(field: str, best: int | None, rows: list[tuple[int, bool]]) -> None:
         table = [

@@ -5,6 +5,7 @@ a finished run is never resumed."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -61,7 +62,7 @@ def receiver() -> Iterator[Receiver]:
     r.server.shutdown()
 
 
-def _wait(pred: Callable[[], object], timeout_s: float = 300.0) -> None:  # a loaded 2-core machine
+def _wait(pred: Callable[[], object], timeout_s: float = 120.0) -> None:  # a loaded 2-core machine
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and not pred():
         time.sleep(0.05)
@@ -73,7 +74,7 @@ def _engine_pid(journal: Path) -> int | None:
     if not engine_running(journal):
         return None
     try:
-        with sqlite3.connect(f"file:{journal}?mode=ro", uri=True) as c:
+        with contextlib.closing(sqlite3.connect(f"file:{journal}?mode=ro", uri=True)) as c:
             row = c.execute("SELECT pid FROM engine_state").fetchone()
     except sqlite3.Error:
         return None
@@ -81,7 +82,7 @@ def _engine_pid(journal: Path) -> int | None:
 
 
 def _supervisor_rows(journal: Path) -> list[str]:
-    with sqlite3.connect(f"file:{journal}?mode=ro", uri=True) as c:
+    with contextlib.closing(sqlite3.connect(f"file:{journal}?mode=ro", uri=True)) as c:
         return [
             r[0] for r in c.execute("SELECT text FROM events WHERE category = 'supervisor' ORDER BY event_id")
         ]
@@ -89,7 +90,7 @@ def _supervisor_rows(journal: Path) -> list[str]:
 
 def _indents(journal: Path) -> list[tuple[int, int, str, float | None]]:
     try:
-        with sqlite3.connect(f"file:{journal}?mode=ro", uri=True) as c:
+        with contextlib.closing(sqlite3.connect(f"file:{journal}?mode=ro", uri=True)) as c:
             return c.execute(
                 "SELECT block_id, indent_index, status, hardness_gpa FROM indents ORDER BY block_id, indent_index"
             ).fetchall()
@@ -97,37 +98,49 @@ def _indents(journal: Path) -> list[tuple[int, int, str, float | None]]:
         return []
 
 
-@pytest.mark.xfail(
-    reason="KNOWN GAP of this round's merge (issues 35/38): the supervisor journals, alerts and resumes the killed engine, but the launching process does not see the resumed engine hold the journal; to mend next session",
-    strict=False,
-)
+def _leave_nothing(journal: Path) -> None:
+    """A test that failed half-way leaves no supervisor or engine running behind it."""
+    for pid in (supervisor_pid(journal), _engine_pid(journal)):
+        if pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+
 def test_a_killed_detached_engine_is_journaled_alerted_and_resumed(
     receiver: Receiver, tmp_path: Path
 ) -> None:
+    """`aeni run --detach` (the rules from its run file: backoff 0.2 s), its engine killed -9: the supervisor
+    journals and alerts the death and resumes the run; the probe (this process, which reads the journal
+    throughout as a console does) sees the new engine; SIGTERM to the supervisor stops the resumed engine as
+    Ctrl-C would."""
     run_file = tmp_path / "run.toml"
     run_file.write_text(
-        'name = "night"\n[campaign]\nlattice_n = 30\nseed = 4\n[planner]\nindent_budget = 2000\n'
-        f'[run]\nspeed = 40.0\nresume_backoff_s = 0.2\n[notify]\nurls = ["{receiver.url}"]\n'
+        'name = "night"\n[campaign]\nlattice_n = 12\nseed = 4\n[planner]\nindent_budget = 2000\n'
+        f'[run]\nspeed = 1000.0\nresume_backoff_s = 0.2\n[notify]\nurls = ["{receiver.url}"]\n'
     )
     journal = tmp_path / "runs" / "night.sqlite"
     assert main(["run", str(run_file), "--detach", "--journal", str(journal)]) == 0
-    sup = supervisor_pid(journal)
-    assert sup is not None
-    _wait(lambda: _engine_pid(journal) and len(_indents(journal)) >= 2)
-    first = _engine_pid(journal)
-    assert first is not None and first != sup
-    row = next(r for r in list_runs(journal.parent) if r.journal == str(journal))
-    assert (row.pid, row.supervisor_pid) == (first, sup)  # `aeni runs` shows both
-    assert f"PID {sup}" in format_runs([row])
-    os.kill(first, signal.SIGKILL)
-    _wait(lambda: receiver.of("failure"))
-    assert "engine killed by SIGKILL" in receiver.of("failure")[0], receiver.got
-    assert "resuming (attempt 1 of 3)" in receiver.of("failure")[0]
-    _wait(lambda: (_engine_pid(journal) or first) != first)  # a new engine, started by nobody but it
-    before = _indents(journal)
-    _wait(lambda: len(_indents(journal)) > len(before) + 1)
-    os.kill(sup, signal.SIGTERM)  # stops the run as Ctrl-C would (the supervisor does not resume it)
-    _wait(lambda: supervisor_pid(journal) is None and not engine_running(journal))
+    try:
+        sup = supervisor_pid(journal)
+        assert sup is not None
+        _wait(lambda: _engine_pid(journal) and len(_indents(journal)) >= 2)
+        first = _engine_pid(journal)
+        assert first is not None and first != sup
+        row = next(r for r in list_runs(journal.parent) if r.journal == str(journal))
+        assert (row.pid, row.supervisor_pid) == (first, sup)  # `aeni runs` shows both
+        assert f"PID {sup}" in format_runs([row])
+        os.kill(first, signal.SIGKILL)
+        _wait(lambda: receiver.of("failure"))
+        assert "engine killed by SIGKILL" in receiver.of("failure")[0], receiver.got
+        assert "resuming (attempt 1 of 3) in 0.2 s" in receiver.of("failure")[0]
+        _wait(lambda: (_engine_pid(journal) or first) != first)  # a new engine, started by nobody but it
+        resumed = _engine_pid(journal)
+        before = _indents(journal)
+        _wait(lambda: len(_indents(journal)) > len(before) + 1)
+        os.kill(sup, signal.SIGTERM)  # stops the run as Ctrl-C would (the supervisor does not resume it)
+        _wait(lambda: supervisor_pid(journal) is None and not engine_running(journal), 60.0)
+    finally:
+        _leave_nothing(journal)
     with JournalReader(journal) as r:
         state = r.q.engine_row()
         sessions = r.table("sessions")[1]
@@ -135,6 +148,7 @@ def test_a_killed_detached_engine_is_journaled_alerted_and_resumed(
     assert len(died) == 1 and "killed by SIGKILL" in died[0], died
     assert state["state"] == "stopped" and not state["completed"]
     assert [s[1] for s in sessions] == ["start", "resume"] and sessions[0][-1] == "failed"
+    assert [s[2] for s in sessions] == [first, resumed] and sessions[1][-1] == "stopped"
     after = _indents(journal)
     # nothing lost or changed: every indent before the kill is in the journal as it was, each once
     assert after[: len(before)] == before
@@ -143,9 +157,9 @@ def test_a_killed_detached_engine_is_journaled_alerted_and_resumed(
 
 
 def _engine(
-    journal: Path, budget: int, notify: NotifyConfig | None, speed: float | None = 40.0
+    journal: Path, budget: int, notify: NotifyConfig | None, speed: float | None = 1000.0
 ) -> Callable[[], subprocess.Popen[bytes]]:
-    cfg = make_campaign_config(journal.stem, lattice_n=30, seed=5, settings={"indent_budget": budget})
+    cfg = make_campaign_config(journal.stem, lattice_n=12, seed=5, settings={"indent_budget": budget})
 
     def launch() -> subprocess.Popen[bytes]:
         proc = subprocess.Popen(
@@ -190,7 +204,7 @@ def test_a_crash_loop_stops_with_an_alert_after_n_attempts(receiver: Receiver, t
 
     def killer() -> None:
         try:
-            _wait(lambda: _engine_pid(journal) and len(_indents(journal)) >= 1)
+            _wait(lambda: _engine_pid(journal))  # it began its session: a death, not a failed start
         finally:  # the engine dies in any case (the test then fails on what it finds, never hangs)
             pid = _engine_pid(journal) or (sup.child.pid if sup.child is not None else None)
             if pid is not None:
@@ -224,7 +238,7 @@ def test_a_finished_run_is_never_resumed(receiver: Receiver, tmp_path: Path) -> 
         raise AssertionError("a finished run must not be resumed")
 
     sup = Supervisor(
-        journal, _engine(journal, 25, NotifyConfig(urls=(receiver.url,)), None), resume, say=lambda line: None
+        journal, _engine(journal, 8, NotifyConfig(urls=(receiver.url,)), None), resume, say=lambda line: None
     )
     assert sup.run() == 0
     assert sup.deaths == 0 and not resumed
@@ -249,8 +263,8 @@ def test_a_killed_foreground_engine_is_journaled_and_alerted_not_resumed(
     run has alerts) does, and leaves the resume to the person at the terminal."""
     run_file = tmp_path / "run.toml"
     run_file.write_text(
-        'name = "fg"\n[campaign]\nlattice_n = 30\nseed = 6\n[planner]\nindent_budget = 2000\n'
-        f'[run]\nspeed = 40.0\n[notify]\nurls = ["{receiver.url}"]\n'
+        'name = "fg"\n[campaign]\nlattice_n = 12\nseed = 6\n[planner]\nindent_budget = 2000\n'
+        f'[run]\nspeed = 1000.0\n[notify]\nurls = ["{receiver.url}"]\n'
     )
     journal = tmp_path / "fg.sqlite"
     engine = subprocess.Popen(

@@ -27,7 +27,6 @@ from typing import Any
 from aeni_console.cli.common import check_new_journal, positive_float, seed_arg
 from aeni_console.cli.host import child_env, launch_engine
 from aeni_console.cli.run import resolve_run
-from aeni_console.cli.supervisor import DEFAULT_AUTO_RESUME
 from aeni_console.console.app import ConsoleApp
 from aeni_console.console.journal_source import JournalReplay, JournalSource
 from core.errors import InputError
@@ -142,7 +141,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         return 0
     spec = RunSpec(campaign=config, speed=args.speed, rules=EngineRules(args.supervision))
     # the PID of the engine's supervisor: stopping it stops the engine
-    pid = launch_engine(spec, journal, detach=True, auto_resume=DEFAULT_AUTO_RESUME).pid
+    pid = launch_engine(spec, journal, detach=True, auto_resume=spec.rules.auto_resume).pid
     if args.stay:
         return run_console(journal, pid=pid)
     try:
@@ -196,7 +195,9 @@ def kla_demo(
         try:
             kla = dataclasses.replace(config, driver_options={**options, "exchange": str(exchange)})
             spec = RunSpec(campaign=kla, driver="kla", speed=speed, rules=EngineRules(supervision))
-            engine = launch_engine(spec, journal, auto_resume=DEFAULT_AUTO_RESUME)  # the engine's supervisor
+            engine = launch_engine(
+                spec, journal, auto_resume=spec.rules.auto_resume
+            )  # the engine's supervisor
             try:
                 yield exchange, engine, fake
             finally:

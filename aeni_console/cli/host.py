@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from aeni_console.alerts import AlertWatcher
 from aeni_console.cli.common import check_new_journal, check_resumable_journal
-from aeni_console.cli.supervisor import DEFAULT_BACKOFF_S, supervisor_argv, watch_foreground
+from aeni_console.cli.supervisor import supervisor_argv, watch_foreground
 from core.access import journal_gid, protect
 from core.campaign import Campaign, campaign_config_to_dict
 from core.errors import InputError
@@ -73,17 +73,22 @@ def launch_engine(
     Output goes to ``<journal>.log``. With ``detach`` the process runs in its own session and survives the
     caller's terminal closing. InputError, with the log's last line, when the engine exits before that.
     ``auto_resume``: the engine runs under its supervisor (aeni_console.cli.supervisor), which hands it the spec,
-    journals and alerts its death and resumes it that many times in a row; the process is then the
-    supervisor's.
+    journals and alerts its death and resumes it that many times in a row (the spec's ``rules.auto_resume``
+    for a run as its file says), the first after ``resume_backoff_s`` (None: the spec's); the process is then
+    the supervisor's.
     """
 
     text = spec if isinstance(spec, str) else spec.to_json()
-    group = RunSpec.from_json(text, "run spec").group
+    parsed = RunSpec.from_json(text, "run spec")
+    group = parsed.group
     journal = Path(journal_path) if resume else check_new_journal(journal_path)
     log = Path(log_path) if log_path is not None else journal.with_name(journal.name + ".log")
     argv = engine_argv(journal, resume=resume)
     if auto_resume is not None:  # the supervisor hands the engine its stdin and resumes it when it dies
-        argv = supervised(journal, argv, auto_resume, resume_backoff_s, stdin=True, log=log)
+        backoff_s = parsed.rules.resume_backoff_s if resume_backoff_s is None else resume_backoff_s
+        argv = supervisor_argv(
+            journal, argv, auto_resume=auto_resume, backoff_s=backoff_s, stdin=True, log=log
+        )
     with open(log, "ab") as fh:
         protect(log, journal_gid(group))  # the log says what the journal says: same readers
         proc = subprocess.Popen(
@@ -113,20 +118,6 @@ def launch_engine(
     if detach:
         threading.Thread(target=proc.wait, daemon=True).start()  # reap it if we outlive it
     return proc
-
-
-def supervised(
-    journal: Path,
-    argv: list[str],
-    auto_resume: int,
-    backoff_s: float | None = None,
-    *,
-    stdin: bool = False,
-    log: Path | None = None,
-) -> list[str]:
-    """``argv`` (an engine's command line) run under the engine's supervisor (aeni_console.cli.supervisor)."""
-    backoff = DEFAULT_BACKOFF_S if backoff_s is None else backoff_s
-    return supervisor_argv(journal, argv, auto_resume=auto_resume, backoff_s=backoff, stdin=stdin, log=log)
 
 
 def start_engine_process(

@@ -27,7 +27,6 @@ from aeni_console.cli.host import (  # re-exported: the engine host's entry poin
     run_engine,
     start_engine_process,
 )
-from aeni_console.cli.supervisor import DEFAULT_AUTO_RESUME
 from aeni_console.cli.tray import tray_spec
 from aeni_console.files import check_out_folder
 from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps, tray_final_maps
@@ -104,17 +103,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     journal = Path(options.journal) if options.journal else default_journal_path(spec.name, options.runs_dir)
     check_new_journal(journal)
     if args.detach:
-        pid = launch_engine(
-            spec,
-            journal,
-            detach=True,
-            auto_resume=options.auto_resume,
-            resume_backoff_s=options.resume_backoff_s,
-        ).pid
+        rules = spec.rules
+        pid = launch_engine(spec, journal, detach=True, auto_resume=rules.auto_resume).pid
         print(f"journal {journal}")
         print(
             f"supervisor PID {pid} (detached; it runs the engine, alerts and resumes it if it dies, "
-            f"{options.auto_resume} times in a row at most; log {journal.name}.log)"
+            f"{rules.auto_resume} times in a row at most; log {journal.name}.log)"
         )
         print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
         return 0
@@ -134,6 +128,20 @@ def check_not_stopped(path: Path, anyway: bool) -> None:
     )
 
 
+def with_resume_flags(spec: RunSpec, args: argparse.Namespace) -> RunSpec:
+    """The run's own spec (its journal's) as ``aeni resume`` runs it: a flag given overrides its rule."""
+    given = {
+        k: v
+        for k, v in (
+            ("supervision", args.supervision),
+            ("auto_resume", args.auto_resume),
+            ("resume_backoff_s", args.resume_backoff_s),
+        )
+        if v is not None
+    }
+    return dataclasses.replace(spec, rules=dataclasses.replace(spec.rules, **given)) if given else spec
+
+
 def _cmd_resume(args: argparse.Namespace) -> int:
 
     path = resolve_run(args.run)
@@ -144,23 +152,14 @@ def _cmd_resume(args: argparse.Namespace) -> int:
         spec = preflight_resume(path, args.speed)
         if spec is None:
             return 0
-        if args.supervision is not None:
-            spec = dataclasses.replace(
-                spec, rules=dataclasses.replace(spec.rules, supervision=args.supervision)
-            )
+        spec = with_resume_flags(spec, args)
         proc = launch_engine(
-            spec,
-            path,
-            resume=True,
-            detach=True,
-            wait_s=120.0,
-            auto_resume=args.auto_resume,
-            resume_backoff_s=args.resume_backoff_s,
+            spec, path, resume=True, detach=True, wait_s=120.0, auto_resume=spec.rules.auto_resume
         )
         print(f"journal {path}")
         print(
             f"supervisor PID {proc.pid} (detached; it runs the engine, alerts and resumes it if it dies, "
-            f"{args.auto_resume} times in a row at most; log {path.name}.log)"
+            f"{spec.rules.auto_resume} times in a row at most; log {path.name}.log)"
         )
         return 0
     return run_engine(path, speed=args.speed, supervision=args.supervision, quiet=args.quiet, watch=True)
@@ -585,15 +584,17 @@ def register(subparsers: Any) -> None:
         "--auto-resume",
         dest="auto_resume",
         type=whole_number("--auto-resume", 0, 100),
-        default=DEFAULT_AUTO_RESUME,
-        help="with --detach: resumes in a row after the engine dies (default 3; 0: alert only)",
+        default=None,
+        help="with --detach: resumes in a row after the engine dies (default: the run's [run] auto_resume; "
+        "0: alert only)",
     )
     res.add_argument(
         "--resume-backoff-s",
         dest="resume_backoff_s",
         type=positive_float("--resume-backoff-s"),
         default=None,
-        help="with --detach: the pause before the first automatic resume (doubled for each next; default 5)",
+        help="with --detach: the pause before the first automatic resume (doubled for each next; default: the "
+        "run's [run] resume_backoff_s)",
     )
     res.set_defaults(func=_cmd_resume)
 

@@ -36,9 +36,12 @@ from core.journal import Journal, engine_running
 from core.journal import lock_path_for as engine_lock
 from core.notifyconfig import load_run_notify
 from core.run.events import EngineDied
+from core.run.spec import EngineRules
 
-DEFAULT_AUTO_RESUME = 3  # resumes in a row without a new indent before it is a crash loop
-DEFAULT_BACKOFF_S = 5.0  # the first pause before a resume; doubled for each further attempt in a row
+# resumes in a row without a new indent before it is a crash loop; the first pause before a resume, doubled for
+# each further attempt in a row (a run's own are in its spec's rules)
+DEFAULT_AUTO_RESUME = EngineRules.auto_resume
+DEFAULT_BACKOFF_S = EngineRules.resume_backoff_s
 PROGRESS_RESET_S = 600.0  # an engine that ran this long (or journaled a new indent) ends a crash loop
 SUPERVISOR_MODULE = "aeni_console.cli.supervisor"
 LOG_PREFIX = "supervisor: "

@@ -143,47 +143,64 @@ def engine_running(path: str | Path) -> bool:
 def check_journal_file(path: str | Path) -> None:
     """Refuse a file that is missing, not SQLite, truncated, corrupt or of an unknown schema version.
 
-    Opens read-only: a journal that cannot be read is never modified.
+    Opens read-only: a journal that cannot be read is never modified. The file is opened through SQLite
+    only: closing a plain handle on it would drop every POSIX lock this process holds on it (a console's
+    open reader, the engine's own connection), after which another process closing its connection takes
+    itself for the last one and deletes the ``-shm`` under them: this process would read that stale index
+    ever after (a console would never see the engine its supervisor resumed). Only a file SQLite refuses
+    is read by hand, to say why.
     """
     p = Path(path)
     src = str(p)
     if not p.is_file():
         raise InputError(src, "no such journal file")
-    try:
-        with open(p, "rb") as fh:
-            head = fh.read(100)
-    except OSError as exc:
-        raise InputError(src, f"cannot read journal ({exc.strerror})") from None
-    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
+    if not os.access(p, os.R_OK):
+        raise InputError(src, "cannot read journal (Permission denied)")
+    # shorter than SQLite's header: not a journal (SQLite would take an empty file for a new database)
+    if p.stat().st_size < 100:
         raise InputError(src, "not a journal: the file is not an SQLite database (truncated or another file)")
-    page_size = int.from_bytes(head[16:18], "big")
-    page_size = 65536 if page_size == 1 else page_size
-    n_pages = int.from_bytes(head[28:32], "big")
-    size = p.stat().st_size
-    wal = Path(str(p) + "-wal")
-    # with a -wal, pages beyond the file's end may be there: a checkpoint cut short by a full disk writes the
-    # header first and leaves every page in the WAL (SQLite reads them there; the quick_check below decides)
-    pending = wal.is_file() and wal.stat().st_size > 0
-    if page_size and n_pages and size < page_size * n_pages and not pending:
-        raise InputError(
-            src,
-            f"journal is truncated: {size} bytes on disk but the header says {n_pages} pages of {page_size} "
-            "bytes; nothing was changed",
-        )
-    # a WAL-mode file without its -wal has nothing pending: read it immutable, so checking creates no sidecars
-    immutable = head[18] == 2 and not Path(str(p) + "-wal").exists()
-    conn = connect_ro(p, immutable=immutable)
+    wal = Path(f"{p}-wal")
+    # a file without its -wal has nothing pending: read it immutable, so checking creates no sidecars
+    conn = connect_ro(p, immutable=not wal.exists())
     try:
         try:
             rows = conn.execute("PRAGMA quick_check").fetchall()
         except sqlite3.DatabaseError as exc:
-            raise InputError(src, f"journal is corrupt ({exc}); nothing was changed") from None
+            raise _refusal(p, wal, exc) from None
         if [r[0] for r in rows] != ["ok"]:
             first = "; ".join(str(r[0]) for r in rows[:3])
             raise InputError(src, f"journal is corrupt ({first}); nothing was changed")
         _check_schema(conn, src)
     finally:
         conn.close()
+
+
+def _refusal(p: Path, wal: Path, exc: sqlite3.DatabaseError) -> InputError:
+    """Why SQLite refused the file, read from its header (only for a file SQLite cannot read)."""
+    src = str(p)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(100)
+    except OSError as err:
+        return InputError(src, f"cannot read journal ({err.strerror})")
+    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
+        return InputError(
+            src, "not a journal: the file is not an SQLite database (truncated or another file)"
+        )
+    page_size = int.from_bytes(head[16:18], "big")
+    page_size = 65536 if page_size == 1 else page_size
+    n_pages = int.from_bytes(head[28:32], "big")
+    size = p.stat().st_size
+    # with a -wal, pages beyond the file's end may be there: a checkpoint cut short by a full disk writes the
+    # header first and leaves every page in the WAL (SQLite reads them there; then it is corrupt otherwise)
+    pending = wal.is_file() and wal.stat().st_size > 0
+    if page_size and n_pages and size < page_size * n_pages and not pending:
+        return InputError(
+            src,
+            f"journal is truncated: {size} bytes on disk but the header says {n_pages} pages of {page_size} "
+            "bytes; nothing was changed",
+        )
+    return InputError(src, f"journal is corrupt ({exc}); nothing was changed")
 
 
 def migrate(conn: sqlite3.Connection, rebuild_events: Callable[[sqlite3.Connection], None]) -> None:

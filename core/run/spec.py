@@ -37,6 +37,10 @@ class EngineRules:
     max_refusals: int = 5  # consecutive refused blocks (interlock, or a vetoed block again) that stop the run
     approval_timeout_s: float | None = None  # None: an approval waits for the operator however long it takes
     on_timeout: str = "approve"  # approve | veto | pause | stop
+    # an engine that dies without ending its run is resumed by its supervisor this many times in a row (0:
+    # alerted only), the first time after resume_backoff_s, doubled for each next (aeni_console.cli.supervisor)
+    auto_resume: int = 3
+    resume_backoff_s: float = 5.0
 
     def __post_init__(self) -> None:
         coerce_supervision(self.supervision)
@@ -46,6 +50,10 @@ class EngineRules:
             raise InputError("run.approval_timeout_s", f"{self.approval_timeout_s!r} is not allowed: > 0 s")
         if self.on_timeout not in ON_TIMEOUT:
             raise InputError("run.on_timeout", f"{self.on_timeout!r} is not allowed: {', '.join(ON_TIMEOUT)}")
+        if not 0 <= self.auto_resume <= 100:
+            raise InputError("run.auto_resume", f"{self.auto_resume!r} is not allowed: expected 0 to 100")
+        if not self.resume_backoff_s > 0:
+            raise InputError("run.resume_backoff_s", f"{self.resume_backoff_s!r} is not allowed: > 0 s")
 
 
 @dataclass(frozen=True)
@@ -117,6 +125,8 @@ class RunSpec:
                 "max_refusals": self.rules.max_refusals,
                 "approval_timeout_s": self.rules.approval_timeout_s,
                 "on_timeout": self.rules.on_timeout,
+                "auto_resume": self.rules.auto_resume,
+                "resume_backoff_s": self.rules.resume_backoff_s,
             },
             "operator": None if self.operator is None else availability_to_dict(self.operator),
             "calendar": None if self.calendar is None else _calendar_to_dict(self.calendar),
@@ -157,6 +167,9 @@ class RunSpec:
                         else float(rules["approval_timeout_s"])
                     ),
                     on_timeout=str(rules.get("on_timeout", "approve")),
+                    # a spec journaled before these rules: the defaults
+                    auto_resume=int(rules.get("auto_resume", EngineRules.auto_resume)),
+                    resume_backoff_s=float(rules.get("resume_backoff_s", EngineRules.resume_backoff_s)),
                 ),
                 operator=None if d.get("operator") is None else availability_from_dict(d["operator"]),
                 calendar=None if d.get("calendar") is None else _calendar_from_dict(d["calendar"]),

@@ -6,18 +6,16 @@ a finished run is never resumed."""
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import signal
 import sqlite3
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from collections.abc import Callable
 from pathlib import Path
 
-import pytest
+from apprise_receiver import Receiver
 
 from aeni_console.cli.host import child_env as _child_env
 from aeni_console.cli.host import engine_argv
@@ -28,38 +26,6 @@ from core.journal import JournalReader, engine_running
 from core.notifyconfig import NotifyConfig
 from core.run.spec import RunSpec
 from core.runconfig import make_campaign_config
-
-
-class Receiver:
-    """apprise's json:// posts, as tests/test_alerts.py receives them."""
-
-    def __init__(self) -> None:
-        got: list[dict[str, object]] = []
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                body = self.rfile.read(int(self.headers.get("Content-Length", 0)))
-                got.append(json.loads(body or b"{}"))
-                self.send_response(200)
-                self.end_headers()
-
-            def log_message(self, *args: object) -> None:
-                pass
-
-        self.got = got
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"json://127.0.0.1:{self.server.server_address[1]}/t0ken"
-
-    def of(self, kind: str) -> list[str]:
-        return [str(m.get("message", "")) for m in self.got if m.get("type") == kind]
-
-
-@pytest.fixture
-def receiver() -> Iterator[Receiver]:
-    r = Receiver()
-    threading.Thread(target=r.server.serve_forever, daemon=True).start()
-    yield r
-    r.server.shutdown()
 
 
 def _wait(pred: Callable[[], object], timeout_s: float = 120.0) -> None:  # a loaded 2-core machine

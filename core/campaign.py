@@ -222,6 +222,7 @@ class Campaign:
         self.stop_at_epoch_s = self._resolve_stop_at(self.settings.stop_at)
         self.refit_every = refit_every
         self._stretch: list[Decision] = []  # a stretch's arrays still to run (loaded in one visit)
+        self._stretch_clock_s = 0.0  # the instrument clock when the stretch being fitted starts
 
     @property
     def policy(self) -> Policy:
@@ -402,13 +403,14 @@ class Campaign:
     def propose(
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
     ) -> Decision | None:
+        if self._stretch:
+            # a loaded stretch's next array runs as handed out (fitted when planned), stop rule or not: the
+            # instrument runs every array the operator loaded, and its indents must be journaled, never lost
+            self.last_stop_reason = None
+            return renumbered(self._stretch.pop(0), block_id)
         self.last_stop_reason = self.stop_reason(clock_s)
         if self.last_stop_reason is not None:
             return None
-        if self._stretch:  # the next array of a loaded stretch
-            return self._fit_budgets(
-                renumbered(self._stretch.pop(0), block_id), clock_s, position_um, program_open
-            )
         ctx = self.context(clock_s, position_um, program_open, block_id)
         if self._prefer is not None:  # one proposal after a veto: the alternative listed first
             ctx = dataclasses.replace(ctx, prefer_xy_um=self._prefer)
@@ -419,8 +421,14 @@ class Campaign:
         if arrays:
             # the arrays run one after another: their block ids are known now, so their tickets can all go
             # out with the first (the operator loads the stretch in one visit)
-            self._stretch = [renumbered(a, block_id + k) for k, a in enumerate(arrays[1:], start=1)]
-            return self._fit_budgets(renumbered(arrays[0], block_id), clock_s, position_um, program_open)
+            fitted = self._fit_stretch(
+                [renumbered(a, block_id + k) for k, a in enumerate(arrays)],
+                clock_s,
+                position_um,
+                program_open,
+            )
+            self._stretch = fitted[1:]
+            return fitted[0] if fitted else None
         decision = self.policy.propose(ctx)
         if decision is None:
             self.last_stop_reason = f"policy {self.policy.name} has nothing left to propose"
@@ -432,8 +440,35 @@ class Campaign:
             return None
         return self._fit_budgets(decision, clock_s, position_um, program_open)
 
+    def _fit_stretch(
+        self, arrays: list[Decision], clock_s: float, position_um: tuple[float, float], program_open: bool
+    ) -> list[Decision]:
+        """A stretch fitted to the budgets as a whole when it is planned: all its tickets go out with the first
+        and nobody is there to take an array back, so no array handed out may be cut or dropped later."""
+        fitted: list[Decision] = []
+        self._stretch_clock_s = clock_s
+        clock, pos, is_open, taken = clock_s, position_um, program_open, len(self.indents_xy)
+        for a in arrays:
+            d = self._fit_budgets(a, clock, pos, is_open, indents_taken=taken)
+            if d is None:
+                break
+            fitted.append(d)
+            clock += d.predicted_cost_s
+            taken += d.block.n_indents
+            pos, is_open = (d.block.indents[-1].x_um, d.block.indents[-1].y_um), True
+            if d.block.n_indents < a.block.n_indents:
+                break  # cut to fit: nothing after it fits
+        if fitted:
+            self.last_stop_reason = None  # a later array that did not fit says nothing about this one
+        return fitted
+
     def _fit_budgets(
-        self, decision: Decision, clock_s: float, position_um: tuple[float, float], program_open: bool
+        self,
+        decision: Decision,
+        clock_s: float,
+        position_um: tuple[float, float],
+        program_open: bool,
+        indents_taken: int | None = None,
     ) -> Decision | None:
         """Budgets are never exceeded: the next block keeps only the indents that both budgets can pay for.
 
@@ -443,11 +478,14 @@ class Campaign:
         s = self.settings
         block = decision.block
         keep = block.n_indents
+        taken = len(self.indents_xy) if indents_taken is None else indents_taken  # a stretch counts its own
         if s.indent_budget is not None:
-            keep = min(keep, s.indent_budget - len(self.indents_xy))
+            keep = min(keep, s.indent_budget - taken)
         # the time the block may take: the budget's, or the wall clock's before stop_at if that is less
         left_s = math.inf if s.budget_s is None else s.budget_s - clock_s - self.profile.comeback_s
         before_stop_at = self._stop_at_left_s()
+        if before_stop_at is not None and indents_taken is not None:  # a stretch's later array starts later
+            before_stop_at -= clock_s - self._stretch_clock_s
         by_stop_at = before_stop_at is not None and before_stop_at - self.profile.comeback_s < left_s
         if by_stop_at:
             assert before_stop_at is not None
@@ -478,7 +516,7 @@ class Campaign:
             return decision
         which = (
             "indent budget"
-            if s.indent_budget is not None and keep == s.indent_budget - len(self.indents_xy)
+            if s.indent_budget is not None and keep == s.indent_budget - taken
             else f"stop_at {s.stop_at}"
             if by_stop_at
             else "time budget"

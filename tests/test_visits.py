@@ -272,3 +272,38 @@ def test_a_stretch_before_the_last_visit_of_the_day_does_not_leave_the_night_idl
     idle_h = out["wall_clock_h"] - out["instrument_s"] / 3600
     # the first load waits 10 min; every later request is answered within the hours or after a full stretch
     assert idle_h < 1.0, f"{idle_h:.2f} h idle"
+
+
+def test_a_stretch_is_fitted_to_the_budget_when_planned_and_runs_whole_past_it() -> None:
+    """Every ticket of a stretch goes out with its first array and the instrument runs every array the operator
+    loaded, engine or not (docs/kla.md). So the stretch is fitted to the budgets as a whole when planned, and
+    no stop rule later cuts or drops an array already handed out: its indents would be made and never
+    journaled (the soak's lost indents, issue 38)."""
+    from core.campaign import Campaign
+    from core.runconfig import make_campaign_config
+    from drivers.registry import sim_scenario
+
+    budget_s = 2.0 * 3600.0  # less than the evening's space-filling stretch (48 + 16 indents) needs
+    config = make_campaign_config(
+        scenario="ternary", policy="aeni", seed=0, lattice_n=24, settings={"budget_s": budget_s}
+    )
+    cal = OperatorCalendar(OperatorAvailability(WEEKDAYS, 600.0, 7200.0), parse_start("Mon 17:00"))
+    campaign = Campaign(
+        config,
+        sim_scenario(config.driver_options, 0, None).sample,
+        attendance=Attendance(cal.operator().unattended),
+    )
+    first = campaign.propose(0.0, (0.0, 0.0), False, 1)
+    assert first is not None and first.phase == "stretch"
+    queued = campaign.queued_stretch()
+    assert len(queued) == 1 and queued[0].n_indents < 16  # the second array cut to the budget when planned
+    # past the budget, the loaded arrays still come out, each exactly as it was handed out, then the run stops
+    arrays = [first]
+    for k, block in enumerate(queued, start=2):
+        d = campaign.propose(budget_s + 1.0, (0.0, 0.0), True, k)
+        assert d is not None and d.block.indents == block.indents
+        arrays.append(d)
+    # the whole stretch, as planned, fits the budget with the comeback to the lens
+    assert sum(a.predicted_cost_s for a in arrays) <= budget_s - campaign.profile.comeback_s + 1e-6
+    assert campaign.propose(budget_s + 1.0, (0.0, 0.0), True, len(queued) + 2) is None
+    assert campaign.last_stop_reason is not None and "budget" in campaign.last_stop_reason

@@ -19,6 +19,7 @@ JSON_KEYS = {
     "profile",
     "instrument_s",
     "indents",
+    "fast_indents",  # NanoBlitz-class indents (issue 36): 0 with --fast off, the default
     "blocks",
     "reconfigurations",
     "ledger",

@@ -63,25 +63,40 @@ class ManualWallClock:
 
     @contextlib.contextmanager
     def installed(self) -> Iterator[None]:
-        """Make the journal stamp and read its rows with this clock (its writer and reader read the time)."""
+        """Make the journal stamp and read its rows with this clock (its writer and reader read the time).
 
-        clock = self
-
-        class _Time(ModuleType):
-            def __getattr__(self, name: str) -> Any:
-                return getattr(time, name)
-
-            def time(self) -> float:
-                return clock.time()
-
-        fake_time = _Time("time")
-        saved = writer.utc_now, writer.time, reader.time
-        writer.utc_now = self.utc_now
-        writer.time = reader.time = fake_time
+        Runs may close in any order (a factory fixture closes the first first): the journal keeps the clock of
+        the latest run still open, and the real clock once none is, so no test clock outlives its run."""
+        _ACTIVE_CLOCKS.append(self)
+        _apply_clock()
         try:
             yield
         finally:
-            writer.utc_now, writer.time, reader.time = saved
+            _ACTIVE_CLOCKS.remove(self)
+            _apply_clock()
+
+
+_REAL_CLOCK = (writer.utc_now, writer.time, reader.time)  # what the journal reads when no test run is open
+_ACTIVE_CLOCKS: list[ManualWallClock] = []
+
+
+def _apply_clock() -> None:
+    """The journal's clock: the latest open test run's, or the real one."""
+    if not _ACTIVE_CLOCKS:
+        writer.utc_now, writer.time, reader.time = _REAL_CLOCK
+        return
+    clock = _ACTIVE_CLOCKS[-1]
+
+    class _Time(ModuleType):
+        def __getattr__(self, name: str) -> Any:
+            return getattr(time, name)
+
+        def time(self) -> float:
+            return clock.time()
+
+    fake_time = _Time("time")
+    writer.utc_now = clock.utc_now
+    writer.time = reader.time = fake_time
 
 
 class _Gate:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rich.text import Text
+from textual import events
 from textual.widgets import RichLog
 
 from aeni_console.console.widgets.fmt import hms
@@ -40,6 +41,24 @@ class LogPanel(RichLog):
     def __init__(self, **kwargs: object) -> None:
         super().__init__(wrap=True, markup=False, highlight=False, max_lines=2000, min_width=20, **kwargs)  # type: ignore[arg-type]
         self._shown: list[tuple[str, float, str, str]] = []
+        self._lines: list[Text] = []  # what was written, to wrap again at a new width
+        self._width = 0
+
+    def _add(self, line: Text) -> None:
+        self._lines.append(line)
+        del self._lines[:-2000]
+        self.write(line)
+
+    def on_resize(self, event: events.Resize) -> None:
+        """Lines are wrapped when written: at a new width (an SSH window resized, or the first layout) they are
+        written again, so no line keeps the wrap of a width the panel no longer has."""
+        if event.size.width == self._width:
+            return
+        self._width = event.size.width
+        if self._lines:
+            self.clear()
+            for line in self._lines:
+                self.write(line)
 
     def show_events(self, events: tuple[LogEvent, ...]) -> None:
         keys = [event_key(e) for e in events]
@@ -51,9 +70,10 @@ class LogPanel(RichLog):
         if start is None or (not keys and self._shown):
             self.clear()
             self._shown = []
+            self._lines = []
             start = 0
         for e in events[start:]:
-            self.write(event_text(e))
+            self._add(event_text(e))
         self._shown.extend(keys[start:])
         self._shown = self._shown[-2000:]
 
@@ -62,4 +82,4 @@ class LogPanel(RichLog):
         t = Text()
         t.append("console  ", style="dim")
         t.append(text, style=LEVEL_STYLES.get(level, ""))
-        self.write(t)
+        self._add(t)

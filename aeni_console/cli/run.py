@@ -386,41 +386,32 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
     )
     written = []
     for name, df in tables.items():
-        target = out / f"{name}.{fmt}"
-        tmp = out / f".{name}.{fmt}.tmp"
-        if fmt == "csv":
-            df.to_csv(tmp, index=False)
-        else:
-            df.to_parquet(tmp, index=False)
-        os.replace(tmp, target)
-        written.append(target)
+        written.append(_write_table(df, out / f"{name}.{fmt}", fmt))
     if tray is not None:  # a folder per sample with its own indents
         for s in tray.samples:
             folder = out / "samples" / s.name
             folder.mkdir(parents=True, exist_ok=True)
             own = tables["indents"][tables["indents"]["sample"] == s.name]
-            target = folder / f"indents.{fmt}"
-            tmp = folder / f".indents.{fmt}.tmp"
-            if fmt == "csv":
-                own.to_csv(tmp, index=False)
-            else:
-                own.to_parquet(tmp, index=False)
-            os.replace(tmp, target)
-            written.append(target)
+            written.append(_write_table(own, folder / f"indents.{fmt}", fmt))
         for name, lib_maps in tray_final_maps(path).items():
             columns: dict[str, Any] = (
                 lib_maps.columns() if lib_maps is not None else {c: [] for c in FINAL_MAP_COLUMNS}
             )
-            target = out / "samples" / name / f"predictions.{fmt}"
-            tmp = target.with_name(f".predictions.{fmt}.tmp")
-            df = pd.DataFrame(columns)
-            if fmt == "csv":
-                df.to_csv(tmp, index=False)
-            else:
-                df.to_parquet(tmp, index=False)
-            os.replace(tmp, target)
-            written.append(target)
+            written.append(
+                _write_table(pd.DataFrame(columns), out / "samples" / name / f"predictions.{fmt}", fmt)
+            )
     return written
+
+
+def _write_table(df: Any, target: Path, fmt: str) -> Path:
+    """One exported table, written beside its target and renamed: never half-written."""
+    tmp = target.with_name(f".{target.name}.tmp")
+    if fmt == "csv":
+        df.to_csv(tmp, index=False)
+    else:
+        df.to_parquet(tmp, index=False)
+    os.replace(tmp, target)
+    return target
 
 
 def _cmd_export(args: argparse.Namespace) -> int:

@@ -137,7 +137,8 @@ def test_poke_wakes_the_feed_early(live_run: LiveRunFactory) -> None:
         time.sleep(0.01)
     run.advance(1)
     feed.poke()
-    while feed.polls < 2 and time.monotonic() < deadline:
+    # a poll is counted when it starts, its snapshot delivered after the read: wait for the delivery too
+    while (feed.polls < 2 or len(got.of(SnapshotArrived)) < 2) and time.monotonic() < deadline:
         time.sleep(0.01)
     feed.stop()
     feed.join(timeout=2)

@@ -17,7 +17,7 @@ from core.profile import FastMode, load_profile, profile_from_dict, profile_to_d
 
 FAST_TABLE = (
     "[fast]\nindent_s = 2.0\ncolumn_change_s = 4.0\nmax_extent_um = 800.0\nmin_pitch_um = 10.0\n"
-    "peak_load_mn = 10.0\nsurface_find = true\ndrift_settle = false\nmethod = \"Lab NanoBlitz.nmt\"\n"
+    'peak_load_mn = 10.0\nsurface_find = true\ndrift_settle = false\nmethod = "Lab NanoBlitz.nmt"\n'
 )
 
 

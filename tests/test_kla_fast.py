@@ -29,7 +29,7 @@ from drivers.kla.driver import KlaDriver
 from drivers.kla.exchange import ExchangeFolder, MethodStep, Ticket, make_ticket, ticket_panel, ticket_text
 from drivers.kla.export import read_kla_export
 from drivers.kla.fake_nanoblitz import nanoblitz_csv
-from drivers.kla.inbox import match_rows, outcomes_for
+from drivers.kla.inbox import FAST_ORDER, match_rows, outcomes_for
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.scenarios import make_scenario
 
@@ -67,7 +67,7 @@ def test_a_fast_array_is_one_ticket_naming_the_nanoblitz_method_its_load_and_gri
     text = ticket_text(t)
     assert "NANOBLITZ FAST ARRAY (not CSM): 30 load-controlled indents" in text
     assert '4. Test method: "NanoBlitz 3D.nmt"' in text and "peak load\n   5 mN" in text
-    assert "full 6 × 5 grid" in text and f"inbox/{t.export_stem}.csv" in text
+    assert "full grid of 6 rows (y) × 5 columns (x) at 10 µm" in text and f"inbox/{t.export_stem}.csv" in text
     assert "NANOBLITZ fast array: 30 sites" in ticket_panel(t)
     # the JSON ticket (the fake InView's trigger) carries it; a ticket written before it reads as CSM
     folder = ExchangeFolder(exchange, "r1", PROFILE.inview)
@@ -88,7 +88,7 @@ def test_an_array_with_sites_left_out_must_be_run_from_the_sites_file() -> None:
     t = make_ticket("r1", b, PROFILE.inview, expected_s=120.0, fast=FAST)
     assert t.fast is not None and t.fast.left_out == 2 and not t.fast.full_grid
     text = ticket_text(t)
-    assert "28 of a 6 × 5 grid" in text and "do NOT run the full grid" in text
+    assert "28 of a grid of 6 rows (y) × 5 columns (x)" in text and "do NOT run the full grid" in text
     # a resumed array: what is left of it
     rest = make_ticket("r1", b, PROFILE.inview, expected_s=60.0, first_index=10, fast=FAST)
     assert rest.n_sites == 18 and rest.methods == (MethodStep(0.0, "NanoBlitz 3D.nmt", 1, 18),)
@@ -213,7 +213,7 @@ def test_rows_are_matched_to_sites_by_position_within_the_tolerance(tmp_path: Pa
     raster = sorted(range(16), key=lambda i: (b.indents[i].y_um, b.indents[i].x_um))
     export = read_kla_export(_export_rows(tmp_path, b, raster))
     match = match_rows(export, ticket, PROFILE.inview.position_tolerance_um)
-    assert not match.refusal
+    assert not match.refusal and match.notes == (FAST_ORDER,)
     outcomes = outcomes_for(export, ticket, match, "not run")
     assert [o.hardness_gpa for o in outcomes] == pytest.approx([5.0 + i / 100 for i in range(16)])
     near = read_kla_export(_export_rows(tmp_path, b, list(range(16)), dx_um=2.0))

@@ -97,14 +97,14 @@ def fast_steps(
     first = f"first site at X {f.first_x_um / 1000:.4f} mm, Y {f.first_y_um / 1000:.4f} mm"
     if f.full_grid:
         grid = (
-            f"   The sites are a full {f.rows} × {f.cols} grid (rows along y × columns along x) at {f.pitch_um:g} µm,\n"
+            f"   The sites are a full grid of {f.rows} rows (y) × {f.cols} columns (x) at {f.pitch_um:g} µm,\n"
             f"   {first}: a NanoBlitz method that lays out its own grid may take these instead.\n"
         )
     elif f.left_out > 0:
         grid = (
-            f"   The sites are {n_sites} of a {f.rows} × {f.cols} grid at {f.pitch_um:g} µm ({first}): {f.left_out} sites\n"
-            f"   are left out (off the sample, near an exclusion or an earlier indent). Run the sites file;\n"
-            f"   do NOT run the full grid.\n"
+            f"   The sites are {n_sites} of a grid of {f.rows} rows (y) × {f.cols} columns (x) at {f.pitch_um:g} µm\n"
+            f"   ({first}): {f.left_out} sites are left out (off the sample, near an exclusion or an earlier\n"
+            f"   indent). Run the sites file; do NOT run the full grid.\n"
         )
     else:
         grid = "   The sites lie on no regular grid: run the sites file.\n"

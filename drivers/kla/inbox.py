@@ -32,6 +32,7 @@ MATCHED_BY_ORDER = (
     "no positions in the export: matched by test order "
     "(add X/Y Test Position to the export template to let the driver check them)"
 )
+FAST_ORDER = "NanoBlitz rows in the instrument's own order: each matched to the planned site it lies on"
 STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a little on a share
 
 
@@ -377,6 +378,8 @@ def match_rows(
         sites = [a for a in assigned if a is not None]
         if all(a < b for a, b in itertools.pairwise(sites)):
             return Match(assigned, (note,) if note else (), scale=scale)  # array order (sites may be skipped)
+        if ticket.fast is not None:  # NanoBlitz may make its grid in its own order (a raster, a snake)
+            return Match(assigned, tuple(filter(None, [note, FAST_ORDER])), scale=scale)
         why = _diagnose([p for p in rows if p is not None], ticket, tol)
         warn = f"rows are not in the array's order but each lies on a planned site: {why}"
         return Match(assigned, tuple(filter(None, [note, warn])), scale=scale)

@@ -5,6 +5,11 @@ can show WAITING FOR INSTRUMENT, take the operator's reports and keep its checkp
 array ends: an accepted export, a surface not found, or the deadline. It then reports, in indent order, the
 cost model's steps and one ``IndentResult`` per site: measured, failed (no number) or not run.
 
+A fast array (``Block.channel == "fast"``) goes out the same way as its own ticket: the profile's NanoBlitz
+method (``fast.method``), its peak load and its grid (``drivers.kla.fast_ticket``); its NanoBlitz CSV is matched
+to the sites by position and every result carries the channel "fast". A profile without a fast mode refuses
+one: a fast array is never sent as a CSM ticket.
+
 The clock is the cost model's, as for the simulated instrument, so budgets and the ledger mean the same with
 either driver; the time actually spent waiting is in the journal's wall-clock times.
 """

@@ -134,8 +134,29 @@ def test_a_fast_array_runs_through_the_fake_inview_as_the_simulator_reads_it(
     raw = archived.read_bytes()
     assert raw.startswith(b"\xef\xbb\xbfTest,X Position,Y Position,") and b"\r\n,\xc2\xb5m,\xc2\xb5m," in raw
     assert read_kla_export(archived).software == "NanoBlitz 3D"
+    assert raw.count(b",,,,\r\n") == len(failed)  # a failed indent's row: its position, blank values
     manifest = [json.loads(line) for line in (tmp_path / "r1.sqlite.exports" / "manifest.jsonl").open()]
     assert manifest[-1]["format"] == "NanoBlitz 3D"
+
+
+def test_a_resumed_fast_array_runs_only_its_rest_and_reads_what_the_whole_array_would(
+    exchange: Path, tmp_path: Path
+) -> None:
+    d = driver(exchange, tmp_path)
+    b = array_block()
+    d.set_state(0.0, (b.indents[9].x_um, b.indents[9].y_um), True)  # indents 0-9 are in the journal
+    for _ in running_fake(exchange):
+        results = [ev for ev in d.execute_block(b, 10) if isinstance(ev, IndentResult)]
+    assert [r.indent_index for r in results] == list(range(10, 30)) and {r.channel for r in results} == {
+        "fast"
+    }
+    ticket = d.folder.read_ticket(0)
+    assert ticket is not None and ticket.fast is not None and ticket.n_sites == 20
+    whole, _ = sim_fast(b)
+    both = [(r, whole[r.indent_index]) for r in results if r.measured and whole[r.indent_index].measured]
+    assert len(both) >= 15  # the draws are keyed by the index in the array: the rest reads as the whole
+    for r, w in both:
+        assert r.hardness_gpa == pytest.approx(w.hardness_gpa, abs=5e-5)
 
 
 @pytest.mark.parametrize("fault", ["aborted", "mm-um"])

@@ -92,10 +92,14 @@ class FastMode:
     peak_load_mn: float
     surface_find: bool
     drift_settle: bool
+    # the InView test method an array runs (the KLA driver's fast ticket names it); the default is the name
+    # kla-imicro gives it, for journals and code written before the field
+    method: str = "NanoBlitz 3D.nmt"
 
 
 _FAST_NUMBERS = {"indent_s", "column_change_s", "max_extent_um", "min_pitch_um", "peak_load_mn"}
 _FAST_FLAGS = {"surface_find", "drift_settle"}
+_FAST_TEXTS = {"method"}
 
 
 @dataclass(frozen=True)
@@ -383,7 +387,7 @@ def _fast(base: FastMode | None, table: Any, source: str) -> FastMode | None:
     """The [fast] table: every field required unless inherited; ``available = false`` removes an inherited one."""
     if not isinstance(table, dict):
         raise InputError(source, "[fast] must be a table")
-    allowed = _FAST_NUMBERS | _FAST_FLAGS | {"available"}
+    allowed = _FAST_NUMBERS | _FAST_FLAGS | _FAST_TEXTS | {"available"}
     for key in table:
         if key not in allowed:
             raise InputError(source, f"unknown field fast.{key} (allowed: {', '.join(sorted(allowed))})")
@@ -395,7 +399,7 @@ def _fast(base: FastMode | None, table: Any, source: str) -> FastMode | None:
             raise InputError(source, "field fast.available = false takes no other [fast] field")
         return None
     if base is None:
-        missing = sorted((_FAST_NUMBERS | _FAST_FLAGS) - set(table))
+        missing = sorted((_FAST_NUMBERS | _FAST_FLAGS | _FAST_TEXTS) - set(table))
         if missing:
             raise InputError(source, f"[fast] needs field(s) {', '.join(f'fast.{m}' for m in missing)}")
     updates: dict[str, Any] = {}
@@ -404,6 +408,10 @@ def _fast(base: FastMode | None, table: Any, source: str) -> FastMode | None:
             if not isinstance(value, bool):
                 raise InputError(source, f"field fast.{key} must be true or false, got {value!r}")
             updates[key] = value
+        elif key in _FAST_TEXTS:
+            if not isinstance(value, str) or not value.strip():
+                raise InputError(source, f"field fast.{key} must be the InView method's name, got {value!r}")
+            updates[key] = value.strip()
         elif key in _FAST_NUMBERS:
             updates[key] = _number(source, f"fast.{key}", value, positive=key != "column_change_s")
     fast = FastMode(**updates) if base is None else replace(base, **updates)

@@ -17,7 +17,7 @@ from core.profile import FastMode, load_profile, profile_from_dict, profile_to_d
 
 FAST_TABLE = (
     "[fast]\nindent_s = 2.0\ncolumn_change_s = 4.0\nmax_extent_um = 800.0\nmin_pitch_um = 10.0\n"
-    "peak_load_mn = 10.0\nsurface_find = true\ndrift_settle = false\n"
+    'peak_load_mn = 10.0\nsurface_find = true\ndrift_settle = false\nmethod = "Lab NanoBlitz.nmt"\n'
 )
 
 
@@ -53,6 +53,7 @@ def test_own_fast_section_and_round_trip(tmp_path: Path) -> None:
     p = load_profile(f)
     assert p.fast is not None
     assert (p.fast.indent_s, p.fast.column_change_s, p.fast.drift_settle) == (2.0, 4.0, False)
+    assert p.fast.method == "Lab NanoBlitz.nmt"  # the InView method a fast array's ticket names
     assert profile_from_dict(profile_to_dict(p)) == p
     # a child overrides one field of an inherited section
     g = tmp_path / "child.toml"
@@ -73,6 +74,9 @@ def test_own_fast_section_and_round_trip(tmp_path: Path) -> None:
         ('extends = "kla-imicro"\n[fast]\nindent_s = 0\n', "fast.indent_s"),
         ('extends = "kla-imicro"\n[fast]\npeak_load_mn = "5 mN"\n', "fast.peak_load_mn"),
         ('extends = "kla-imicro"\n[fast]\nsurface_find = 1\n', "fast.surface_find"),
+        ('name = "x"\n' + FAST_TABLE.replace('method = "Lab NanoBlitz.nmt"\n', ""), "fast.method"),
+        ('extends = "kla-imicro"\n[fast]\nmethod = " "\n', "fast.method"),
+        ('extends = "kla-imicro"\n[fast]\nmethod = 3\n', "fast.method"),
         ('extends = "kla-imicro"\n[fast]\nwarp_s = 1\n', "fast.warp_s"),
         ('extends = "kla-imicro"\n[fast]\nmin_pitch_um = 2000.0\n', "fast.min_pitch_um"),
         ('extends = "kla-imicro"\n[fast]\navailable = "no"\n', "fast.available"),

@@ -59,7 +59,8 @@ def register(subparsers: Any) -> None:
             "Watch DIR/outbox for tickets, run each array on the emulator (the cost model's time ÷ --speed) "
             "and write InView-like exports to DIR/inbox until stopped (Ctrl-C). Faults: "
             "aborted, surface-not-found, missing-export, duplicate-export, mm-um, flipped-y "
-            "(NAME for every block, NAME@BLOCK for one)."
+            "(NAME for every block, NAME@BLOCK for one). A fast array's ticket (NanoBlitz) is read from the "
+            "emulator's fast channel and exported as the NanoBlitz CSV, whatever --format says."
         ),
     )
     fake.add_argument("--exchange", metavar="DIR", type=Path, required=True, help="the exchange folder")
@@ -81,7 +82,10 @@ def register(subparsers: Any) -> None:
         help="export format ('records': a folder of per-test record CSVs, one per test, as InView can write)",
     )
     fake.add_argument(
-        "--invalid-rate", type=float, default=0.03, help="share of indents exported as 1.797e308 (0-1)"
+        "--invalid-rate",
+        type=float,
+        default=0.03,
+        help="share of indents exported as 1.797e308 (0-1); blank cells in a NanoBlitz CSV",
     )
     fake.add_argument(
         "--no-positions",

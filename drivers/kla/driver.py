@@ -5,6 +5,11 @@ can show WAITING FOR INSTRUMENT, take the operator's reports and keep its checkp
 array ends: an accepted export, a surface not found, or the deadline. It then reports, in indent order, the
 cost model's steps and one ``IndentResult`` per site: measured, failed (no number) or not run.
 
+A fast array (``Block.channel == "fast"``) goes out the same way as its own ticket: the profile's NanoBlitz
+method (``fast.method``), its peak load and its grid (``drivers.kla.fast_ticket``); its NanoBlitz CSV is matched
+to the sites by position and every result carries the channel "fast". A profile without a fast mode refuses
+one: a fast array is never sent as a CSM ticket.
+
 The clock is the cost model's, as for the simulated instrument, so budgets and the ledger mean the same with
 either driver; the time actually spent waiting is in the journal's wall-clock times.
 """
@@ -161,6 +166,7 @@ class KlaDriver(InstrumentState):
                     speed=self.speed,
                     runs_after_s=before,
                     answer_delay_s=delay_s,
+                    fast=self.profile.fast,
                 )
             )
             before, clock = before + expected, clock + expected
@@ -211,6 +217,7 @@ class KlaDriver(InstrumentState):
             program_open=self._open,
             speed=self.speed,
             answer_delay_s=self._answer_delay_s(),
+            fast=self.profile.fast,
         )
         self.folder.publish(ticket)
         return ticket
@@ -238,11 +245,10 @@ class KlaDriver(InstrumentState):
     def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         if self._abort.is_set():
             raise DriverAborted("driver was aborted")
-        if block.channel == "fast":
-            # never as a CSM ticket: a fast array needs its own InView method (issue 36, not built yet)
+        if block.channel == "fast" and self.profile.fast is None:
+            # never as a CSM ticket: a fast array runs the profile's own NanoBlitz method
             raise ValueError(
-                f"block {block.block_id} is a fast array: the KLA driver does not run fast arrays yet "
-                "(run the policy without +fast)"
+                f"block {block.block_id} is a fast array but profile {self.profile.name} has no fast mode"
             )
         if start_index >= block.n_indents:
             return  # every indent is in the journal (a crash before the block was observed): nothing to run
@@ -320,7 +326,7 @@ class KlaDriver(InstrumentState):
             spec = block.indents[i]
             if outcome.status == "not_run":
                 yield IndentResult.unmeasured(
-                    block.block_id, i, spec, self._clock_s, "not_run", outcome.reason
+                    block.block_id, i, spec, self._clock_s, "not_run", outcome.reason, block.channel
                 )
                 continue
             for step in indent_steps(self.profile, block, i, self._pos, self._open):
@@ -328,7 +334,7 @@ class KlaDriver(InstrumentState):
             self._pos, self._open = (spec.x_um, spec.y_um), True
             if outcome.status == "unverified":  # where the export says the tip went; no value
                 made = IndentResult.unmeasured(
-                    block.block_id, i, spec, self._clock_s, "unverified", outcome.reason
+                    block.block_id, i, spec, self._clock_s, "unverified", outcome.reason, block.channel
                 )
                 yield replace(
                     made,
@@ -352,6 +358,7 @@ class KlaDriver(InstrumentState):
                 status=outcome.status,
                 note=outcome.reason,
                 depth_at_max_load_nm=outcome.max_depth_nm,
+                channel=block.channel,
             )
 
 

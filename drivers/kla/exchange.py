@@ -31,7 +31,8 @@ from typing import Any, Literal
 from core.describe import sites_words
 from core.errors import InputError
 from core.plan import Block, IndentSpec
-from core.profile import InViewSettings
+from core.profile import FastMode, InViewSettings
+from drivers.kla.fast_ticket import FastArrayTicket, fast_array_ticket, fast_panel, fast_steps
 
 TOKEN_ALPHABET = "ACDEFHJKMNPRTUVWXY34679"  # no look-alikes (0/O, 1/I/L, 2/Z, 5/S, 8/B)
 TOKEN_LENGTH = 5
@@ -164,6 +165,8 @@ class Ticket:
     stretch_index: int = 0
     stretch_arrays: tuple[str, ...] = ()
     stretch_s: float = 0.0
+    # a fast (NanoBlitz-class) array: its method, peak load and grid (None: a CSM array)
+    fast: FastArrayTicket | None = None
 
     @property
     def n_sites(self) -> int:
@@ -215,6 +218,7 @@ class Ticket:
                 stretch_index=int(d.get("stretch_index", 0)),
                 stretch_arrays=tuple(str(line) for line in d.get("stretch_arrays", ())),
                 stretch_s=float(d.get("stretch_s", 0.0)),
+                fast=None if d.get("fast") is None else FastArrayTicket.from_dict(d["fast"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(source, f"not a valid ticket ({type(exc).__name__}: {exc})") from None
@@ -259,6 +263,7 @@ def make_ticket(
     speed: float | None = None,
     runs_after_s: float = 0.0,
     answer_delay_s: float = 0.0,
+    fast: FastMode | None = None,
 ) -> Ticket:
     """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre.
 
@@ -267,6 +272,7 @@ def make_ticket(
     seconds of the arrays loaded before it that run first (a stretch), counted into the deadline.
     ``answer_delay_s``: wall seconds until the operator can answer at all (nobody there): the wait counts
     from then, so a block written at night does not run out unrun before anyone could load it.
+    ``fast``: the profile's fast mode, for a fast array (``block.channel == "fast"``): one NanoBlitz method.
     """
     if not _RUN_NAME.match(run):
         raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
@@ -275,7 +281,15 @@ def make_ticket(
     specs = block.indents[first_index:]
     holds = tuple(s.hold_s for s in specs)
     methods: list[MethodStep] = []
-    for i, hold in enumerate(holds, start=1):
+    fast_part = None
+    if block.channel == "fast":
+        if fast is None:
+            raise ValueError(
+                f"block {block.block_id} is a fast array: its ticket needs the profile's fast mode"
+            )
+        fast_part = fast_array_ticket(tuple((s.x_um, s.y_um) for s in specs), block.pitch_um, fast)
+        methods.append(MethodStep(0.0, fast.method, 1, len(specs)))
+    for i, hold in enumerate(() if fast_part else holds, start=1):  # a fast array has its one method
         if methods and math.isclose(methods[-1].hold_s, hold):
             last = methods[-1]
             methods[-1] = MethodStep(last.hold_s, last.method, last.first_site, i)
@@ -309,6 +323,7 @@ def make_ticket(
         clock_s=float(clock_s),
         from_um=(float(from_um[0]), float(from_um[1])),
         program_open=program_open,
+        fast=fast_part,
     )
 
 
@@ -385,19 +400,29 @@ def ticket_text(ticket: Ticket) -> str:
     grid = f" ({t.grid_g}×{t.grid_g} at {t.pitch_um:g} µm)" if t.grid_g > 1 else ""
     words = sites_words(t.kind, t.sites_um, t.grid_g, t.pitch_um, None)
     array_words = f"{words.program}: {words.layout} {words.extent}".rstrip()
+    array = (
+        f"3. Array dialog: import outbox/{t.sites_file}\n"
+        f"   {t.n_sites} sites{grid}, µm offsets from the crosshair, {sign}.\n"
+        f"   ({array_words})\n"
+    )
+    method = f"4. Test method:\n{methods}\n"
+    export = f"6. Export (Sample File → Export, CSV or Excel) as inbox/{t.export_stem}.xlsx (or .csv).\n"
+    kind = ""
+    if t.fast is not None:
+        array, method, export = fast_steps(t.fast, t.n_sites, t.sites_file, sign, t.export_stem)
+        kind = f"NANOBLITZ FAST ARRAY (not CSM): {t.n_sites} load-controlled indents, no hold\n"
     return (
         f"AE-NI ticket  run {t.run}  block {t.block_id}{resumed}\n"
+        f"{kind}"
         f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
         f"\n"
         f"{_stretch_words(t)}"
         f"1. Sample: the run's sample, as calibrated (same mounting, same crosshair reference).\n"
         f"{move}\n"
-        f"3. Array dialog: import outbox/{t.sites_file}\n"
-        f"   {t.n_sites} sites{grid}, µm offsets from the crosshair, {sign}.\n"
-        f"   ({array_words})\n"
-        f"4. Test method:\n{methods}\n"
+        f"{array}"
+        f"{method}"
         f"5. Start the array. Expected {t.expected_s:,.0f} s; deadline {deadline}.\n"
-        f"6. Export (Sample File → Export, CSV or Excel) as inbox/{t.export_stem}.xlsx (or .csv).\n"
+        f"{export}"
         f"If the array aborts or the surface is not found, report it (console keys a / f) with the token.\n"
     )
 
@@ -421,8 +446,12 @@ def ticket_panel(ticket: Ticket) -> tuple[str, ...]:
         + (" swap" if t.array_swap_xy else ""),
         f"  outbox/{t.sites_file}",
     ]
-    lines += [f"method {m.hold_s:g} s: {m.method}" for m in t.methods]
-    lines += [f"export: inbox/{t.export_stem}.xlsx", f"expected {t.expected_s:,.0f} s of instrument time"]
+    if t.fast is not None:
+        lines += [*fast_panel(t.fast, t.n_sites), f"export: inbox/{t.export_stem}.csv"]
+    else:
+        lines += [f"method {m.hold_s:g} s: {m.method}" for m in t.methods]
+        lines += [f"export: inbox/{t.export_stem}.xlsx"]
+    lines += [f"expected {t.expected_s:,.0f} s of instrument time"]
     return tuple(lines)
 
 

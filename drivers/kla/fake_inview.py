@@ -14,7 +14,10 @@ files sit beside them, there is a units row and three summary rows, NanoBlitz co
 
 The measurements come from the simulated instrument (``drivers.sim``): the same emulator, cost model and
 clock as the sim driver, synced to the engine's model of the instrument carried by each ticket, so a run
-through the fake InView measures what a sim run on the same seed measures.
+through the fake InView measures what a sim run on the same seed measures. A fast array's ticket (NanoBlitz)
+is read from the emulator's fast channel at the ticket's peak load, takes the fast array's time, and is
+exported as the NanoBlitz CSV (``drivers.kla.fake_nanoblitz``) whatever ``--format`` says: blank cells
+where an indent failed.
 """
 
 from __future__ import annotations
@@ -37,8 +40,10 @@ from core.errors import InputError
 from core.plan import Block, IndentResult, IndentSpec
 from core.profile import InstrumentProfile
 from drivers.kla.exchange import ExchangeFolder, Ticket, block_tag, from_array_offset, parse_name, parse_sites
+from drivers.kla.fake_nanoblitz import nanoblitz_csv
 from drivers.kla.fake_records import record_csv
 from drivers.sim.driver import SimulatedDriver
+from drivers.sim.fast_channel import FastPhysics
 
 FAULTS: tuple[str, ...] = (
     "aborted",
@@ -173,7 +178,7 @@ class FakeInView:
             return
         lines = []
         for r in results:
-            invalid = self._invalid(ticket, r.indent_index)
+            invalid = self._invalid(ticket, r.indent_index) or not r.measured
             lines.append(
                 json.dumps(
                     {
@@ -224,14 +229,21 @@ class FakeInView:
             self._record(ticket, results, exported=False)
             self.log(f"{tag}: no export (fault)")
             return
-        if self.fmt == "records":
+        if self.fmt == "records" and ticket.fast is None:
             target = folder.inbox / ticket.export_stem
             self._record(ticket, results, exported=True)
             self._deliver(lambda: self._write_records(target, results, ticket))
             self.log(f"{tag}: exported {target.name}/ ({len(results)} per-test records)")
             return
-        payload = self._export_bytes(results, ticket)
-        target = folder.inbox / f"{ticket.export_stem}.{self.fmt}"
+        if ticket.fast is not None:  # NanoBlitz exports its map as one CSV, whatever the format asked
+            scale = 1e-3 if self._fault("mm-um", ticket.block_id) else 1.0
+            payload = nanoblitz_csv(
+                results, ticket.fast.peak_load_mn, lambda r: self._invalid(ticket, r.indent_index), scale
+            )
+            target = folder.inbox / f"{ticket.export_stem}.csv"
+        else:
+            payload = self._export_bytes(results, ticket)
+            target = folder.inbox / f"{ticket.export_stem}.{self.fmt}"
         self._record(ticket, results, exported=True)
         if ticket.block_id % 2:
             self._deliver(lambda: self._write_slowly(target, payload))
@@ -239,11 +251,14 @@ class FakeInView:
             self._deliver(lambda: _write_bytes_atomic(target, payload))
         self.log(f"{tag}: exported {target.name} ({len(results)} rows)")
         if self._fault("duplicate-export", ticket.block_id):
-            deadline = time.monotonic() + 30
-            while target.exists() and time.monotonic() < deadline:
-                time.sleep(0.1)  # the engine takes the first copy
-            _write_bytes_atomic(target, payload)
-            self.log(f"{tag}: exported {target.name} again (fault)")
+            self._write_again(target, payload, tag)
+
+    def _write_again(self, target: Path, payload: bytes, tag: str) -> None:
+        deadline = time.monotonic() + 30
+        while target.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)  # the engine takes the first copy
+        _write_bytes_atomic(target, payload)
+        self.log(f"{tag}: exported {target.name} again (fault)")
 
     def _block(self, ticket: Ticket, folder: ExchangeFolder) -> Block:
         """What the instrument will actually do: the sites file read with this PC's array convention."""
@@ -268,12 +283,17 @@ class FakeInView:
             ticket.pitch_um,
             ticket.holds_s[0],
             indents,
+            channel="fast" if ticket.fast is not None else "csm",
         )
 
     def _run(self, block: Block, ticket: Ticket, stop_after: int) -> list[IndentResult]:
         if self._sim is None:
             self._sim = SimulatedDriver(self.make_emulator(), self.profile, speed=self.speed)
         sim = self._sim
+        if ticket.fast is not None:  # the load the operator set in the NanoBlitz method
+            if self.profile.fast is None:
+                raise InputError(f"profile {self.profile.name}", "has no fast mode: cannot run a fast array")
+            sim.fast_physics = FastPhysics(ticket.fast.peak_load_mn)
         sim.set_state(ticket.clock_s, ticket.from_um, ticket.program_open)
         results: list[IndentResult] = []
         if ticket.first_index > 0 or (block.kind == "local" and not sim.program_open()):

@@ -18,6 +18,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+from scipy.spatial import cKDTree
+
 from core.errors import InputError
 from drivers.kla.exchange import EXPORT_SUFFIXES, ExchangeFolder, Ticket, parse_name
 from drivers.kla.export import KlaExport, KlaIndent, read_kla_export
@@ -29,6 +32,7 @@ MATCHED_BY_ORDER = (
     "no positions in the export: matched by test order "
     "(add X/Y Test Position to the export template to let the driver check them)"
 )
+FAST_ORDER = "NanoBlitz rows in the instrument's own order: each matched to the planned site it lies on"
 STALE_SLACK_S = 5.0  # clocks of the instrument PC and this one may differ a little on a share
 
 
@@ -274,12 +278,12 @@ class Match:
 
 
 def _tolerance_um(ticket: Ticket, tolerance_um: float) -> float:
-    """The settings' tolerance, but below half the closest spacing, so no row can fit two sites."""
-    sites = ticket.sites_um
-    closest = min(
-        (math.dist(a, b) for i, a in enumerate(sites) for b in sites[i + 1 :]),
-        default=math.inf,
-    )
+    """The settings' tolerance, but below half the closest spacing, so no row can fit two sites (a fast
+    array's pitch may be 5 µm: 2.25 µm then). A k-d tree: a fast array has thousands of sites."""
+    sites = np.asarray(ticket.sites_um, dtype=float).reshape(-1, 2)
+    if len(sites) < 2:
+        return tolerance_um
+    closest = float(cKDTree(sites).query(sites, k=2)[0][:, 1].min())
     return min(tolerance_um, 0.45 * closest)
 
 
@@ -287,17 +291,17 @@ def _assign(
     rows: list[tuple[float, float] | None], sites: tuple[tuple[float, float], ...], tol: float
 ) -> tuple[int | None, ...] | None:
     """Each positioned row to its nearest site within ``tol``, one to one; None when a row fits none."""
-    taken: set[int] = set()
-    out: list[int | None] = []
-    for pos in rows:
-        if pos is None:
-            out.append(None)
-            continue
-        best = min(range(len(sites)), key=lambda k: math.dist(pos, sites[k]))
-        if math.dist(pos, sites[best]) > tol or best in taken:
-            return None
-        taken.add(best)
-        out.append(best)
+    placed = [k for k, pos in enumerate(rows) if pos is not None]
+    out: list[int | None] = [None] * len(rows)
+    if not placed:
+        return tuple(out)
+    dist, best = cKDTree(np.asarray(sites, dtype=float).reshape(-1, 2)).query(
+        np.asarray([rows[k] for k in placed], dtype=float)
+    )
+    if bool((dist > tol).any()) or len(set(best.tolist())) < len(placed):
+        return None
+    for k, site in zip(placed, best.tolist(), strict=True):
+        out[k] = int(site)
     return tuple(out)
 
 
@@ -374,6 +378,8 @@ def match_rows(
         sites = [a for a in assigned if a is not None]
         if all(a < b for a, b in itertools.pairwise(sites)):
             return Match(assigned, (note,) if note else (), scale=scale)  # array order (sites may be skipped)
+        if ticket.fast is not None:  # NanoBlitz may make its grid in its own order (a raster, a snake)
+            return Match(assigned, tuple(filter(None, [note, FAST_ORDER])), scale=scale)
         why = _diagnose([p for p in rows if p is not None], ticket, tol)
         warn = f"rows are not in the array's order but each lies on a planned site: {why}"
         return Match(assigned, tuple(filter(None, [note, warn])), scale=scale)

@@ -55,7 +55,7 @@ class InViewSettings:
     """
 
     methods: tuple[tuple[float, str], ...] = (
-        (0.0, "NanoBlitz 3D.nmt"),
+        (0.0, "AENI hold 0 s.nmt"),
         (5.0, "AENI hold 5 s.nmt"),
         (80.0, "AENI hold 80 s.nmt"),
     )

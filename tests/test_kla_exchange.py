@@ -130,7 +130,7 @@ def test_ticket_fields_deadline_token_and_round_trip(exchange: ExchangeFolder) -
     assert t.deadline() - t.created() == timedelta(seconds=3180)
     assert len(t.token) == 5 and set(t.token) <= set(TOKEN_ALPHABET)
     assert [(m.hold_s, m.method, m.first_site, m.last_site) for m in t.methods] == [
-        (0.0, "NanoBlitz 3D.nmt", 1, 9)
+        (0.0, "AENI hold 0 s.nmt", 1, 9)
     ]
     assert t.origin_mm == (0.5, 0.4) and t.export_stem == "r1-002-export"
     exchange.publish(t)
@@ -140,7 +140,7 @@ def test_ticket_fields_deadline_token_and_round_trip(exchange: ExchangeFolder) -
         "TOKEN " + t.token,
         "X 0.5000 mm, Y 0.4000 mm",
         "r1-002-sites.txt",
-        "NanoBlitz 3D.nmt",
+        "AENI hold 0 s.nmt",
         "04:53:00 UTC",
     ):
         assert needed in text

@@ -44,6 +44,8 @@ from core.taken import taken_xy_um
 from core.tipcheck import TipCheck, check_block, check_grid_g, judge
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from core.driver import Driver
     from core.metrics import MapEvaluator
     from core.run.spec import RunSpec
@@ -60,8 +62,8 @@ class TrayDrivers(Protocol):
         """A tray sample without a file: the driver's built-in one for it (placed by the tray)."""
         ...
 
-    def tray_driver(self, spec: RunSpec, tray: Tray) -> Driver:
-        """One instrument over the whole tray."""
+    def tray_driver(self, spec: RunSpec, tray: Tray, journal: Path | None) -> Driver:
+        """One instrument over the whole tray (a KLA driver keeps its exports beside ``journal``)."""
         ...
 
     def tray_evaluator(self, spec: RunSpec, entry: TraySample) -> MapEvaluator | None:
@@ -71,6 +73,18 @@ class TrayDrivers(Protocol):
 
 def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
+
+
+def tray_profiles(tray: Tray, config: CampaignConfig) -> dict[str, InstrumentProfile]:
+    """The profile each sample is planned with, by name: a library's campaign's (the run's ``profile``, else
+    its sample's, as ``Campaign`` loads it), the reference's own sample's. An instrument over the tray prices
+    its steps with the same, so what it charges is what the planner priced."""
+    return {
+        s.name: load_profile(
+            s.placed.profile if s.role == "reference" else config.profile or s.placed.profile
+        )
+        for s in tray.samples
+    }
 
 
 def goal_settings(settings: PlannerSettings, goal: Goal | None) -> PlannerSettings:
@@ -167,7 +181,7 @@ class TrayCampaign:
             self.lanes[entry.name] = Lane(entry, campaign)
         self.reference = tray.reference
         self.reference_profile: InstrumentProfile | None = (
-            None if self.reference is None else load_profile(self.reference.placed.profile)
+            None if self.reference is None else tray_profiles(tray, config)[self.reference.name]
         )
         self.checks: list[TipCheck] = []
         self._ref_taken: list[np.ndarray] = []

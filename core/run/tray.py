@@ -130,6 +130,23 @@ class _Load:
     ranked: bool = False  # the libraries were ranked for this load (at its visit, or after its first check)
 
 
+def _load_to_dict(load: _Load) -> dict[str, Any]:
+    w = load.window
+    return {
+        "start_s": load.start_s,
+        "window": [w.fill_s, _finite(w.last_answer_s), _finite(w.next_answer_s)],  # inf: none (JSON null)
+        "ranking": list(load.ranking),
+        "ranked": load.ranked,
+    }
+
+
+def _load_from_dict(d: dict[str, Any]) -> _Load:
+    fill, last, after = (math.inf if v is None else float(v) for v in d["window"])
+    return _Load(
+        float(d["start_s"]), LoadWindow(fill, last, after), [str(n) for n in d["ranking"]], bool(d["ranked"])
+    )
+
+
 class _LaneAttendance(Attendance):
     """A library's share of the tray's attendance: known when the tray's is; its window is the library's
     share of the tray's load; what the operator says goes to the tray's."""
@@ -535,6 +552,8 @@ class TrayCampaign:
                 "owner": {str(k): v for k, v in self._owner.items()},
                 "ref_avoid": [list(p) for p in self._ref_avoid],
                 "final_check_done": self._final_check_done,
+                # the visit's load (a calendar): a resumed run goes on with it, no new visit
+                "load": None if self._load is None else _load_to_dict(self._load),
                 # for `aeni status` and the console (core.run.tray_view); a restore recomputes them
                 "indents": {name: len(lane.campaign.indents_xy) for name, lane in self.lanes.items()},
                 "rel_sd_p95_pct": {name: lane.campaign.rel_sd_p95_pct() for name, lane in self.lanes.items()},
@@ -568,5 +587,6 @@ class TrayCampaign:
         self._owner = {int(k): str(v) for k, v in run.get("owner", {}).items()}
         self._ref_avoid = [(float(x), float(y)) for x, y in run.get("ref_avoid", [])]
         self._final_check_done = bool(run.get("final_check_done", False))
+        self._load = None if run.get("load") is None else _load_from_dict(run["load"])
         if self._on in self.lanes:
             self._shown = self.lanes[self._on]

@@ -19,6 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aeni_console.cli.host import create_run_journal, run_engine
+from aeni_console.cli.main import main as cli_main
 from aeni_console.cli.tray import resolve_tray, tray_spec
 from core.campaign import CampaignConfig
 from core.cost import indent_steps
@@ -326,3 +327,25 @@ def test_the_change_is_charged_once_per_change_and_a_resumed_driver_knows_the_ti
         charged_changes += paid > 0
         last = name
     assert charged_changes == sum(1 for a, b in itertools.pairwise(visits) if a[0] != b[0])
+
+
+def test_a_kla_tray_on_two_inview_conventions_is_refused_in_one_line(
+    tray_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    flipped = tmp_path / "flipped.toml"
+    flipped.write_text('extends = "kla-imicro"\n[inview]\narray_y_sign = 1\n', encoding="utf-8")
+    _sample_file(tmp_path / "film.toml", "film", flipped)
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    journal = tmp_path / "runs" / "two.sqlite"
+    argv = ["run", "--driver", "kla", "--exchange", str(exchange), "--tray", str(tray_file), "--quiet"]
+    assert cli_main([*argv, "--journal", str(journal)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1 and "tray sample 'film': its profile" in err[0] and "other [inview] settings" in err[0]
+    )
+    assert not journal.exists() and not list(exchange.iterdir())  # nothing half-written
+    # the fake InView over a tray takes its samples from the tray: a --sample beside it is refused
+    fake = ["kla", "fake-inview", "--exchange", str(exchange), "--tray", str(tray_file)]
+    assert cli_main([*fake, "--sample", str(tmp_path / "tern.toml")]) == 2
+    assert "--sample" in capsys.readouterr().err

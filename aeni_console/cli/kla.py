@@ -239,7 +239,8 @@ def _fake_inview(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, stop)
     shown = ", ".join(args.fault) or "none"
     print(
-        f"fake-inview: watching {args.exchange}/outbox (speed {args.speed or 'real time'}, faults {shown})",
+        f"fake-inview: watching {args.exchange}/outbox (speed {args.speed or 'real time'}, faults {shown}"
+        + (f", tray {args.tray}: each ticket on the sample it names)" if args.tray else ")"),
         flush=True,
     )
     with contextlib.suppress(KeyboardInterrupt):

@@ -29,14 +29,14 @@ class KlaTray:
     profiles: Mapping[str, InstrumentProfile]
 
     def __post_init__(self) -> None:
-        first = self.tray.libraries[0].name
+        first = self.tray.libraries[0]
         for s in self.tray.samples:
-            if self.profiles[s.name].inview != self.profiles[first].inview:
+            if self.profiles[s.name].inview != self.profiles[first.name].inview:
                 raise InputError(
                     f"tray sample {s.name!r}",
-                    f"its profile {self.profiles[s.name].name!r} has other [inview] settings than "
-                    f"{first!r}'s ({self.profiles[first].name!r}): one InView runs the whole tray with one "
-                    "set of methods and one array convention; give the samples one profile",
+                    f"its profile ({s.placed.profile}) has other [inview] settings than {first.name}'s "
+                    f"({first.placed.profile}): one InView runs the whole tray with one set of methods and one "
+                    "array convention; give the samples one profile",
                 )
 
     @property

@@ -34,7 +34,7 @@ from core.sample.tray import Tray, parse_tray
 from core.sample_change import change_s
 from drivers.kla.array_run import ArrayEnd
 from drivers.kla.driver import KlaDriver
-from drivers.kla.exchange import Ticket
+from drivers.kla.exchange import Ticket, make_ticket, ticket_panel, ticket_text
 from drivers.kla.fake_inview import FakeInView
 from drivers.kla.inbox import SiteOutcome
 from drivers.kla.tray import KlaTray
@@ -345,7 +345,26 @@ def test_a_kla_tray_on_two_inview_conventions_is_refused_in_one_line(
         len(err) == 1 and "tray sample 'film': its profile" in err[0] and "other [inview] settings" in err[0]
     )
     assert not journal.exists() and not list(exchange.iterdir())  # nothing half-written
+    assert cli_main(["tray", "check", str(tray_file), "--no-plot"]) == 2  # said before any run, too
+    assert "other [inview] settings" in capsys.readouterr().out
     # the fake InView over a tray takes its samples from the tray: a --sample beside it is refused
     fake = ["kla", "fake-inview", "--exchange", str(exchange), "--tray", str(tray_file)]
     assert cli_main([*fake, "--sample", str(tmp_path / "tern.toml")]) == 2
     assert "--sample" in capsys.readouterr().err
+
+
+def test_a_ticket_names_its_sample_and_an_older_ticket_reads_as_the_runs_one(tray_file: Path) -> None:
+    kla = _kla_tray(tray_file)
+    x0, x1, y0, y1 = kla.tray.by_name("film").placed.calibration.bounds_um
+    centre = ((x0 + x1) / 2, (y0 + y1) / 2)
+    block = Block(3, "global", *centre, 2, 5.0, 80.0, local_grid(*centre, 2, 5.0, 80.0))
+    ticket = make_ticket("r", block, kla.first_profile.inview, expected_s=100.0, sample=kla.sample_of(block))
+    again = Ticket.from_dict(json.loads(json.dumps(ticket.to_dict())), "t")
+    assert again == ticket and again.sample == "film"
+    assert "1. Sample: film on the tray, as calibrated" in ticket_text(ticket)
+    assert ticket_panel(ticket)[0] == "sample film (tray)"
+    older = ticket.to_dict()
+    del older["sample"]  # a ticket written before trays
+    old = Ticket.from_dict(older, "t")
+    assert old.sample == "" and "1. Sample: the run's sample, as calibrated" in ticket_text(old)
+    assert not any(line.startswith("sample ") for line in ticket_panel(old))

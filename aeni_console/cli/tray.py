@@ -10,9 +10,11 @@ import math
 from typing import Any
 
 from aeni_console.files import write_new_file
+from core.campaign import CampaignConfig
 from core.errors import InputError
 from core.profile import load_profile
 from core.run.spec import RunSpec
+from core.run.tray import tray_profiles
 from core.sample import Sample
 from core.sample.tray import (
     TRAY_TEMPLATE,
@@ -26,6 +28,7 @@ from core.sample.tray import (
     visit_order,
 )
 from core.sample_change import change_s, travel_s
+from drivers.kla.tray import KlaTray
 from drivers.registry import KLA_OPTIONS, default_sample
 
 
@@ -82,6 +85,11 @@ def resolve_tray(tray: Tray, driver: str, seed: int = 0) -> tuple[Tray, list[str
     problems += [
         f"{tray.source}: sample {n!r}: no sample file (a scenario needs --driver sim)" for n in missing
     ]
+    if driver == "kla" and not problems:  # one InView over the tray: one convention, one method set
+        try:
+            KlaTray(tray, tray_profiles(tray, CampaignConfig()))
+        except InputError as exc:
+            problems.append(f"{tray.source}: {exc}")
     return tray, problems
 
 

@@ -368,3 +368,36 @@ def test_a_ticket_names_its_sample_and_an_older_ticket_reads_as_the_runs_one(tra
     old = Ticket.from_dict(older, "t")
     assert old.sample == "" and "1. Sample: the run's sample, as calibrated" in ticket_text(old)
     assert not any(line.startswith("sample ") for line in ticket_panel(old))
+
+
+def test_a_stretch_across_samples_names_each_arrays_sample_and_expects_its_change(
+    tray_file: Path, tmp_path: Path
+) -> None:
+    """A load that goes from one library's stretch to the next: every array's ticket out with the first, each
+    naming its sample, the change expected by the first array on the new sample, and charged there."""
+    kla = _kla_tray(tray_file)
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    d = KlaDriver(kla.first_profile, exchange, "s", tmp_path / "s.exports", tray=kla)
+    d.set_state(1000.0, (100.0, 100.0), True)  # a resumed engine: the tip is on tern
+    assert d._on == "tern"
+    arrays = []
+    for k, name in enumerate(["tern", "tern", "film", "film"]):
+        x0, x1, y0, y1 = kla.tray.by_name(name).placed.calibration.bounds_um
+        centre = ((x0 + x1) / 2 + 20.0 * k, (y0 + y1) / 2)
+        arrays.append(Block(k, "global", *centre, 2, 5.0, 80.0, local_grid(*centre, 2, 5.0, 80.0)))
+    d.load_stretch(arrays)
+    d._ticket(arrays[0], 0)  # the first array's ticket publishes the stretch
+    tickets = _tickets(exchange)
+    assert [tickets[k].sample for k in range(4)] == ["tern", "tern", "film", "film"]
+    assert [line.split(":")[0] for line in tickets[0].stretch_arrays] == [
+        "1. block 0 on tern", "2. block 1 on tern", "3. block 2 on film", "4. block 3 on film",
+    ]  # fmt: skip
+    profile = kla.profiles["film"]
+    for k, block in enumerate(arrays):
+        t = tickets[k]
+        own = _own_s(profile, block, t.from_um, t.program_open)
+        assert t.expected_s - own == pytest.approx(change_s(profile) if k == 2 else 0.0)
+        end = ArrayEnd(tuple(SiteOutcome(i, "measured", hardness_gpa=5.0) for i in range(4)), "test")
+        charged = sum(e.seconds for e in d._results(block, end) if isinstance(e, StepRecord))
+        assert charged == pytest.approx(t.expected_s)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from core.plan import StepRecord
 from core.profile import InstrumentProfile
+from core.sample.tray import Tray
 
 
 def change_steps(profile: InstrumentProfile, block_id: int = -1) -> list[StepRecord]:
@@ -36,3 +37,13 @@ def change_s(profile: InstrumentProfile) -> float:
 def travel_s(profile: InstrumentProfile, frm_um: tuple[float, float], to_um: tuple[float, float]) -> float:
     """The stage move between two points, lifted (t(|dx|) + t(|dy|))."""
     return float(profile.move_s(abs(to_um[0] - frm_um[0]), abs(to_um[1] - frm_um[1])))
+
+
+def tip_sample(tray: Tray, clock_s: float, position_um: tuple[float, float]) -> str | None:
+    """The sample the tip is on when an instrument is put back where a journal left it: the one under its
+    last position; none while nothing has run (clock 0: the first block changes onto no sample, as planned).
+    """
+    if clock_s <= 0:
+        return None
+    here = tray.sample_at(*position_um)
+    return None if here is None else here.name

@@ -17,9 +17,11 @@ from core.driver import Driver
 from core.errors import InputError
 from core.metrics import MapEvaluator
 from core.profile import InstrumentProfile
+from core.run.tray import tray_profiles
 from core.sample import Sample
 from core.sample.tray import Tray, TraySample
 from drivers.kla.driver import make_kla_driver
+from drivers.kla.tray import KlaTray
 from drivers.sim.failures import FailureModes
 from drivers.sim.robust_fields import ROBUST_FIELDS, robust_scenario
 from drivers.sim.scenarios import SCENARIOS, make_scenario
@@ -174,14 +176,23 @@ class Registry:
             raise InputError(f"sample {entry.name!r}", "no sample file (a scenario needs --driver sim)")
         return default_sample("sim", entry.sim, spec.campaign.seed)
 
-    def tray_driver(self, spec: RunSpec, tray: Tray) -> Driver:
-        if spec.driver != "sim":
-            raise InputError(
-                "--driver",
-                "a tray runs on the simulated instrument only in this version (the KLA driver runs "
-                "one sample per run)",
-            )
+    def tray_driver(self, spec: RunSpec, tray: Tray, journal: Path | None) -> Driver:
+        """One instrument over the tray: the simulated tray (drivers.sim.tray), or the KLA driver with the
+        tray's samples (drivers.kla.tray), its exports beside ``journal``."""
+        _check_kind(spec.driver)
         options = spec.campaign.driver_options
+        if spec.driver == "kla":
+            if journal is None:
+                raise InputError(
+                    "--journal", "the KLA driver needs the run's journal (its exports are kept beside it)"
+                )
+            kla = KlaTray(tray, tray_profiles(tray, spec.campaign))
+            x0, x1, y0, y1 = tray.libraries[0].placed.calibration.bounds_um
+            exchange = options.get("exchange")
+            return make_kla_driver(
+                kla.first_profile, journal, None if exchange is None else str(exchange),
+                start_um=((x0 + x1) / 2.0, (y0 + y1) / 2.0), speed=spec.speed, tray=kla,
+            )  # fmt: skip
         driver: Driver = make_tray_driver(tray, options, spec.campaign.seed, sim_scenario, spec.speed)
         return driver
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +19,13 @@ from aeni_console.testkit.live import settle, widget_text
 from core.campaign import CampaignConfig
 from core.driver import Driver
 from core.journal import JournalReader
-from core.plan import IndentResult
+from core.operator import OperatorAvailability, OperatorHours
+from core.plan import STRETCH_CONTINUES, IndentResult
 from core.run.compose import Hosting, compose
 from core.run.spec import RunSpec
+from core.visits import OperatorCalendar
 from drivers.registry import DRIVERS
+from tests.test_tray_run import _tray as night_tray
 
 TRAY = """
 name = "night"
@@ -181,3 +185,32 @@ async def test_the_console_shows_the_tray(tray_run: tuple[Path, list[str]]) -> N
             assert "▶" in text  # the current sample (the last block's: the final tip check)
     finally:
         source.close()
+
+
+def test_a_tray_crashed_in_the_nights_load_resumes_in_the_same_load(tmp_path: Path) -> None:
+    """Loaded at 18:00 and left for the night (tests/test_tray_run.py): an engine that dies in the night and is
+    resumed goes on with the arrays loaded at the visit, asking for no new one (the load is in the state)."""
+    cal = OperatorCalendar(
+        OperatorAvailability(OperatorHours.parse("Mon-Fri 08:30-18:00"), 600, 7200),
+        datetime(2026, 11, 23, 17, 50),
+    )
+    spec = RunSpec(campaign=CampaignConfig(seed=0, lattice_n=20), calendar=cal, tray=night_tray())
+    journal = tmp_path / "night.sqlite"
+    opened: list[Any] = []
+
+    def record(s: RunSpec, c: Any) -> Any:
+        opened.append(create_run_journal(journal, s, c))
+        return opened[0]
+
+    run = compose(
+        spec, DRIVERS, record, journal=journal, hosting=Hosting(watch_s=None), driver=_crash_after(30)
+    )
+    with pytest.raises(RuntimeError, match="simulated engine crash"):
+        run.engine.run()
+    opened[0].close()
+    assert run_engine(journal, quiet=True) == 0
+    with JournalReader(journal) as r:
+        row = r.q.engine_row()
+        phases = [d.decision.phase for d in r.decisions()]
+    assert row["completed"] and "every library reached its goal" in row["stop_reason"]
+    assert phases[0] == "tip-check" and set(phases[1:]) == {STRETCH_CONTINUES}  # one visit, as uncrashed

@@ -4,27 +4,33 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from aeni_console.cli.common import dumps, positive_float, seed_arg
+from aeni_console.cli.tray import resolve_tray
 from aeni_console.files import input_file, write_atomic
 from core.cost import block_steps
 from core.errors import InputError
 from core.profile import load_profile
 from core.sample import load_sample
+from core.sample.tray import parse_tray
 from drivers.kla.array_run import ArrayRun
 from drivers.kla.exchange import ExchangeFolder, check_block, check_exchange_dir, make_ticket, ticket_text
 from drivers.kla.export import read_kla_exports, records
 from drivers.kla.fake_inview import FakeInView, parse_fault
 from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
+from drivers.registry import sim_scenario
 from drivers.sim.scenarios import make_scenario
+from drivers.sim.tray import TraySimDriver, make_tray_driver
 
 if TYPE_CHECKING:
     from drivers.kla.export import KlaExport
@@ -74,6 +80,20 @@ def register(subparsers: Any) -> None:
         "--sample", default=None, metavar="FILE", help="the run's sample file: the scenario is laid onto it"
     )
     fake.add_argument("--profile", default=None, help="instrument profile (default: the scenario's)")
+    fake.add_argument(
+        "--tray",
+        default=None,
+        metavar="TRAY.toml",
+        help="the run's tray file: every sample's truth on one stage (each library's scenario or truth CSV), "
+        "each ticket run on the sample it names, with the sample changes the simulated tray charges",
+    )
+    fake.add_argument(
+        "--tip-wear-pct-per-h",
+        dest="tip_wear_pct_per_h",
+        type=float,
+        default=0.0,
+        help="--tray: wear the tip (hardness reads high by this many %% per hour of instrument time)",
+    )
     fake.add_argument(
         "--format",
         dest="fmt",
@@ -190,14 +210,23 @@ def _fake_inview(args: argparse.Namespace) -> int:
     if not 0.0 <= args.invalid_rate <= 1.0:
         raise InputError("--invalid-rate", f"must be from 0 to 1, got {args.invalid_rate}")
     faults = tuple(parse_fault(f) for f in args.fault)
-    scenario = make_scenario(args.scenario, args.seed, noise=args.noise, drift=args.drift)
-    if args.sample is not None:  # the scenario's truth on the run's sample, as the sim driver lays it
-        scenario = scenario.on_sample(load_sample(args.sample))
-    profile = load_profile(args.profile or scenario.profile_name)
+    tray_driver: Callable[[], TraySimDriver] | None = None
+    make_emulator: Callable[[], Any] | None = None  # a tray's stations measure
+    if args.tray is not None:
+        tray_driver, profile_name = _fake_tray(args)
+    else:
+        if args.tip_wear_pct_per_h:
+            raise InputError("--tip-wear-pct-per-h", "only a fake InView over a tray (--tray) wears its tip")
+        scenario = make_scenario(args.scenario, args.seed, noise=args.noise, drift=args.drift)
+        if args.sample is not None:  # the scenario's truth on the run's sample, as the sim driver lays it
+            scenario = scenario.on_sample(load_sample(args.sample))
+        profile_name = scenario.profile_name
+        make_emulator = functools.partial(scenario.make_emulator, load_profile(args.profile or profile_name))
+    profile = load_profile(args.profile or profile_name)
     fake = FakeInView(
         args.exchange,
         profile,
-        lambda: scenario.make_emulator(profile),
+        make_emulator,
         speed=args.speed,
         faults=faults,
         fmt=args.fmt,
@@ -205,6 +234,7 @@ def _fake_inview(args: argparse.Namespace) -> int:
         positions=args.positions,
         log=lambda line: print(f"fake-inview: {line}", flush=True),
         ledger=args.ledger,
+        tray_driver=tray_driver,
     )
 
     def stop(_signum: int, _frame: object) -> None:
@@ -213,12 +243,33 @@ def _fake_inview(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, stop)
     shown = ", ".join(args.fault) or "none"
     print(
-        f"fake-inview: watching {args.exchange}/outbox (speed {args.speed or 'real time'}, faults {shown})",
+        f"fake-inview: watching {args.exchange}/outbox (speed {args.speed or 'real time'}, faults {shown}"
+        + (f", tray {args.tray}: each ticket on the sample it names)" if args.tray else ")"),
         flush=True,
     )
     with contextlib.suppress(KeyboardInterrupt):
         fake.serve_forever()
     return 0
+
+
+def _fake_tray(args: argparse.Namespace) -> tuple[Callable[[], TraySimDriver], str]:
+    """The simulated tray a fake InView runs (the run's tray file and seed), and its first library's profile
+    (the InView settings, unless --profile names them)."""
+    for flag, value in (("--sample", args.sample), ("--noise", args.noise), ("--drift", args.drift)):
+        if value is not None:
+            raise InputError(
+                flag, "a tray names its samples and their truths itself: leave it out with --tray"
+            )
+    tray, problems = resolve_tray(parse_tray(args.tray), "sim", args.seed)
+    if problems:
+        src, _, what = problems[0].partition(": ")
+        raise InputError(src, what)
+    options = {"tip_wear_pct_per_h": args.tip_wear_pct_per_h}
+    make_tray_driver(tray, options, args.seed, sim_scenario)  # bad options or truths: refused now, not later
+    return (
+        lambda: make_tray_driver(tray, options, args.seed, sim_scenario, args.speed),
+        tray.libraries[0].placed.profile,
+    )
 
 
 def _check(args: argparse.Namespace) -> int:

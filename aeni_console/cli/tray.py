@@ -10,9 +10,11 @@ import math
 from typing import Any
 
 from aeni_console.files import write_new_file
+from core.campaign import CampaignConfig
 from core.errors import InputError
 from core.profile import load_profile
 from core.run.spec import RunSpec
+from core.run.tray import tray_profiles
 from core.sample import Sample
 from core.sample.tray import (
     TRAY_TEMPLATE,
@@ -26,12 +28,14 @@ from core.sample.tray import (
     visit_order,
 )
 from core.sample_change import change_s, travel_s
-from drivers.registry import default_sample
+from drivers.kla.tray import KlaTray
+from drivers.registry import KLA_OPTIONS, default_sample
 
 
 def tray_spec(spec: RunSpec, path: str, tip_wear_pct_per_h: float | None = None) -> RunSpec:
     """``aeni run --tray``: the run's spec over the tray in ``path`` (its policy, seed, lattice and settings
-    for every library; the driver's options are the tray's own, e.g. the simulated tip's wear)."""
+    for every library; the driver's options are the tray's own, e.g. the simulated tip's wear, and the KLA
+    driver's exchange folder)."""
     tray = parse_tray(path)
     if spec.campaign.sample is not None:
         raise InputError("--sample", "a tray names its samples itself: leave out --sample with --tray")
@@ -39,7 +43,9 @@ def tray_spec(spec: RunSpec, path: str, tip_wear_pct_per_h: float | None = None)
     if problems:
         src, _, what = problems[0].partition(": ")
         raise InputError(src, what)
-    options: dict[str, Any] = {}
+    options: dict[str, Any] = {k: v for k, v in spec.driver_options.items() if k in KLA_OPTIONS}
+    if spec.driver != "kla":
+        options = {}
     if tip_wear_pct_per_h is not None:
         if spec.driver != "sim":
             raise InputError("--tip-wear-pct-per-h", "only the simulated instrument wears its tip on purpose")
@@ -79,6 +85,11 @@ def resolve_tray(tray: Tray, driver: str, seed: int = 0) -> tuple[Tray, list[str
     problems += [
         f"{tray.source}: sample {n!r}: no sample file (a scenario needs --driver sim)" for n in missing
     ]
+    if driver == "kla" and not problems:  # one InView over the tray: one convention, one method set
+        try:
+            KlaTray(tray, tray_profiles(tray, CampaignConfig()))
+        except InputError as exc:
+            problems.append(f"{tray.source}: {exc}")
     return tray, problems
 
 

@@ -172,7 +172,7 @@ def _compose_tray(
     )
     first = next(iter(campaign.lanes.values())).campaign
     rec = record(spec, first)
-    instrument = drivers.tray_driver(spec, tray)
+    instrument = drivers.tray_driver(spec, tray, journal)
     if driver is not None:
         instrument = driver(instrument)
     extra = sinks(first, None) if callable(sinks) else sinks

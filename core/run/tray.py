@@ -44,6 +44,8 @@ from core.taken import taken_xy_um
 from core.tipcheck import TipCheck, check_block, check_grid_g, judge
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from core.driver import Driver
     from core.metrics import MapEvaluator
     from core.run.spec import RunSpec
@@ -60,8 +62,8 @@ class TrayDrivers(Protocol):
         """A tray sample without a file: the driver's built-in one for it (placed by the tray)."""
         ...
 
-    def tray_driver(self, spec: RunSpec, tray: Tray) -> Driver:
-        """One instrument over the whole tray."""
+    def tray_driver(self, spec: RunSpec, tray: Tray, journal: Path | None) -> Driver:
+        """One instrument over the whole tray (a KLA driver keeps its exports beside ``journal``)."""
         ...
 
     def tray_evaluator(self, spec: RunSpec, entry: TraySample) -> MapEvaluator | None:
@@ -71,6 +73,18 @@ class TrayDrivers(Protocol):
 
 def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
+
+
+def tray_profiles(tray: Tray, config: CampaignConfig) -> dict[str, InstrumentProfile]:
+    """The profile each sample is planned with, by name: a library's campaign's (the run's ``profile``, else
+    its sample's, as ``Campaign`` loads it), the reference's own sample's. An instrument over the tray prices
+    its steps with the same, so what it charges is what the planner priced."""
+    return {
+        s.name: load_profile(
+            s.placed.profile if s.role == "reference" else config.profile or s.placed.profile
+        )
+        for s in tray.samples
+    }
 
 
 def goal_settings(settings: PlannerSettings, goal: Goal | None) -> PlannerSettings:
@@ -114,6 +128,23 @@ class _Load:
     window: LoadWindow
     ranking: list[str] = field(default_factory=list)
     ranked: bool = False  # the libraries were ranked for this load (at its visit, or after its first check)
+
+
+def _load_to_dict(load: _Load) -> dict[str, Any]:
+    w = load.window
+    return {
+        "start_s": load.start_s,
+        "window": [w.fill_s, _finite(w.last_answer_s), _finite(w.next_answer_s)],  # inf: none (JSON null)
+        "ranking": list(load.ranking),
+        "ranked": load.ranked,
+    }
+
+
+def _load_from_dict(d: dict[str, Any]) -> _Load:
+    fill, last, after = (math.inf if v is None else float(v) for v in d["window"])
+    return _Load(
+        float(d["start_s"]), LoadWindow(fill, last, after), [str(n) for n in d["ranking"]], bool(d["ranked"])
+    )
 
 
 class _LaneAttendance(Attendance):
@@ -167,7 +198,7 @@ class TrayCampaign:
             self.lanes[entry.name] = Lane(entry, campaign)
         self.reference = tray.reference
         self.reference_profile: InstrumentProfile | None = (
-            None if self.reference is None else load_profile(self.reference.placed.profile)
+            None if self.reference is None else tray_profiles(tray, config)[self.reference.name]
         )
         self.checks: list[TipCheck] = []
         self._ref_taken: list[np.ndarray] = []
@@ -521,6 +552,8 @@ class TrayCampaign:
                 "owner": {str(k): v for k, v in self._owner.items()},
                 "ref_avoid": [list(p) for p in self._ref_avoid],
                 "final_check_done": self._final_check_done,
+                # the visit's load (a calendar): a resumed run goes on with it, no new visit
+                "load": None if self._load is None else _load_to_dict(self._load),
                 # for `aeni status` and the console (core.run.tray_view); a restore recomputes them
                 "indents": {name: len(lane.campaign.indents_xy) for name, lane in self.lanes.items()},
                 "rel_sd_p95_pct": {name: lane.campaign.rel_sd_p95_pct() for name, lane in self.lanes.items()},
@@ -554,5 +587,6 @@ class TrayCampaign:
         self._owner = {int(k): str(v) for k, v in run.get("owner", {}).items()}
         self._ref_avoid = [(float(x), float(y)) for x, y in run.get("ref_avoid", [])]
         self._final_check_done = bool(run.get("final_check_done", False))
+        self._load = None if run.get("load") is None else _load_from_dict(run["load"])
         if self._on in self.lanes:
             self._shown = self.lanes[self._on]

@@ -44,6 +44,7 @@ from drivers.kla.exchange import (
     write_atomic,
 )
 from drivers.kla.inbox import ExportArchive, InboxWatcher, SiteOutcome
+from drivers.kla.tray import KlaTray
 
 _T = TypeVar("_T")
 
@@ -61,9 +62,11 @@ def make_kla_driver(
     *,
     start_um: tuple[float, float] = (0.0, 0.0),
     speed: float | None = None,
+    tray: KlaTray | None = None,
 ) -> KlaDriver:
     """The driver for a run's journal. A new run names its exchange folder, which is kept beside the
-    journal (``<journal>.exports/exchange.json``) so ``aeni resume`` finds it again."""
+    journal (``<journal>.exports/exchange.json``) so ``aeni resume`` finds it again. ``tray``: a tray run's
+    samples (drivers.kla.tray)."""
     archive = archive_dir_for(journal)
     where = archive / "exchange.json"
     if exchange is None:
@@ -73,7 +76,7 @@ def make_kla_driver(
             raise InputError(str(where), f"cannot tell this run's exchange folder ({exc})") from None
     folder = check_exchange_dir(exchange).resolve()
     run = Path(journal).name.removesuffix(".sqlite")
-    driver = KlaDriver(profile, folder, run, archive, start_um=start_um, speed=speed)
+    driver = KlaDriver(profile, folder, run, archive, start_um=start_um, speed=speed, tray=tray)
     if not where.exists():
         write_atomic(where, json.dumps({"exchange": str(folder), "run": run}) + "\n")
     return driver
@@ -93,8 +96,13 @@ class KlaDriver(InstrumentState):
         clock_s: float = 0.0,
         now: Callable[[], datetime] = utc_now,
         speed: float | None = None,
+        tray: KlaTray | None = None,
     ) -> None:
         self.profile = profile
+        # a tray: each block is on one of its samples, priced with that sample's profile; the first block on
+        # a sample after a block on another one pays the sample change (drivers.kla.tray)
+        self.tray = tray
+        self._on: str | None = None  # the sample the tip last indented (a tray)
         self.folder = ExchangeFolder(exchange, run, profile.inview)
         self.archive = ExportArchive(archive)
         self.watcher = InboxWatcher(self.folder, self.archive)
@@ -106,6 +114,26 @@ class KlaDriver(InstrumentState):
         self._answer_delay_s: Callable[[], float] = lambda: 0.0  # until someone can answer a ticket
 
     # -- state -----------------------------------------------------------------------------------
+
+    def set_state(
+        self,
+        clock_s: float,
+        position_um: tuple[float, float],
+        program_open: bool,
+        physics_clock_s: float | None = None,
+    ) -> None:
+        super().set_state(clock_s, position_um, program_open, physics_clock_s)
+        if self.tray is not None:  # a resumed tray: the tip is on the sample under its last indent
+            self._on = self.tray.on_after_restore(clock_s, position_um)
+
+    def _sample(self, block: Block) -> str:
+        return "" if self.tray is None else self.tray.sample_of(block)
+
+    def _profile_for(self, block: Block) -> InstrumentProfile:
+        return self.profile if self.tray is None else self.tray.profiles[self.tray.sample_of(block)]
+
+    def _change(self, block: Block, on: str | None) -> list[StepRecord]:
+        return [] if self.tray is None else self.tray.change(block, on)
 
     def end_program(self) -> Iterator[StepRecord]:
         if self._open:
@@ -146,12 +174,12 @@ class KlaDriver(InstrumentState):
     def _stretch_tickets(self, start_index: int) -> list[Ticket]:
         """The tickets of the loaded stretch, in load order (the first from ``start_index``), priced one
         after another by the cost model from where the instrument is now."""
-        pos, is_open, clock, before = self._pos, self._open, self._clock_s, 0.0
+        pos, is_open, clock, before, on = self._pos, self._open, self._clock_s, 0.0, self._on
         delay_s = self._answer_delay_s()
         tickets = []
         for k, block in enumerate(self._stretch):
             first = start_index if k == 0 else 0
-            expected = self._expected_s(block, first, pos, is_open)
+            expected = self._expected_s(block, first, pos, is_open, on)
             tickets.append(
                 make_ticket(
                     self.folder.run,
@@ -167,10 +195,12 @@ class KlaDriver(InstrumentState):
                     runs_after_s=before,
                     answer_delay_s=delay_s,
                     fast=self.profile.fast,
+                    sample=self._sample(block),
                 )
             )
             before, clock = before + expected, clock + expected
             pos, is_open = (block.indents[-1].x_um, block.indents[-1].y_um), True
+            on = self._sample(block) or None
         lines = tuple(stretch_line(t, k) for k, t in enumerate(tickets, start=1))
         return [
             replace(t, stretch_index=k, stretch_arrays=lines, stretch_s=before)
@@ -178,10 +208,15 @@ class KlaDriver(InstrumentState):
         ]
 
     # -- a block -----------------------------------------------------------------------------------
-    def _expected_s(self, block: Block, start_index: int, pos: tuple[float, float], is_open: bool) -> float:
-        expected = 0.0
+    def _expected_s(
+        self, block: Block, start_index: int, pos: tuple[float, float], is_open: bool, on: str | None = None
+    ) -> float:
+        """The instrument seconds the array runs, as the results will charge them (``on``: the tray sample
+        the tip is on before it)."""
+        profile = self._profile_for(block)
+        expected = sum(s.seconds for s in self._change(block, on))
         for i in range(start_index, block.n_indents):
-            expected += sum(s.seconds for s in indent_steps(self.profile, block, i, pos, is_open))
+            expected += sum(s.seconds for s in indent_steps(profile, block, i, pos, is_open))
             pos, is_open = (block.indents[i].x_um, block.indents[i].y_um), True
         return expected
 
@@ -209,7 +244,7 @@ class KlaDriver(InstrumentState):
             self.folder.run,
             block,
             self.profile.inview,
-            expected_s=self._expected_s(block, start_index, self._pos, self._open),
+            expected_s=self._expected_s(block, start_index, self._pos, self._open, self._on),
             first_index=start_index,
             now=self.now(),
             clock_s=self._clock_s,
@@ -218,6 +253,7 @@ class KlaDriver(InstrumentState):
             speed=self.speed,
             answer_delay_s=self._answer_delay_s(),
             fast=self.profile.fast,
+            sample=self._sample(block),
         )
         self.folder.publish(ticket)
         return ticket
@@ -252,6 +288,7 @@ class KlaDriver(InstrumentState):
             )
         if start_index >= block.n_indents:
             return  # every indent is in the journal (a crash before the block was observed): nothing to run
+        self.profile = self._profile_for(block)  # a tray: the profile of the sample the block is on
         end = self._recorded_end(block, start_index)  # closed before a restart: no new ticket goes out
         if end is None:
             ticket = yield from self._with_folder(block.block_id, lambda: self._ticket(block, start_index))
@@ -329,9 +366,12 @@ class KlaDriver(InstrumentState):
                     block.block_id, i, spec, self._clock_s, "not_run", outcome.reason, block.channel
                 )
                 continue
+            for step in self._change(block, self._on):  # the block's first indent made on another sample
+                yield self._advance(step)
             for step in indent_steps(self.profile, block, i, self._pos, self._open):
                 yield self._advance(step)  # made, so priced on the instrument clock (unverified too)
             self._pos, self._open = (spec.x_um, spec.y_um), True
+            self._on = self._sample(block) or None
             if outcome.status == "unverified":  # where the export says the tip went; no value
                 made = IndentResult.unmeasured(
                     block.block_id, i, spec, self._clock_s, "unverified", outcome.reason, block.channel

@@ -167,6 +167,8 @@ class Ticket:
     stretch_s: float = 0.0
     # a fast (NanoBlitz-class) array: its method, peak load and grid (None: a CSM array)
     fast: FastArrayTicket | None = None
+    # the tray sample the block is on (a tray run; "" for the run's one sample, and in older tickets)
+    sample: str = ""
 
     @property
     def n_sites(self) -> int:
@@ -219,6 +221,7 @@ class Ticket:
                 stretch_arrays=tuple(str(line) for line in d.get("stretch_arrays", ())),
                 stretch_s=float(d.get("stretch_s", 0.0)),
                 fast=None if d.get("fast") is None else FastArrayTicket.from_dict(d["fast"]),
+                sample=str(d.get("sample", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(source, f"not a valid ticket ({type(exc).__name__}: {exc})") from None
@@ -264,6 +267,7 @@ def make_ticket(
     runs_after_s: float = 0.0,
     answer_delay_s: float = 0.0,
     fast: FastMode | None = None,
+    sample: str = "",
 ) -> Ticket:
     """The ticket for ``block`` from indent ``first_index`` on; the origin is the block's centre.
 
@@ -273,6 +277,7 @@ def make_ticket(
     ``answer_delay_s``: wall seconds until the operator can answer at all (nobody there): the wait counts
     from then, so a block written at night does not run out unrun before anyone could load it.
     ``fast``: the profile's fast mode, for a fast array (``block.channel == "fast"``): one NanoBlitz method.
+    ``sample``: the tray sample the block is on ("" for a single-sample run).
     """
     if not _RUN_NAME.match(run):
         raise InputError("run", f"{run!r} cannot name exchange files (letters, digits, . _ + - only)")
@@ -324,6 +329,7 @@ def make_ticket(
         from_um=(float(from_um[0]), float(from_um[1])),
         program_open=program_open,
         fast=fast_part,
+        sample=sample,
     )
 
 
@@ -353,8 +359,9 @@ def stretch_line(ticket: Ticket, k: int) -> str:
     """One array of a stretch in its load order, for every ticket of the stretch."""
     xmm, ymm = ticket.origin_mm
     methods = ", ".join(f'"{m.method}" (hold {m.hold_s:g} s, {_ranges(m)})' for m in ticket.methods)
+    on = f" on {ticket.sample}" if ticket.sample else ""  # a tray's stretch may go from sample to sample
     return (
-        f"{k}. block {ticket.block_id}: outbox/{ticket.sites_file}, {ticket.n_sites} sites at X {xmm:.4f} mm, "
+        f"{k}. block {ticket.block_id}{on}: outbox/{ticket.sites_file}, {ticket.n_sites} sites at X {xmm:.4f} mm, "
         f"Y {ymm:.4f} mm; {methods}; ~{ticket.expected_s / 60:.0f} min; export inbox/{ticket.export_stem}.xlsx"
     )
 
@@ -374,6 +381,12 @@ def _stretch_words(t: Ticket) -> str:
         + "".join(f"   {line}\n" for line in t.stretch_arrays)
         + "\n"
     )
+
+
+def _sample_words(t: Ticket) -> str:
+    if not t.sample:
+        return "Sample: the run's sample, as calibrated (same mounting, same crosshair reference)."
+    return f"Sample: {t.sample} on the tray, as calibrated (its own corners, same crosshair reference)."
 
 
 def ticket_text(ticket: Ticket) -> str:
@@ -417,7 +430,7 @@ def ticket_text(ticket: Ticket) -> str:
         f"TOKEN {t.token}  (confirm the start with it: console key c, or `aeni send RUN confirm {t.token}`)\n"
         f"\n"
         f"{_stretch_words(t)}"
-        f"1. Sample: the run's sample, as calibrated (same mounting, same crosshair reference).\n"
+        f"1. {_sample_words(t)}\n"
         f"{move}\n"
         f"{array}"
         f"{method}"
@@ -434,6 +447,7 @@ def ticket_panel(ticket: Ticket) -> tuple[str, ...]:
     how = "find the surface" if t.kind == "global" else "tip on the surface"
     words = sites_words(t.kind, t.sites_um, t.grid_g, t.pitch_um, None)
     lines = [
+        *([f"sample {t.sample} (tray)"] if t.sample else []),
         *(
             [f"STRETCH array {t.stretch_index} of {len(t.stretch_arrays)}, ~{t.stretch_s / 3600:.1f} h"]
             if t.stretch_index

@@ -18,6 +18,11 @@ through the fake InView measures what a sim run on the same seed measures. A fas
 is read from the emulator's fast channel at the ticket's peak load, takes the fast array's time, and is
 exported as the NanoBlitz CSV (``drivers.kla.fake_nanoblitz``) whatever ``--format`` says: blank cells
 where an indent failed.
+
+Over a tray (``--tray``) it is the simulated tray (``drivers.sim.tray``): every sample's truth on one stage
+with one tip, the sample changes and the tip's wear charged as the simulated tray charges them. Each ticket
+runs on the sample it names; a ticket that names none, or whose array does not start on the sample it names
+(or on any sample), is not started: the operator reports the surface not found.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from drivers.kla.fake_nanoblitz import nanoblitz_csv
 from drivers.kla.fake_records import record_csv
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.fast_channel import FastPhysics
+from drivers.sim.tray import TraySimDriver
 
 FAULTS: tuple[str, ...] = (
     "aborted",
@@ -95,7 +101,7 @@ class FakeInView:
 
     exchange: Path
     profile: InstrumentProfile
-    make_emulator: Callable[[], Any]
+    make_emulator: Callable[[], Any] | None  # None over a tray (``tray_driver``: its stations measure)
     speed: float | None = None
     faults: tuple[Fault, ...] = ()
     fmt: str = "xlsx"  # or "csv", or "records" (a folder of per-test record CSVs, one per test)
@@ -106,8 +112,11 @@ class FakeInView:
     # the instrument's own record of every indent it made (JSON lines), kept outside the exchange folder:
     # the soak checks the journal against it
     ledger: Path | None = None
+    # a tray (``--tray``): the simulated tray's instrument over every sample (drivers.sim.tray.make_tray_driver)
+    tray_driver: Callable[[], TraySimDriver] | None = None
     _done: set[tuple[str, int]] = field(default_factory=set)
     _sim: SimulatedDriver | None = None
+    _tray_sim: TraySimDriver | None = None
 
     def __post_init__(self) -> None:
         if self.fmt not in ("xlsx", "csv", "records"):
@@ -189,6 +198,11 @@ class FakeInView:
                         "x_um": r.commanded_x_um,  # where this instrument sent the tip
                         "y_um": r.commanded_y_um,
                         "hardness_gpa": None if invalid else r.hardness_gpa,
+                        **(
+                            {}
+                            if self._tray_sim is None
+                            else {"sample": self._sample_at(r.commanded_x_um, r.commanded_y_um)}
+                        ),
                         "invalid": invalid,
                         "exported": exported,
                     }
@@ -211,6 +225,12 @@ class FakeInView:
         tag = f"{ticket.run} block {ticket.block_id}"
         block = self._block(ticket, folder)  # a folder gone before this: the ticket is served when it is back
         self._done.add((ticket.run, ticket.block_id))
+        wrong = self._off_sample(ticket, block)
+        if wrong is not None:  # the operator does not start an array on another sample than its ticket's
+            report = folder.report_path(ticket.block_id, "surface-not-found")
+            self._deliver(lambda: _write_atomic(report, ticket.token + "\n"))
+            self.log(f"{tag}: not started: {wrong}; reported surface not found")
+            return
         started = folder.report_path(ticket.block_id, "started")
         self._deliver(lambda: _write_atomic(started, ticket.token + "\n"))
         self.log(f"{tag}: started ({ticket.n_sites} sites, token {ticket.token})")
@@ -286,9 +306,38 @@ class FakeInView:
             channel="fast" if ticket.fast is not None else "csm",
         )
 
+    def _tray(self) -> TraySimDriver | None:
+        if self.tray_driver is not None and self._tray_sim is None:
+            self._tray_sim = self._sim = self.tray_driver()
+        return self._tray_sim
+
+    def _sample_at(self, x_um: float, y_um: float) -> str | None:
+        tray = self._tray()
+        here = None if tray is None else tray.tray.sample_at(x_um, y_um)
+        return None if here is None else here.name
+
+    def _off_sample(self, ticket: Ticket, block: Block) -> str | None:
+        """Why a tray's ticket cannot run on the sample it names (None: it can; always None without a tray)."""
+        if self._tray() is None:
+            return None
+        if not ticket.sample:
+            return "the ticket names no sample of the tray"
+        first = block.indents[ticket.first_index]
+        here = self._sample_at(first.x_um, first.y_um)
+        if here is None:
+            return f"no sample of the tray under its first site ({first.x_um:.1f}, {first.y_um:.1f}) µm"
+        if here != ticket.sample:
+            return f"the ticket names sample {ticket.sample!r} but its array starts on {here!r}"
+        return None
+
     def _run(self, block: Block, ticket: Ticket, stop_after: int) -> list[IndentResult]:
         if self._sim is None:
-            self._sim = SimulatedDriver(self.make_emulator(), self.profile, speed=self.speed)
+            tray = self._tray()
+            if tray is None:
+                assert self.make_emulator is not None, "a fake InView needs an emulator or a tray"
+                self._sim = SimulatedDriver(self.make_emulator(), self.profile, speed=self.speed)
+            else:
+                self._sim = tray
         sim = self._sim
         if ticket.fast is not None:  # the load the operator set in the NanoBlitz method
             if self.profile.fast is None:

@@ -25,7 +25,7 @@ from core.errors import InputError
 from core.plan import Block, IndentResult
 from core.profile import InstrumentProfile, load_profile
 from core.sample.tray import Tray, TraySample
-from core.sample_change import change_steps
+from core.sample_change import change_steps, tip_sample
 from drivers.sim.drift import DriftModel
 from drivers.sim.driver import SimulatedDriver
 from drivers.sim.emulator import Emulator
@@ -129,8 +129,7 @@ class TraySimDriver(SimulatedDriver):
         physics_clock_s: float | None = None,
     ) -> None:
         super().set_state(clock_s, position_um, program_open, physics_clock_s)
-        here = self.tray.sample_at(*position_um)
-        self.on = None if here is None else here.name
+        self.on = tip_sample(self.tray, clock_s, position_um)
 
     def execute_block(self, block: Block, start_index: int = 0) -> Generator[DriverEvent, None, None]:
         first = block.indents[0]

@@ -72,6 +72,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "campaign.scenario": args.scenario,
         "sample.file": args.sample,
         "campaign.lattice_n": args.lattice_n,
+        "campaign.fast": args.fast,
         "planner.budget_s": args.budget_s,
         "run.driver": args.driver,
         "run.exchange": args.exchange,
@@ -531,6 +532,12 @@ def register(subparsers: Any) -> None:
     run.add_argument("--exchange", help="driver kla: the exchange folder shared with the instrument PC")
     run.add_argument("--policy", help="planning policy")
     run.add_argument("--seed", help="random seed")
+    run.add_argument(
+        "--fast",
+        choices=("off", "on"),
+        help="on: the plan prices the profile's fast (NanoBlitz-class) arrays beside CSM indents "
+        "(docs/two-fidelity.md); off: CSM indents only (default: the run file's campaign.fast, else off)",
+    )
     run.add_argument("--scenario", help="emulator scenario")
     run.add_argument("--lattice-n", dest="lattice_n", help="candidate lattice size per side")
     run.add_argument("--budget-s", dest="budget_s", help="instrument-time budget in seconds")

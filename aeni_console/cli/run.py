@@ -285,8 +285,9 @@ def _export_files(journal: Path, indents: Any) -> list[str]:
 
 
 def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[Path]:
-    """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events,
-    sessions and predictions (both maps' final means and sds, and H/E)."""
+    """Tidy tables of a run: indents (each with its channel, csm or fast), blocks, decisions, alternatives,
+    commands, ledger, gp_snapshots, events, sessions and predictions (both maps' final means and sds, and H/E);
+    fast_bias, the fast channel's learnt bias H_csm − H_fast on the same points, where the run has one."""
     import pandas as pd
 
     if fmt not in ("csv", "parquet"):
@@ -306,6 +307,8 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
         ind = pd.DataFrame(rows, columns=cols)
         ind = ind.rename(columns={"actual_x_um": "x_um", "actual_y_um": "y_um"})
         ind["export_file"] = _export_files(Path(path), ind)
+        if "channel" not in ind.columns:  # a journal before the fast channel (schema < 6): all CSM
+            ind["channel"] = "csm"
         tray = journal_tray(r.meta)
         if (
             tray is not None
@@ -322,6 +325,7 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             "hardness_gpa",
             "t_s",
             "status",
+            "channel",
             "note",
             "depth_at_max_load_nm",
             "export_file",
@@ -337,7 +341,9 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             first + (["sample"] if tray else [])
         ]
         cols, rows = r.table("blocks")
-        tables["blocks"] = pd.DataFrame(rows, columns=cols).drop(columns=["block_json"])
+        blocks = pd.DataFrame(rows, columns=cols)
+        blocks["channel"] = [json.loads(b).get("channel", "csm") for b in blocks["block_json"]]
+        tables["blocks"] = blocks.drop(columns=["block_json"])
         cols, rows = r.table("decisions")
         dec = pd.DataFrame(rows, columns=cols)
         alts = []
@@ -385,6 +391,12 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
     tables["predictions"] = (
         pd.DataFrame(maps.columns()) if maps is not None else pd.DataFrame(columns=list(FINAL_MAP_COLUMNS))
     )
+    if (
+        maps is not None and maps.fast_bias_gpa is not None
+    ):  # the fast channel's learnt bias, where there is one
+        tables["fast_bias"] = pd.DataFrame(
+            {"x_um": maps.x_um, "y_um": maps.y_um, "bias_gpa": maps.fast_bias_gpa}
+        )
     written = []
     for name, df in tables.items():
         written.append(_write_table(df, out / f"{name}.{fmt}", fmt))

@@ -423,7 +423,7 @@ def _bias_figure(plt: Any, data: RunData, out: Path) -> Path:
     fig, ax = plt.subplots(1, 1, figsize=(6.4, 5.0), constrained_layout=True)
     fm = data.final_maps
     bias = None if fm is None else fm.fast_bias_gpa
-    if bias is not None and np.isfinite(bias).sum() >= 3:
+    if fm is not None and bias is not None and np.isfinite(bias).sum() >= 3:
         ok = np.isfinite(bias)
         top = float(np.max(np.abs(bias[ok]))) or 1e-6
         im = ax.tripcolor(

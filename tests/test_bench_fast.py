@@ -5,6 +5,7 @@ CSM-only policy (it plans no fast arrays) and "—" for a +fast one (not recorde
 from __future__ import annotations
 
 import json
+
 from aeni_console.bench.harness import BenchConfig, RunRecord, summarise
 from aeni_console.bench.storage import records_from_json, records_to_json
 from aeni_console.reports.bench import scenario_table

@@ -36,7 +36,7 @@ from aeni_console.bench.catalogue import (
 from core.campaign import CampaignConfig
 from core.errors import InputError
 from core.plan import Block, IndentResult
-from core.run.events import BlockEnded, BlockStarted, Decided, Indent, Observed, RunEvent, Sink
+from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink, Steps
 from core.run.headless import RunTally, run_headless
 from core.run.spec import RunSpec
 from core.runconfig import make_campaign_config
@@ -101,8 +101,8 @@ class RunRecord:
     approvals: int = 0  # blocks that waited for an approval (none in the bench's auto supervision)
     failed_indents: int = 0  # indents the simulated instrument failed or never made (never learnt from)
     # the fast channel (issue 36): fast indents made (measured or failed) and the instrument time spent in fast
-    # arrays (each from its start to its end, its opening included); 0 for a CSM-only run, None in a
-    # results.json written before they were recorded
+    # arrays (the ledger's steps of each: opening, moves, surface find, drift settle, indents); 0 for a CSM-only
+    # run, None in a results.json written before they were recorded
     fast_indents: int | None = 0
     fast_array_s: float | None = 0.0
     # with map_weights (issue 27): the modulus map's target, final MAPE, trajectory and time to its target
@@ -202,7 +202,6 @@ def run_one(spec: BenchRun) -> RunRecord:
             self.failed = 0  # indents the simulated instrument failed or never made
             self.fast_indents = 0
             self.fast_array_s = 0.0
-            self.fast_started: dict[int, float] = {}  # a fast array's block id: when it started
 
         def emit(self, event: RunEvent) -> None:
             super().emit(event)
@@ -210,13 +209,11 @@ def run_one(spec: BenchRun) -> RunRecord:
                 self.block[event.decision.block.block_id] = event.decision.block
             elif isinstance(event, BlockStarted):
                 self.block[event.block.block_id] = event.block
-                if event.block.channel == "fast":
-                    self.fast_started[event.block.block_id] = event.t_s
-            elif isinstance(event, BlockEnded):
-                began = self.fast_started.pop(event.block_id, None)
-                if began is not None:
-                    self.fast_array_s += event.t_s - began
-            elif isinstance(event, Indent):
+            if isinstance(event, Indent | Steps):  # the ledger's steps of fast arrays: their time
+                for step, _ in event.steps:
+                    b = self.block.get(step.block_id)
+                    self.fast_array_s += step.seconds if b is not None and b.channel == "fast" else 0.0
+            if isinstance(event, Indent):
                 self.results.append(event.result)
                 self.failed += int(event.result.status != "measured")
                 self.fast_indents += int(event.result.channel == "fast")

@@ -52,8 +52,9 @@ def test_a_bad_fast_field_is_one_line_naming_it(tmp_path: Path, text: str, says:
     assert says in str(err.value) and "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("how", ["--quiet", "--detach"])
 def test_fast_on_with_a_profile_without_a_fast_mode_is_one_line_exit_2_and_no_journal(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, how: str
 ) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "lab.toml").write_text(
@@ -62,7 +63,9 @@ def test_fast_on_with_a_profile_without_a_fast_mode_is_one_line_exit_2_and_no_jo
     (tmp_path / "run.toml").write_text(
         'name = "lab-run"\n[campaign]\nprofile = "lab.toml"\n[planner]\nbudget_s = 3000\n', encoding="utf-8"
     )
-    assert main(["run", "run.toml", "--fast", "on", "--quiet"]) == 2
+    assert main(["run", "run.toml", "--fast", "on", how]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "aeni: error: --fast: profile lab has no fast mode (no [fast] section)"
-    assert not list(tmp_path.glob("runs/*.sqlite"))
+    assert not list(
+        tmp_path.glob("runs/*")
+    )  # no journal, and no engine log (a detached start is refused first)

@@ -33,6 +33,7 @@ from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps, tray_f
 from core.errors import InputError
 from core.journal import JournalReader, default_journal_path, engine_running, send_command
 from core.operator import parse_when
+from core.profile import load_profile
 from core.run.spec import RunSpec
 from core.run.tray_view import journal_tray, progress_line, tray_progress
 from core.runconfig import load_run_config
@@ -40,6 +41,7 @@ from core.runview import Command, CommandKind, EngineState
 from core.settings import SUPERVISION_MODES, check_adjust, check_hold_in_force, check_veto
 from drivers.kla.driver import archive_dir_for
 from drivers.kla.inbox import ExportArchive
+from drivers.registry import default_sample
 
 __all__ = ["engine_argv", "launch_engine", "preflight_resume", "run_engine", "start_engine_process"]
 
@@ -104,6 +106,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     journal = Path(options.journal) if options.journal else default_journal_path(spec.name, options.runs_dir)
     check_new_journal(journal)
     if args.detach:
+        check_fast_mode(spec)
         rules = spec.rules
         pid = launch_engine(spec, journal, detach=True, auto_resume=rules.auto_resume).pid
         print(f"journal {journal}")
@@ -114,6 +117,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
         return 0
     return run_engine(journal, create=spec, quiet=args.quiet, watch=True)
+
+
+def check_fast_mode(spec: RunSpec) -> None:
+    """A fast run on a profile without a fast mode is refused here, before a detached engine starts (the campaign
+    refuses it too, in the engine, with the same words; a detached start would leave its log behind)."""
+    c = spec.campaign
+    if not spec.fast or spec.tray is not None or (c.sample is None and spec.driver != "sim"):
+        return
+    sample = c.sample or default_sample(spec.driver, c.driver_options, c.seed)
+    profile = load_profile(c.profile or sample.profile)
+    if profile.fast is None:
+        raise InputError("--fast", f"profile {profile.name} has no fast mode (no [fast] section)")
 
 
 def check_not_stopped(path: Path, anyway: bool) -> None:

@@ -142,6 +142,8 @@ async def test_the_console_shows_a_fast_run(live_run: object) -> None:
     app = ConsoleApp(canned, poll_s=0.02, max_rate_hz=50.0, clock=lambda: 0.0, author="t", cursor_blink=False)
     async with app.run_test(size=(120, 36)) as pilot:
         await settle(pilot)
+        n_fast = sum(1 for m in indents if m.channel == "fast")
+        assert n_fast and f"{snap.n_indents} ind │ {n_fast} fast" in widget_text(app.query_one("#status"))
         legend = widget_text(app.query_one("#map-legend"))
         assert f"{MARK_FAST[0]} fast" in legend and f"{MARK_MEASURED[0]} measured" in legend
         decision = widget_text(app.query_one("#decision"))

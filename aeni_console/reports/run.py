@@ -102,7 +102,12 @@ class RunData:
     final_maps: Any | None = (
         None  # aeni_console.reports.finalmaps.FinalMaps: both maps rebuilt from the journal
     )
-    fast: FastTally | None = None  # the indents by channel and the time in fast arrays
+    block_s: dict[int, float] = field(default_factory=dict)  # the ledger's seconds per block (-1: the run's)
+
+    @property
+    def fast(self) -> FastTally:
+        """The indents by channel and the time in fast arrays (of these indents: a tray's library has its own)."""
+        return fast_tally(self.indents, self.block_s.items())
 
 
 def read_run(path: str | Path) -> RunData:
@@ -156,7 +161,9 @@ def read_run(path: str | Path) -> RunData:
         indents = r.results()
         s_cols, s_rows = r.table("steps")
         i_b, i_s = s_cols.index("block_id"), s_cols.index("seconds")
-        fast = fast_tally(indents, ((int(x[i_b]), float(x[i_s])) for x in s_rows))
+        block_s: dict[int, float] = defaultdict(float)
+        for x in s_rows:
+            block_s[int(x[i_b])] += float(x[i_s])
         data = RunData(
             path=p,
             name=snap.run_name,
@@ -186,7 +193,7 @@ def read_run(path: str | Path) -> RunData:
             resolved_by=resolved_by,
             stop_reason=str(row.get("stop_reason") or ""),
             recorded_mape_pct=recorded,
-            fast=fast,
+            block_s=dict(block_s),
         )
 
     data.final_maps = final_maps(p)
@@ -638,7 +645,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         lines.append(
             f"- measured hardness {min(hard):.3f}–{max(hard):.3f} GPa (median {float(np.median(hard)):.3f} GPa)"
         )
-    if data.fast is not None:
+    if data.fast.fast_indents:
         lines += fast_summary_lines(
             data.fast, data.instrument_s, getattr(data.final_maps, "fast_bias_gpa", None)
         )
@@ -739,7 +746,7 @@ def render_report(data: RunData, out_dir: str | Path) -> list[Path]:
         _drift_figure(plt, data, out),
         _decision_figure(plt, data, out),
     ]
-    if data.fast is not None and data.fast.fast_indents:  # a run with fast arrays: its learnt bias
+    if data.fast.fast_indents:  # a run with fast arrays: its learnt bias
         figures.append(_bias_figure(plt, data, out))
     summary = out / "summary.md"
     write_atomic(summary, summary_markdown(data, figures, truth_mape_pct(data)))

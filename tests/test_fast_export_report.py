@@ -12,6 +12,8 @@ import pandas as pd
 import pytest
 
 from aeni_console.cli.main import main
+from aeni_console.console.heatmap import field_keys_of
+from aeni_console.console.journal_source import JournalSource
 from aeni_console.reports.fast import fast_summary_lines, fast_tally
 from core.journal import JournalReader
 from core.plan import IndentResult
@@ -102,3 +104,20 @@ def test_the_tally_by_channel_and_a_csm_only_run_says_nothing() -> None:
     assert "none yet" in lines[2]
     csm_only = fast_tally([_indent(0, "csm")], [(0, 100.0)])
     assert csm_only.fast_indents == 0 and fast_summary_lines(csm_only, 100.0, None) == []
+
+
+def test_the_console_reads_the_channel_and_the_bias_from_the_journal(fast_run: Path) -> None:
+    """What `aeni console` reads (the same JournalSource): each indent's channel in the snapshot, and the bias
+    beside the last map fields the engine stored, so `m` offers the bias view."""
+    source = JournalSource(fast_run)
+    try:
+        snap = source.snapshot()
+        with JournalReader(fast_run) as r:
+            kept = r.results()
+        assert [m.channel for m in snap.indents] == [k.channel for k in kept]
+        assert snap.gp.snapshot_id is not None
+        fields = source.map_fields(snap.gp.snapshot_id)
+    finally:
+        source.close()
+    assert fields is not None and fields.bias_gpa is not None and np.isfinite(fields.bias_gpa).any()
+    assert field_keys_of(fields)[-1] == "bias"

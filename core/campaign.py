@@ -738,6 +738,10 @@ class Campaign:
             # shown where the run keeps it fitted (map_weights), never fitted for the display alone
             pm = self.predict_modulus_stage(gx.ravel(), gy.ravel())
             modulus = {"modulus_mean_gpa": grid(pm.mean), "modulus_sd_gpa": grid(pm.epistemic_sd)}
+        bias: dict[str, np.ndarray] = {}
+        if self.fast is not None and self.fast.active:  # the two-fidelity map's learnt bias, for the console
+            u, v = self.calibration.to_uv(gx.ravel(), gy.ravel())
+            bias = {"bias_gpa": grid(self.fast.bias_gpa(np.column_stack([u, v])))}
         return MapFields(
             snapshot_id,
             xs,
@@ -748,6 +752,7 @@ class Campaign:
             grid(pred.total_sd),
             next_candidate_um,
             **modulus,
+            **bias,
         )
 
     def queued_stretch(self) -> tuple[Block, ...]:

@@ -8,7 +8,7 @@ only when the block continues the engaged program with no reconfiguration on the
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import pairwise
 
 from core.plan import Block
@@ -85,8 +85,10 @@ def block_words(
     reconfig_threshold_um: float | None = None,
     start_um: tuple[float, float] | None = None,
 ) -> BlockWords:
-    """Describe ``block`` (see :func:`sites_words`)."""
+    """Describe ``block`` (see :func:`sites_words`; a fast array: :func:`fast_array_words`)."""
     sites = [(s.x_um, s.y_um) for s in block.indents]
+    if block.channel == "fast":
+        return fast_array_words(sites, block.pitch_um)
     return sites_words(
         block.kind, sites, block.grid_g, block.pitch_um, block.hold_s, reconfig_threshold_um, start_um
     )
@@ -99,3 +101,16 @@ def describe_block(
 ) -> str:
     """One line, e.g. "new program: 16 singles over 1196 × 840 µm around (2400, 1800) µm, hold 5 s"."""
     return block_words(block, reconfig_threshold_um, start_um).text
+
+
+def fast_array_words(sites_um: Sequence[tuple[float, float]], pitch_um: float) -> BlockWords:
+    """A fast (NanoBlitz-class) array: its own program of load-controlled indents, named as one, e.g. "new
+    program: fast array 20×20 at 50 µm pitch over 950 × 950 µm around (500, 500) µm, 400 indents, no hold";
+    columns and rows are the distinct x and y of its sites (sites a sample does not allow are left out, so an
+    array may hold fewer than columns × rows)."""
+    words = sites_words("global", sites_um, 1, pitch_um, None)
+    n = len(sites_um)
+    cols = len({round(x, 3) for x, _ in sites_um})
+    rows = len({round(y, 3) for _, y in sites_um})
+    layout = f"fast array {cols}×{rows} at {pitch_um:g} µm pitch"
+    return replace(words, layout=layout, hold=f"{n} indent{'s' if n != 1 else ''}, no hold")

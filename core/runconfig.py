@@ -57,6 +57,7 @@ __all__ = [
     "load_run_config",
     "make_campaign_config",
     "parse_run_config",
+    "policy_with_fast",
     "run_spec",
 ]
 DRIVERS: tuple[str, ...] = ("sim", "kla")
@@ -76,6 +77,9 @@ class CampaignSection(_Strict):
     profile: str | None = None
     lattice_n: int | None = Field(default=None, ge=5, le=400)
     failure_rate: float | None = Field(default=None, ge=0.0, le=0.5)
+    # on: the plan prices the profile's fast arrays beside CSM indents (the policy's +fast); off: CSM only;
+    # None: as the policy says
+    fast: Literal["on", "off"] | None = None
 
     @field_validator("policy")
     @classmethod
@@ -89,6 +93,28 @@ class CampaignSection(_Strict):
         except InputError as exc:
             raise ValueError(exc.problem) from None
         return v
+
+    @field_validator("fast")
+    @classmethod
+    def _fast(cls, v: str | None, info: ValidationInfo) -> str | None:
+
+        policy = info.data.get("policy")
+        if v == "on" and policy is not None:
+            if policy.split("+")[0] == "grid":
+                raise ValueError("policy 'grid' plans no fast arrays (its grid is the comparison)")
+            try:
+                policy_parts(policy_with_fast(policy, v))
+            except InputError as exc:
+                raise ValueError(f"policy {policy!r} cannot plan fast arrays ({exc.problem})") from None
+        return v
+
+
+def policy_with_fast(policy: str, fast: str | None) -> str:
+    """The policy with its fast arrays on or off (the ``+fast`` modifier, last); None: the policy as named."""
+    if fast is None:
+        return policy
+    base, *mods = policy.split("+")
+    return "+".join([base, *(m for m in mods if m != "fast"), *(["fast"] if fast == "on" else [])])
 
 
 class SampleSection(_Strict):
@@ -340,7 +366,7 @@ def parse_run_config(
             driver_options.pop("scenario")
         driver_options["exchange"] = exchange
     campaign = CampaignConfig(
-        policy=c.policy,
+        policy=policy_with_fast(c.policy, c.fast),
         seed=c.seed,
         profile=c.profile,
         lattice_n=c.lattice_n,

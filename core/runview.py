@@ -79,12 +79,14 @@ class TestedCenter:
 @dataclass(frozen=True)
 class IndentMark:
     """One indent of the run where the map draws it: where the tip went (else where it was sent), and what
-    became of it (``measured``, ``failed``, ``not_run``, or any later status, drawn as it is named)."""
+    became of it (``measured``, ``failed``, ``not_run``, or any later status, drawn as it is named), and its
+    channel (``csm``, or ``fast``: an indent of a fast array, drawn apart)."""
 
     x_um: float
     y_um: float
     block_id: int
     status: str
+    channel: str = "csm"
 
 
 @dataclass(frozen=True)
@@ -170,3 +172,5 @@ class MapFields:
     # the modulus map (issue 27), where the run learns one: its mean and epistemic sd, GPa
     modulus_mean_gpa: np.ndarray | None = None
     modulus_sd_gpa: np.ndarray | None = None
+    # the learnt bias of the fast channel, E[H_csm − H_fast] (GPa), where the run's two-fidelity map is active
+    bias_gpa: np.ndarray | None = None

@@ -84,7 +84,9 @@ def test_quick_bench_writes_the_report(quick: tuple[Path, dict[str, object]]) ->
     heads = [
         i
         for i, line in enumerate(lines)
-        if line.endswith("| interlock refusals | approvals | failed indents |")
+        if line.endswith(
+            "| interlock refusals | approvals | failed indents | fast indents | time in fast arrays |"
+        )
     ]
     assert heads
     failed = 0
@@ -95,8 +97,10 @@ def test_quick_bench_writes_the_report(quick: tuple[Path, dict[str, object]]) ->
                 break
             rows.append(line)
         cells = [[c.strip() for c in line.strip("|").split("|")] for line in rows]
-        assert rows and all(c[-3:-1] == ["0", "0"] for c in cells)
-        failed += sum(int(c[-1]) for c in cells)
+        assert rows and all(c[-5:-3] == ["0", "0"] for c in cells)
+        failed += sum(int(c[-3]) for c in cells)
+        # the fast column, for every policy: the quick bench's policies plan CSM indents only
+        assert all(c[-2:] == ["0", "0 s"] for c in cells)
     # the simulated instrument fails like a real one by default (1.5 % of indents): the quick bench meets it
     assert failed > 0
     assert "1.5 % of indents come back invalid" in md

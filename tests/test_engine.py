@@ -609,8 +609,10 @@ def test_cli_status_replay_and_export(tmp_path: Path, capsys: pytest.CaptureFixt
     ind = pd.read_csv(tmp_path / "out" / "indents.csv")
     assert list(ind.columns[:6]) == ["block_id", "x_um", "y_um", "hold_s", "hardness_gpa", "t_s"]
     assert len(ind) == 12 and ind["block_id"].tolist() == [0] * 4 + [1] * 4 + [2] * 4
-    # every indent's status, note, depth and export file (none: a simulated run has no instrument exports)
-    assert list(ind.columns[6:10]) == ["status", "note", "depth_at_max_load_nm", "export_file"]
+    # every indent's status, channel (issue 36), note, depth and export file (none: a simulated run has no
+    # instrument exports)
+    assert list(ind.columns[6:11]) == ["status", "channel", "note", "depth_at_max_load_nm", "export_file"]
+    assert set(ind["channel"]) == {"csm"}
     assert set(ind["status"]) <= {"measured", "failed", "not_run"} and ind["export_file"].isna().all()
     assert (tmp_path / "out" / "decisions.csv").exists() and (tmp_path / "out" / "ledger.csv").exists()
     assert main(["export", str(path), "--format", "parquet", "--out", str(tmp_path / "pq")]) in (0, 2)

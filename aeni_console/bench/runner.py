@@ -36,7 +36,7 @@ from aeni_console.bench.catalogue import (
 from core.campaign import CampaignConfig
 from core.errors import InputError
 from core.plan import Block, IndentResult
-from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink
+from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink, Steps
 from core.run.headless import RunTally, run_headless
 from core.run.spec import RunSpec
 from core.runconfig import make_campaign_config
@@ -100,6 +100,11 @@ class RunRecord:
     interlock_refusals: int = 0  # blocks the interlock refused (the engine vetoed them and asked again)
     approvals: int = 0  # blocks that waited for an approval (none in the bench's auto supervision)
     failed_indents: int = 0  # indents the simulated instrument failed or never made (never learnt from)
+    # the fast channel (issue 36): fast indents made (measured or failed) and the instrument time spent in fast
+    # arrays (the ledger's steps of each: opening, moves, surface find, drift settle, indents); 0 for a CSM-only
+    # run, None in a results.json written before they were recorded
+    fast_indents: int | None = 0
+    fast_array_s: float | None = 0.0
     # with map_weights (issue 27): the modulus map's target, final MAPE, trajectory and time to its target
     target_mape_modulus_pct: float | None = None
     final_mape_modulus_pct: float | None = None
@@ -195,6 +200,8 @@ def run_one(spec: BenchRun) -> RunRecord:
             self.block: dict[int, Block] = {}
             self.results: list[IndentResult] = []
             self.failed = 0  # indents the simulated instrument failed or never made
+            self.fast_indents = 0
+            self.fast_array_s = 0.0
 
         def emit(self, event: RunEvent) -> None:
             super().emit(event)
@@ -202,9 +209,14 @@ def run_one(spec: BenchRun) -> RunRecord:
                 self.block[event.decision.block.block_id] = event.decision.block
             elif isinstance(event, BlockStarted):
                 self.block[event.block.block_id] = event.block
-            elif isinstance(event, Indent):
+            if isinstance(event, Indent | Steps):  # the ledger's steps of fast arrays: their time
+                for step, _ in event.steps:
+                    b = self.block.get(step.block_id)
+                    self.fast_array_s += step.seconds if b is not None and b.channel == "fast" else 0.0
+            if isinstance(event, Indent):
                 self.results.append(event.result)
                 self.failed += int(event.result.status != "measured")
+                self.fast_indents += int(event.result.channel == "fast")
             elif isinstance(event, Observed):
                 campaign, evaluator = parts()
                 if campaign.settings.map_weights.maps_modulus and event.fit.fitted:  # scored where aimed at
@@ -330,6 +342,8 @@ def run_one(spec: BenchRun) -> RunRecord:
         interlock_refusals=result.refusals,
         approvals=result.approvals,
         failed_indents=watch.failed,
+        fast_indents=watch.fast_indents,
+        fast_array_s=watch.fast_array_s,
         wall_s=time.monotonic() - start,
         trajectory=trajectory,
         max_found=max_found,

@@ -55,6 +55,10 @@ class PolicySummary:
     interlock_refusals: int = 0
     approvals: int = 0
     failed_indents: int = 0
+    # the fast channel: fast indents and instrument seconds spent in fast arrays per seed (quartiles; 0 for a
+    # CSM-only policy; None where the results were written before they were recorded)
+    fast_indents: tuple[float, float, float] | None = None
+    fast_array_s: tuple[float, float, float] | None = None
 
 
 # the reference each idea is measured against (SPEC §7; the targets)
@@ -234,6 +238,8 @@ def summarise(records: Sequence[RunRecord]) -> list[PolicySummary]:
                 interlock_refusals=sum(r.interlock_refusals for r in vals),
                 approvals=sum(r.approvals for r in vals),
                 failed_indents=sum(r.failed_indents for r in vals),
+                fast_indents=_quartiles([float(r.fast_indents) for r in vals if r.fast_indents is not None]),
+                fast_array_s=_quartiles([r.fast_array_s for r in vals if r.fast_array_s is not None]),
             )
         )
     return out

@@ -52,6 +52,10 @@ def records_from_json(data: dict[str, Any]) -> tuple[list[RunRecord], BenchConfi
             d["grid_sizes"] = {int(k): int(v) for k, v in d.get("grid_sizes", {}).items()}
             d["ledger"] = {str(k): float(v) for k, v in d["ledger"].items()}
             d["trajectory_modulus"] = [(float(t), float(m)) for t, m in d.get("trajectory_modulus", [])]
+            if "fast_indents" not in run:  # results written before the fast column was recorded
+                # a policy without the +fast modifier plans no fast arrays: its 0 is known; one with it is not
+                known = "fast" not in str(run["policy"]).split("+")[1:]
+                d["fast_indents"], d["fast_array_s"] = (0, 0.0) if known else (None, None)
             records.append(RunRecord(**d))
         return records, config, float(proto["wall_s"])
     except (KeyError, TypeError, ValueError) as exc:

@@ -33,6 +33,7 @@ from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps, tray_f
 from core.errors import InputError
 from core.journal import JournalReader, default_journal_path, engine_running, send_command
 from core.operator import parse_when
+from core.profile import load_profile
 from core.run.spec import RunSpec
 from core.run.tray_view import journal_tray, progress_line, tray_progress
 from core.runconfig import load_run_config
@@ -40,6 +41,7 @@ from core.runview import Command, CommandKind, EngineState
 from core.settings import SUPERVISION_MODES, check_adjust, check_hold_in_force, check_veto
 from drivers.kla.driver import archive_dir_for
 from drivers.kla.inbox import ExportArchive
+from drivers.registry import default_sample
 
 __all__ = ["engine_argv", "launch_engine", "preflight_resume", "run_engine", "start_engine_process"]
 
@@ -72,6 +74,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "campaign.scenario": args.scenario,
         "sample.file": args.sample,
         "campaign.lattice_n": args.lattice_n,
+        "campaign.fast": args.fast,
         "planner.budget_s": args.budget_s,
         "run.driver": args.driver,
         "run.exchange": args.exchange,
@@ -103,6 +106,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     journal = Path(options.journal) if options.journal else default_journal_path(spec.name, options.runs_dir)
     check_new_journal(journal)
     if args.detach:
+        check_fast_mode(spec)
         rules = spec.rules
         pid = launch_engine(spec, journal, detach=True, auto_resume=rules.auto_resume).pid
         print(f"journal {journal}")
@@ -113,6 +117,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"watch: aeni runs {journal.parent}    stop: send abort from a console, or kill {pid}")
         return 0
     return run_engine(journal, create=spec, quiet=args.quiet, watch=True)
+
+
+def check_fast_mode(spec: RunSpec) -> None:
+    """A fast run on a profile without a fast mode is refused here, before a detached engine starts (the campaign
+    refuses it too, in the engine, with the same words; a detached start would leave its log behind)."""
+    c = spec.campaign
+    if not spec.fast or spec.tray is not None or (c.sample is None and spec.driver != "sim"):
+        return
+    sample = c.sample or default_sample(spec.driver, c.driver_options, c.seed)
+    profile = load_profile(c.profile or sample.profile)
+    if profile.fast is None:
+        raise InputError("--fast", f"profile {profile.name} has no fast mode (no [fast] section)")
 
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
@@ -284,8 +300,9 @@ def _export_files(journal: Path, indents: Any) -> list[str]:
 
 
 def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[Path]:
-    """Tidy tables of a run: indents, blocks, decisions, alternatives, commands, ledger, gp_snapshots, events,
-    sessions and predictions (both maps' final means and sds, and H/E)."""
+    """Tidy tables of a run: indents (each with its channel, csm or fast), blocks, decisions, alternatives,
+    commands, ledger, gp_snapshots, events, sessions and predictions (both maps' final means and sds, and H/E);
+    fast_bias, the fast channel's learnt bias H_csm − H_fast on the same points, where the run has one."""
     import pandas as pd
 
     if fmt not in ("csv", "parquet"):
@@ -305,6 +322,8 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
         ind = pd.DataFrame(rows, columns=cols)
         ind = ind.rename(columns={"actual_x_um": "x_um", "actual_y_um": "y_um"})
         ind["export_file"] = _export_files(Path(path), ind)
+        if "channel" not in ind.columns:  # a journal before the fast channel (schema < 6): all CSM
+            ind["channel"] = "csm"
         tray = journal_tray(r.meta)
         if (
             tray is not None
@@ -321,6 +340,7 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             "hardness_gpa",
             "t_s",
             "status",
+            "channel",
             "note",
             "depth_at_max_load_nm",
             "export_file",
@@ -336,7 +356,9 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
             first + (["sample"] if tray else [])
         ]
         cols, rows = r.table("blocks")
-        tables["blocks"] = pd.DataFrame(rows, columns=cols).drop(columns=["block_json"])
+        blocks = pd.DataFrame(rows, columns=cols)
+        blocks["channel"] = [json.loads(b).get("channel", "csm") for b in blocks["block_json"]]
+        tables["blocks"] = blocks.drop(columns=["block_json"])
         cols, rows = r.table("decisions")
         dec = pd.DataFrame(rows, columns=cols)
         alts = []
@@ -384,6 +406,12 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
     tables["predictions"] = (
         pd.DataFrame(maps.columns()) if maps is not None else pd.DataFrame(columns=list(FINAL_MAP_COLUMNS))
     )
+    if (
+        maps is not None and maps.fast_bias_gpa is not None
+    ):  # the fast channel's learnt bias, where there is one
+        tables["fast_bias"] = pd.DataFrame(
+            {"x_um": maps.x_um, "y_um": maps.y_um, "bias_gpa": maps.fast_bias_gpa}
+        )
     written = []
     for name, df in tables.items():
         written.append(_write_table(df, out / f"{name}.{fmt}", fmt))
@@ -531,6 +559,12 @@ def register(subparsers: Any) -> None:
     run.add_argument("--exchange", help="driver kla: the exchange folder shared with the instrument PC")
     run.add_argument("--policy", help="planning policy")
     run.add_argument("--seed", help="random seed")
+    run.add_argument(
+        "--fast",
+        choices=("off", "on"),
+        help="on: the plan prices the profile's fast (NanoBlitz-class) arrays beside CSM indents "
+        "(docs/two-fidelity.md); off: CSM indents only (default: the run file's campaign.fast, else off)",
+    )
     run.add_argument("--scenario", help="emulator scenario")
     run.add_argument("--lattice-n", dest="lattice_n", help="candidate lattice size per side")
     run.add_argument("--budget-s", dest="budget_s", help="instrument-time budget in seconds")

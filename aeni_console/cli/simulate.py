@@ -73,9 +73,6 @@ def run_simulation(
     With a ``calendar`` a simulated operator loads the blocks, and the run reports its wall clock and visits.
     ``fast``: the plan prices the profile's fast arrays beside its CSM blocks (the policy's ``+fast``).
     """
-    if fast and not policy.endswith("+fast"):
-        policy = f"{policy}+fast"
-
     config = make_campaign_config(
         scenario="csv" if truth else scenario,
         noise=noise,
@@ -87,6 +84,7 @@ def run_simulation(
         lattice_n=lattice_n,
         settings={"budget_s": budget_s, "map_weights": map_weights},
         failure_rate=failure_rate,
+        fast="on" if fast else None,
     )
     if sample_file is not None:
         config = dataclasses.replace(config, sample=load_sample(sample_file))
@@ -150,7 +148,7 @@ def run_simulation(
             "operator_visits": operator.visits,
         }
     return {
-        "policy": policy,
+        "policy": config.policy,
         "scenario": config.driver_options["scenario"],
         "sample": campaign.sample.name,
         "seed": seed,

@@ -21,10 +21,12 @@ from core.runview import IndentMark, MapFields, RunSnapshot
 from core.sample.model import Exclusion, PolygonExclusion
 
 # The four GP fields of the paper's Figure 8, in the order `m` cycles through them, then the modulus map's
-# mean and sd and H/E where the run learns a modulus map (issue 27)
+# mean and sd and H/E where the run learns a modulus map (issue 27), then the fast channel's learnt bias where
+# the run's two-fidelity map is active (issue 36)
 HARDNESS_KEYS: tuple[str, ...] = ("mean", "epistemic", "noise", "total")
 MODULUS_KEYS: tuple[str, ...] = ("modulus", "modulus_sd", "h_over_e")
-FIELD_KEYS: tuple[str, ...] = HARDNESS_KEYS + MODULUS_KEYS
+BIAS_KEYS: tuple[str, ...] = ("bias",)
+FIELD_KEYS: tuple[str, ...] = HARDNESS_KEYS + MODULUS_KEYS + BIAS_KEYS
 FIELD_LABELS: dict[str, str] = {
     "mean": "mean hardness",
     "epistemic": "epistemic sd",
@@ -33,15 +35,19 @@ FIELD_LABELS: dict[str, str] = {
     "modulus": "mean modulus",
     "modulus_sd": "modulus epistemic sd",
     "h_over_e": "H/E",
+    "bias": "fast-channel bias H_csm − H_fast",
 }
 FIELD_UNITS: dict[str, str] = {key: "GPa" for key in FIELD_KEYS} | {"h_over_e": "H/E, no unit"}
 
 
 def field_keys_of(fields: MapFields | None) -> tuple[str, ...]:
-    """The fields `m` cycles through: the modulus ones only where there is a modulus map."""
-    if fields is None or fields.modulus_mean_gpa is None:
+    """The fields `m` cycles through: the modulus ones only where there is a modulus map, the bias only where
+    the run has learnt one."""
+    if fields is None:
         return HARDNESS_KEYS
-    return FIELD_KEYS
+    modulus = MODULUS_KEYS if fields.modulus_mean_gpa is not None else ()
+    bias = BIAS_KEYS if fields.bias_gpa is not None else ()
+    return HARDNESS_KEYS + modulus + bias
 
 
 # Perceptually ordered anchors (viridis for the mean, inferno for the uncertainties): readable on a dark
@@ -75,7 +81,21 @@ _INFERNO = np.array(
     ],
     dtype=float,
 )
-COLOUR_MAPS: dict[str, np.ndarray] = {"viridis": _VIRIDIS, "inferno": _INFERNO}
+# diverging, for a signed field (the bias): blue below zero, white at zero, red above; its range is made
+# symmetric about zero (``value_range(..., symmetric=True)``) so white always means no bias
+_BALANCE = np.array(
+    [
+        (33, 102, 172),
+        (103, 169, 207),
+        (209, 229, 240),
+        (247, 247, 247),
+        (253, 219, 199),
+        (239, 138, 98),
+        (178, 24, 43),
+    ],
+    dtype=float,
+)
+COLOUR_MAPS: dict[str, np.ndarray] = {"viridis": _VIRIDIS, "inferno": _INFERNO, "balance": _BALANCE}
 
 HALF_BLOCK = "▀"
 
@@ -87,6 +107,7 @@ SHADES = "·░▒▓█"
 MARK_OUTLINE = ("#", "#", (205, 205, 205))
 MARK_EXCLUDED = ("/", "/", (170, 170, 170))
 MARK_EARLIER = ("·", ":", (200, 200, 200))
+MARK_FAST = ("*", "*", (120, 230, 255))  # a measured indent of a fast array (NanoBlitz-class)
 MARK_MEASURED = ("•", "o", (240, 240, 240))
 MARK_NOT_RUN = ("○", "-", (140, 170, 255))
 MARK_UNVERIFIED = ("?", "?", (255, 205, 0))
@@ -104,6 +125,7 @@ LEGEND: tuple[tuple[tuple[str, str, tuple[int, int, int]], str], ...] = (
     (MARK_OUTLINE, "edge"),
     (MARK_EXCLUDED, "excl."),
     (MARK_EARLIER, "earlier"),
+    (MARK_FAST, "fast"),  # under a CSM indent: arrays are dense, the CSM indents few
     (MARK_MEASURED, "measured"),
     (MARK_NOT_RUN, "not run"),
     (MARK_UNVERIFIED, "unverified"),
@@ -127,6 +149,16 @@ class MapMarks:
     indents: tuple[IndentMark, ...] = ()
     planned_um: tuple[tuple[tuple[float, float], ...], ...] = ()
     newest_block_id: int | None = None
+
+
+def mark_of(m: IndentMark, newest_block_id: int | None) -> tuple[str, str, tuple[int, int, int]]:
+    """How the map draws an indent: by its status; a measured fast indent apart from a CSM one (the newest
+    block's fast indents stay fast marks, drawn bold, so an array does not read as hundreds of newest)."""
+    if m.status == "measured" and m.channel == "fast":
+        return MARK_FAST
+    if m.block_id == newest_block_id and m.status == "measured":
+        return MARK_NEWEST
+    return STATUS_MARKS.get(m.status, MARK_UNVERIFIED)
 
 
 def marks_for(snap: RunSnapshot) -> MapMarks:
@@ -208,6 +240,8 @@ def outline_cells(
 
 
 def colour_map_for(field_key: str) -> str:
+    if field_key == "bias":
+        return "balance"
     return "viridis" if field_key in ("mean", "modulus", "h_over_e") else "inferno"
 
 
@@ -223,18 +257,22 @@ def field_array(fields: MapFields, field_key: str) -> np.ndarray:
         "modulus": e_mean,
         "modulus_sd": fields.modulus_sd_gpa if fields.modulus_sd_gpa is not None else nan,
         "h_over_e": np.asarray(fields.mean_gpa, float) / np.where(np.asarray(e_mean) > 0, e_mean, np.nan),
+        "bias": fields.bias_gpa if fields.bias_gpa is not None else nan,
     }
     if field_key not in arrays:
         raise ValueError(f"unknown map field {field_key!r}; expected one of {', '.join(FIELD_KEYS)}")
     return np.asarray(arrays[field_key], dtype=float)
 
 
-def value_range(values: np.ndarray) -> tuple[float, float]:
-    """Finite min and max, widened a little when flat so the scale never divides by zero."""
+def value_range(values: np.ndarray, symmetric: bool = False) -> tuple[float, float]:
+    """Finite min and max, widened a little when flat so the scale never divides by zero; ``symmetric``:
+    about zero (a signed field on a diverging colour map)."""
     finite = values[np.isfinite(values)]
     if finite.size == 0:
-        return 0.0, 1.0
+        return (-1.0, 1.0) if symmetric else (0.0, 1.0)
     lo, hi = float(finite.min()), float(finite.max())
+    if symmetric:
+        lo, hi = -max(abs(lo), abs(hi)), max(abs(lo), abs(hi))
     if hi - lo < 1e-12:
         pad = max(abs(lo) * 0.01, 1e-6)
         lo, hi = lo - pad, hi + pad
@@ -475,7 +513,7 @@ def render_heatmap(
     sub_rows = 1 if no_color else 2
     if fields is not None:
         z = field_array(fields, field_key)
-        vmin, vmax = value_range(z)
+        vmin, vmax = value_range(z, symmetric=cmap == "balance")
         raster = resample(z, fields.x_um, fields.y_um, cols, rows * sub_rows, bounds_um, reverse_x)
         pixels = normalise(raster.values, vmin, vmax)
     else:
@@ -520,8 +558,7 @@ def render_heatmap(
         layers[MARK_EXCLUDED] = [(int(c), int(r)) for r, c in zip(*np.nonzero(inside), strict=True)]
     layers[MARK_EARLIER] = _cells_of_points(marks.earlier_um, cols, rows, bounds_um, reverse_x)
     for m in marks.indents:
-        kind = MARK_NEWEST if m.block_id == marks.newest_block_id and m.status == "measured" else None
-        kind = kind or STATUS_MARKS.get(m.status, MARK_UNVERIFIED)
+        kind = mark_of(m, marks.newest_block_id)
         cell = cell_of(m.x_um, m.y_um, cols, rows, bounds_um, reverse_x)
         if cell is not None:
             layers[kind].append(cell)

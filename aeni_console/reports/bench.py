@@ -75,6 +75,15 @@ def _fmt_num(q: tuple[float, float, float] | None, digits: int = 2, unit: str = 
     return f"{q[1]:.{digits}f}{unit}"
 
 
+def _fmt_fast_s(q: tuple[float, float, float] | None, total: tuple[float, float, float] | None) -> str:
+    """Instrument time in fast arrays (median) and its share of the run's (median)."""
+    if q is None:
+        return "—"
+    if q[1] == 0 or total is None or total[1] <= 0:
+        return f"{q[1]:,.0f} s"
+    return f"{q[1]:,.0f} s ({100 * q[1] / total[1]:.0f} %)"
+
+
 def _med(q: tuple[float, float, float] | None) -> float | None:
     return None if q is None else q[1]
 
@@ -83,9 +92,9 @@ def scenario_table(rows: Sequence[PolicySummary]) -> str:
     head = (
         "| policy | reached | time to grid's final MAPE | speed-up vs grid | vs uncertainty | vs its reference "
         f"| speed-up at {LOOSE_FACTOR:g}× that MAPE | final MAPE | max found (true) | reconfig. | indents "
-        "| interlock refusals | approvals | failed indents |"
+        "| interlock refusals | approvals | failed indents | fast indents | time in fast arrays |"
     )
-    lines = [head, "|" + "---|" * 14]
+    lines = [head, "|" + "---|" * 16]
     for r in rows:
         ref = ""
         for name, q in r.speedup_ref.items():
@@ -96,7 +105,8 @@ def scenario_table(rows: Sequence[PolicySummary]) -> str:
             f"| {_fmt_ratio(r.speedup_grid)} | {_fmt_ratio(r.speedup_uncertainty)} | {ref or '—'} "
             f"| {_fmt_ratio(r.speedup_grid_loose)} | {_fmt_num(r.final_mape_pct, 3, ' %')} | {mx} "
             f"| {_fmt_num(r.reconfigurations, 0)} | {_fmt_num(r.indents, 0)} "
-            f"| {r.interlock_refusals} | {r.approvals} | {r.failed_indents} |"
+            f"| {r.interlock_refusals} | {r.approvals} | {r.failed_indents} "
+            f"| {_fmt_num(r.fast_indents, 0)} | {_fmt_fast_s(r.fast_array_s, r.instrument_s)} |"
         )
     return "\n".join(lines)
 
@@ -667,6 +677,10 @@ def results_markdown(
         "  5×5 grids = `uncertainty`; adaptive hold against fixed 80 s = `cost-aware`; `aeni-paper` against",
         "  `uncertainty`; `aeni` against `aeni-paper`; the unguarded ablation against the guarded one).",
         "- *max found*: highest true hardness among indented points (true maximum of the field in brackets).",
+        "- *fast indents*, *time in fast arrays*: median per seed of the fast (NanoBlitz-class) indents made, and",
+        "  of the instrument time from each fast array's start to its end (opening, surface find and drift settle",
+        "  included; in brackets its share of the run's median time); 0 for a policy that plans CSM indents only",
+        "  (docs/two-fidelity.md).",
         "- *reconfig.*: reconfigurations in the ledger: safety-rule hops ≥ 1000 µm while engaged and, on the film",
         "  profile, every global jump (priced there as one 520 s reconfiguration).",
         "",

@@ -37,6 +37,9 @@ _REFUSED_PROBE = "\x00not-a-value"
 MEANINGS: dict[str, str] = {
     "name": "the run's name: the journal file is ./runs/<UTC time>-<name>.sqlite",
     "campaign.policy": "the planning policy",
+    "campaign.fast": "on: the plan prices the profile's fast (NanoBlitz-class) arrays beside CSM indents, one "
+    "two-fidelity model learns from both (the policy's +fast; the profile needs a [fast] section); off: CSM "
+    "indents only; unset: as the policy says (docs/two-fidelity.md)",
     "campaign.scenario": "the emulator scenario (`aeni scenarios` lists them); `csv` reads truth_csv",
     "campaign.noise": "override the scenario's measurement noise",
     "campaign.drift": "override the scenario's drift",

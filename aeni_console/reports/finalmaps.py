@@ -45,6 +45,9 @@ class FinalMaps:
     modulus_epistemic_sd_gpa: np.ndarray
     modulus_noise_sd_gpa: np.ndarray
     modulus_planned: bool  # the planner aimed at the modulus (map_weights), not only fitted afterwards
+    # the fast channel's learnt bias E[H_csm − H_fast] (GPa) where the run's two-fidelity map is active; None:
+    # the run learnt none (CSM only, or too few fast cells or CSM centres yet)
+    fast_bias_gpa: np.ndarray | None = None
 
     @property
     def h_over_e(self) -> np.ndarray:
@@ -101,6 +104,10 @@ def _maps_of(campaign: Campaign) -> FinalMaps | None:
     if campaign.has_modulus_map():
         e = campaign.predict_modulus_stage(xy[:, 0], xy[:, 1])
         e_mean, e_epi, e_noise = e.mean, e.epistemic_sd, e.noise_sd
+    bias = None
+    if campaign.fast is not None and campaign.fast.active:
+        u, v = campaign.calibration.to_uv(xy[:, 0], xy[:, 1])
+        bias = np.asarray(campaign.fast.bias_gpa(np.column_stack([u, v])), dtype=float)
     return FinalMaps(
         x_um=xy[:, 0],
         y_um=xy[:, 1],
@@ -111,4 +118,5 @@ def _maps_of(campaign: Campaign) -> FinalMaps | None:
         modulus_epistemic_sd_gpa=e_epi,
         modulus_noise_sd_gpa=e_noise,
         modulus_planned=campaign.settings.map_weights.maps_modulus,
+        fast_bias_gpa=bias,
     )

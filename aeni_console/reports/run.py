@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from aeni_console.files import check_out_folder, write_atomic
+from aeni_console.reports.fast import FastTally, fast_summary_lines, fast_tally
 from aeni_console.reports.finalmaps import final_maps
 from core.campaign import campaign_config_from_dict
 from core.errors import InputError
@@ -101,6 +102,12 @@ class RunData:
     final_maps: Any | None = (
         None  # aeni_console.reports.finalmaps.FinalMaps: both maps rebuilt from the journal
     )
+    block_s: dict[int, float] = field(default_factory=dict)  # the ledger's seconds per block (-1: the run's)
+
+    @property
+    def fast(self) -> FastTally:
+        """The indents by channel and the time in fast arrays (of these indents: a tray's library has its own)."""
+        return fast_tally(self.indents, self.block_s.items())
 
 
 def read_run(path: str | Path) -> RunData:
@@ -151,6 +158,12 @@ def read_run(path: str | Path) -> RunData:
             x0, x1, y0, y1 = snap.stage_bounds_um
             outline = np.array([[x0, y1], [x1, y1], [x1, y0], [x0, y0]], dtype=float)
         sample = _sample(meta)
+        indents = r.results()
+        s_cols, s_rows = r.table("steps")
+        i_b, i_s = s_cols.index("block_id"), s_cols.index("seconds")
+        block_s: dict[int, float] = defaultdict(float)
+        for x in s_rows:
+            block_s[int(x[i_b])] += float(x[i_s])
         data = RunData(
             path=p,
             name=snap.run_name,
@@ -166,7 +179,7 @@ def read_run(path: str | Path) -> RunData:
             avoid_centers_um=[(float(x), float(y)) for x, y in snap.settings.avoid_centers_um],
             exclusions=tuple(sample.exclusions) if sample is not None else (),
             earlier_indents_um=[(float(x), float(y)) for x, y in sample.earlier_indents_um] if sample else [],
-            indents=r.results(),
+            indents=indents,
             ledger_s=dict(snap.ledger),
             instrument_s=snap.instrument_s,
             grid_baseline_s=snap.grid_baseline_s,
@@ -180,6 +193,7 @@ def read_run(path: str | Path) -> RunData:
             resolved_by=resolved_by,
             stop_reason=str(row.get("stop_reason") or ""),
             recorded_mape_pct=recorded,
+            block_s=dict(block_s),
         )
 
     data.final_maps = final_maps(p)
@@ -256,11 +270,26 @@ def _overlay(ax: Any, data: RunData, indents: bool = True, vetoes: bool = True) 
 
     closed = np.vstack([data.outline_xy_um, data.outline_xy_um[:1]])
     ax.plot(closed[:, 0], closed[:, 1], color="black", lw=1.2, label="sample outline")
-    measured = [r for r in data.indents if r.measured]
+    measured = [r for r in data.indents if r.measured and r.channel != "fast"]
+    fast = [r for r in data.indents if r.measured and r.channel == "fast"]
+    if indents and fast:  # a fast array's indents, under the CSM ones: dense, and read apart
+        xs = [r.actual_x_um for r in fast]
+        ys = [r.actual_y_um for r in fast]
+        ax.scatter(
+            xs,
+            ys,
+            s=6,
+            c="tab:green",
+            marker="s",
+            linewidths=0,
+            label=f"fast indents ({len(fast)})",
+            zorder=3,
+        )
     if indents and measured:
         xs = [r.actual_x_um for r in measured]
         ys = [r.actual_y_um for r in measured]
-        ax.scatter(xs, ys, s=4, c="white", edgecolors="black", linewidths=0.3, label="indents", zorder=3)
+        label = f"CSM indents ({len(measured)})" if fast else "indents"
+        ax.scatter(xs, ys, s=4, c="white", edgecolors="black", linewidths=0.3, label=label, zorder=3)
     for status, style in UNMEASURED_STYLE.items():
         rs = [r for r in data.indents if unmeasured_kind(r) == status]
         if not indents or not rs:
@@ -393,6 +422,29 @@ def modulus_mape_pct(data: RunData) -> tuple[float, int] | None:
     mean = np.asarray(fm.modulus_mean_gpa, dtype=float)
     ok = np.isfinite(mean) & np.isfinite(truth) & (truth != 0)
     return float(100.0 * np.mean(np.abs(mean[ok] - truth[ok]) / np.abs(truth[ok]))), int(ok.sum())
+
+
+def _bias_figure(plt: Any, data: RunData, out: Path) -> Path:
+    """The fast channel's learnt bias H_csm − H_fast (issue 36), on a diverging scale centred on no bias,
+    with the fast and CSM indents."""
+    fig, ax = plt.subplots(1, 1, figsize=(6.4, 5.0), constrained_layout=True)
+    fm = data.final_maps
+    bias = None if fm is None else fm.fast_bias_gpa
+    if fm is not None and bias is not None and np.isfinite(bias).sum() >= 3:
+        ok = np.isfinite(bias)
+        top = float(np.max(np.abs(bias[ok]))) or 1e-6
+        im = ax.tripcolor(
+            fm.x_um[ok], fm.y_um[ok], bias[ok], cmap="RdBu_r", vmin=-top, vmax=top, shading="gouraud"
+        )
+        fig.colorbar(im, ax=ax, shrink=0.85, label="GPa")
+    else:
+        ax.text(0.5, 0.5, "no bias learnt yet", transform=ax.transAxes, ha="center", va="center")
+    _overlay(ax, data, vetoes=False)
+    ax.set_title("fast-channel bias H_csm − H_fast (GPa)")
+    _stage_axes(ax, data)
+    ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
+    fig.suptitle(f"{data.name}: what the fast channel reads off the CSM map")
+    return _save(fig, plt, out / "bias.png")
 
 
 def _time_figure(plt: Any, data: RunData, out: Path) -> Path:
@@ -593,6 +645,10 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         lines.append(
             f"- measured hardness {min(hard):.3f}–{max(hard):.3f} GPa (median {float(np.median(hard)):.3f} GPa)"
         )
+    if data.fast.fast_indents:
+        lines += fast_summary_lines(
+            data.fast, data.instrument_s, getattr(data.final_maps, "fast_bias_gpa", None)
+        )
     mod = [r.modulus_gpa for r in data.indents if r.measured and np.isfinite(r.modulus_gpa)]
     if mod:
         lines.append(
@@ -659,6 +715,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
         "uncertainty.png": "the model's uncertainty over time",
         "drift.png": "drift readings and the holds used",
         "decisions.png": "decisions, and who took them: the operator, the approval timeout or the engine",
+        "bias.png": "the fast channel's learnt bias H_csm − H_fast, with the fast and CSM indents",
     }
     for f in figures:
         lines.append(f"- {captions.get(f.name, f.name)}: ![{f.stem}]({f.name})")
@@ -666,7 +723,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
 
 
 def write_report(path: str | Path, out_dir: str | Path) -> list[Path]:
-    """Write maps.png, modulus.png, time.png, uncertainty.png, drift.png, decisions.png and summary.md to
+    """Write maps.png, modulus.png, time.png, uncertainty.png, drift.png, decisions.png (bias.png where the run has fast indents) and summary.md to
     ``out_dir``."""
     _pyplot()  # before reading anything: a missing matplotlib is said at once
     with JournalReader(path) as r:
@@ -689,6 +746,8 @@ def render_report(data: RunData, out_dir: str | Path) -> list[Path]:
         _drift_figure(plt, data, out),
         _decision_figure(plt, data, out),
     ]
+    if data.fast.fast_indents:  # a run with fast arrays: its learnt bias
+        figures.append(_bias_figure(plt, data, out))
     summary = out / "summary.md"
     write_atomic(summary, summary_markdown(data, figures, truth_mape_pct(data)))
     return [*figures, summary]

@@ -64,6 +64,8 @@ def map_fields_to_bytes(fields: MapFields) -> bytes:
     }
     if fields.modulus_mean_gpa is not None and fields.modulus_sd_gpa is not None:
         arrays |= {"modulus_mean_gpa": fields.modulus_mean_gpa, "modulus_sd_gpa": fields.modulus_sd_gpa}
+    if fields.bias_gpa is not None:
+        arrays["bias_gpa"] = fields.bias_gpa
     np.savez_compressed(buf, allow_pickle=False, **arrays)
     return buf.getvalue()
 
@@ -82,6 +84,7 @@ def map_fields_from_bytes(snapshot_id: int, blob: bytes) -> MapFields:
             next_candidate_um=(float(nxt[0]), float(nxt[1])) if nxt.size == 2 else None,
             modulus_mean_gpa=z["modulus_mean_gpa"] if "modulus_mean_gpa" in z.files else None,
             modulus_sd_gpa=z["modulus_sd_gpa"] if "modulus_sd_gpa" in z.files else None,
+            bias_gpa=z["bias_gpa"] if "bias_gpa" in z.files else None,
         )
 
 

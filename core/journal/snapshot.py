@@ -168,7 +168,7 @@ class SnapshotFold:
         self.last_indent = r
         seen = math.isfinite(r.actual_x_um) and math.isfinite(r.actual_y_um)
         x, y = (r.actual_x_um, r.actual_y_um) if seen else (r.commanded_x_um, r.commanded_y_um)
-        self.indents.append(IndentMark(float(x), float(y), r.block_id, str(r.status)))
+        self.indents.append(IndentMark(float(x), float(y), r.block_id, str(r.status), str(r.channel)))
         rate = r.drift_rate_nm_s
         if rate is not None and math.isfinite(rate):
             self.last_drift_rate_nm_s = float(rate)

@@ -92,6 +92,12 @@ class RunSpec:
         return self.campaign.name
 
     @property
+    def fast(self) -> bool:
+        """Whether the plan prices fast arrays beside CSM indents (the policy's ``+fast``: ``aeni run --fast on``,
+        a run file's ``campaign.fast``); the spec carries it in its policy, one home for it."""
+        return "fast" in self.campaign.policy.split("+")[1:]
+
+    @property
     def driver_options(self) -> dict[str, Any]:
         return self.campaign.driver_options
 

@@ -12,8 +12,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from core.plan import Block
-from drivers.sim.fast_channel import CsmAtSites, FastPhysics, FastReadings, read_array
-from drivers.sim.truth import truth_modulus_gpa, truth_modulus_noise_sd_gpa
+from drivers.sim.fast_channel import CsmAtSites, FastPhysics, FastReadings, FastTable, read_array
+from drivers.sim.truth import NoiseOverride, truth_modulus_gpa, truth_modulus_noise_sd_gpa
+from drivers.sim.truth_csv import CsvTruth
 
 if TYPE_CHECKING:
     from drivers.sim.emulator import Emulator
@@ -31,5 +32,12 @@ def read_fast_block(emulator: Emulator, physics: FastPhysics, block: Block) -> F
         np.asarray(truth_modulus_gpa(truth, cx, cy), dtype=float),
         np.asarray(truth_modulus_noise_sd_gpa(truth, cx, cy), dtype=float),
     )
-    r = read_array(physics, emulator.seed, block.block_id, cx, cy, csm)
+    r = read_array(physics, emulator.seed, block.block_id, cx, cy, csm, table=file_fast_table(truth))
     return FastReadings(xy[:, 0], xy[:, 1], r.hardness_gpa, r.modulus_gpa, r.depth_nm, r.failed)
+
+
+def file_fast_table(truth: object) -> FastTable | None:
+    """What a truth file says a fast indent reads (its fast columns), None where it says nothing: then the
+    fast channel's physics. A noise override changes the CSM scatter only, so the file's columns still hold."""
+    base = truth.base if isinstance(truth, NoiseOverride) else truth
+    return base.fast_table if isinstance(base, CsvTruth) else None

@@ -1,5 +1,8 @@
 """Ground truth from a file: a CSV of x_um, y_um, hardness_gpa[, noise_sd_gpa, modulus_gpa,
-modulus_noise_sd_gpa] on a lattice or scattered, interpolated (SPEC §4); a bad file is one clear error."""
+modulus_noise_sd_gpa] on a lattice or scattered, interpolated (SPEC §4); a bad file is one clear error.
+
+The file may also say what a fast indent reads (``drivers.sim.fast_channel.FAST_CSV_COLUMNS``); the map is
+still scored against its CSM columns."""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from numpy.typing import ArrayLike
 
 from core.errors import InputError
 from drivers.sim.csv_points import check_point, number_rows, read_header
+from drivers.sim.fast_channel import FAST_CSV_COLUMNS, FastTable, read_fast_table
 from drivers.sim.truth import (
     DEFAULT_MODULUS_REL_SD,
     Bounds,
@@ -40,13 +44,16 @@ class CsvTruth:
         name: str = "csv",
         modulus_gpa: ArrayLike | None = None,
         modulus_noise_sd_gpa: ArrayLike | None = None,
+        fast_table: FastTable | None = None,
     ) -> None:
+        """``fast_table``: what a fast indent reads where the file says it (None: the fast channel's physics)."""
         x = np.asarray(x_um, dtype=float).ravel()
         y = np.asarray(y_um, dtype=float).ravel()
         h = np.asarray(hardness_gpa, dtype=float).ravel()
         if not (x.shape == y.shape == h.shape):
             raise InputError(name, "x_um, y_um and hardness_gpa have different lengths")
         self.name = name
+        self.fast_table = fast_table
         self.bounds_um: Bounds = (float(x.min()), float(x.max()), float(y.min()), float(y.max()))
         self.default_noise = noise_sd_gpa is None
         sd = (
@@ -135,7 +142,7 @@ class CsvTruth:
         header, reader = read_header(
             path, "empty file: expected a header x_um, y_um, hardness_gpa[, noise_sd_gpa]"
         )
-        allowed = _CSV_REQUIRED + _CSV_OPTIONAL
+        allowed = _CSV_REQUIRED + _CSV_OPTIONAL + FAST_CSV_COLUMNS
         unknown = [h for h in header if h not in allowed]
         if unknown:
             raise InputError(
@@ -191,4 +198,5 @@ class CsvTruth:
             name=f"csv:{p.name}",
             modulus_gpa=columns.get("modulus_gpa"),
             modulus_noise_sd_gpa=columns.get("modulus_noise_sd_gpa"),
+            fast_table=read_fast_table(path),  # its fast columns, checked with their own rules
         )

@@ -21,7 +21,11 @@ KEYS: tuple[tuple[str, str], ...] = (
     ("b", "stop after the current block"),
     ("x", "abort now (asks first)"),
     ("w", "away until a time (08:00, 'Mon 09:00'): the run plans for nobody until then, then for you again"),
-    ("m", "cycle the map: mean → epistemic sd → noise sd → total sd"),
+    (
+        "m",
+        "cycle the map: mean → epistemic sd → noise sd → total sd, then the modulus, H/E and the fast "
+        "channel's bias where the run has them",
+    ),
     ("← →  , .", "replay: one block back / forward (home / end: first / last)"),
     ("ctrl+p", "command palette (every action, searchable)"),
     ("?", "this help"),

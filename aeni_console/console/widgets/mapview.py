@@ -26,6 +26,8 @@ from aeni_console.console.heatmap import (
     LEGEND,
     MARK_EARLIER,
     MARK_EXCLUDED,
+    MARK_FAST,
+    MARK_MEASURED,
     MARK_NEWEST,
     MARK_OUTLINE,
     MARK_PLANNED,
@@ -33,6 +35,7 @@ from aeni_console.console.heatmap import (
     HeatmapImage,
     MapMarks,
     field_keys_of,
+    mark_of,
     marks_for,
     render_heatmap,
 )
@@ -136,7 +139,9 @@ class MapPanel(Vertical):
         statuses = {m.status for m in marks.indents}
         for status, mark in STATUS_MARKS.items():
             present[mark] = status in statuses
-        present[MARK_NEWEST] = marks.newest_block_id is not None
+        present[MARK_MEASURED] = any(m.status == "measured" and m.channel != "fast" for m in marks.indents)
+        present[MARK_FAST] = any(m.status == "measured" and m.channel == "fast" for m in marks.indents)
+        present[MARK_NEWEST] = any(mark_of(m, marks.newest_block_id) is MARK_NEWEST for m in marks.indents)
         present[MARK_PLANNED] = bool(marks.planned_um)
         width = max(self.size.width - 2, 20) if self.size.width else 1000
         t = Text(no_wrap=True, overflow="ellipsis")

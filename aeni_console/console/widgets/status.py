@@ -51,6 +51,9 @@ def status_text(
         (0, f"{snap.n_indents} ind"),
         (1, f"{snap.n_blocks} blk"),
     ]
+    n_fast = sum(1 for m in snap.indents if m.channel == "fast")
+    if n_fast:  # a run with fast arrays: how many of its indents are fast (issue 36)
+        items.insert(3, (1, f"{n_fast} fast"))
     if snap.mape_pct is not None:
         items.append((1, f"MAPE {snap.mape_pct:.1f}%"))
     if snap.gp.lengthscales_um:

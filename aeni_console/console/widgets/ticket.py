@@ -20,7 +20,9 @@ from textual.widgets import Input, Static
 
 from aeni_console.console.widgets.base import SnapshotPanel
 from aeni_console.console.widgets.fmt import hms
+from core.describe import block_words
 from core.driver import InstrumentWait
+from core.plan import Block
 from core.runview import RunSnapshot
 
 
@@ -29,7 +31,9 @@ def seconds_left(wait: InstrumentWait, now_unix: float) -> float:
     return (deadline - datetime.fromtimestamp(now_unix, UTC)).total_seconds()
 
 
-def ticket_renderable(wait: InstrumentWait, now_unix: float) -> Group:
+def ticket_renderable(wait: InstrumentWait, now_unix: float, block: Block | None = None) -> Group:
+    """The ticket as the driver wrote it; ``block``: the block it runs, named first when it is a fast array
+    (an operator must not load it as a CSM method)."""
     left = seconds_left(wait, now_unix)
     head = Text(no_wrap=True, overflow="ellipsis")
     head.append(f" block {wait.block_id} ", style="bold black on cyan")
@@ -48,7 +52,14 @@ def ticket_renderable(wait: InstrumentWait, now_unix: float) -> Group:
     keys = Text(
         "c start · a aborted · f no surface · k skip", style="italic", no_wrap=True, overflow="ellipsis"
     )
-    return Group(head, start, body, inbox, keys)
+    lines = [head, start, body, inbox, keys]
+    if block is not None and block.block_id == wait.block_id and block.channel == "fast":
+        words = block_words(block)
+        fast = Text(no_wrap=True, overflow="ellipsis")
+        fast.append(" FAST ARRAY ", style="bold black on bright_cyan")
+        fast.append(f" {block.n_indents} indents, {words.layout.removeprefix('fast array ')} {words.extent}")
+        lines.insert(1, fast)
+    return Group(*lines)
 
 
 class TicketPanel(SnapshotPanel):
@@ -59,13 +70,13 @@ class TicketPanel(SnapshotPanel):
     def show(self, snap: RunSnapshot) -> None:
         self.snap = snap
         if snap.instrument_wait is not None:
-            self.update(ticket_renderable(snap.instrument_wait, self.now_unix))
+            self.update(ticket_renderable(snap.instrument_wait, self.now_unix, snap.current_block))
 
     def tick(self, now_unix: float) -> None:
         """The countdown: redraw with the current time."""
         self.now_unix = now_unix
         if self.snap is not None and self.snap.instrument_wait is not None:
-            self.update(ticket_renderable(self.snap.instrument_wait, now_unix))
+            self.update(ticket_renderable(self.snap.instrument_wait, now_unix, self.snap.current_block))
 
 
 class AskScreen(ModalScreen[str | None]):

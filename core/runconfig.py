@@ -35,6 +35,7 @@ from core.notifyconfig import (
 )
 from core.operator import OperatorAvailability, OperatorHours
 from core.policies.registry import policy_names, policy_parts
+from core.profile import BUILTIN_PROFILES
 from core.run.spec import EngineRules, RunSpec
 from core.sample import check_avoided_centres, load_sample
 from core.settings import (
@@ -335,6 +336,15 @@ def parse_run_config(
     truth_csv = c.truth_csv
     if truth_csv is not None and base_dir is not None and not Path(truth_csv).is_absolute():
         truth_csv = str((base_dir / truth_csv).resolve())  # relative to the config file
+    profile = c.profile
+    if (
+        profile is not None
+        and profile not in BUILTIN_PROFILES
+        and base_dir is not None
+        and not Path(profile).is_absolute()
+        and (overrides or {}).get("campaign.profile") is None
+    ):
+        profile = str((base_dir / profile).resolve())  # a profile file: relative to the config file too
     sample = None
     if rf.sample.file is not None:
         file = Path(rf.sample.file)
@@ -368,7 +378,7 @@ def parse_run_config(
     campaign = CampaignConfig(
         policy=policy_with_fast(c.policy, c.fast),
         seed=c.seed,
-        profile=c.profile,
+        profile=profile,
         lattice_n=c.lattice_n,
         settings=settings,
         name=rf.name,

@@ -190,6 +190,24 @@ def test_the_sample_file_is_relative_to_the_run_file(tmp_path: Path) -> None:
         load_run_config(write(tmp_path, '[sample]\nfile = "nope.toml"'))
 
 
+def test_a_profile_file_is_relative_to_the_run_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from core.profile import load_profile
+
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "ours.toml").write_text('extends = "kla-imicro"\nname = "ours"\n', encoding="utf-8")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the run file is read from another working directory
+    rc = load_run_config(write(tmp_path, '[campaign]\nprofile = "lab/ours.toml"'))
+    assert rc.campaign.profile == str((tmp_path / "lab" / "ours.toml").resolve())
+    assert load_profile(rc.campaign.profile).name == "ours"
+    # a built-in profile's name stays a name
+    assert (
+        load_run_config(write(tmp_path, '[campaign]\nprofile = "kla-imicro"')).campaign.profile
+        == "kla-imicro"
+    )
+
+
 def test_run_section_holds_the_engines_no_wait_rules() -> None:
     o = parse_run_config({}).options
     assert (o.max_refusals, o.approval_timeout_s, o.on_timeout) == (5, None, "approve")

@@ -154,14 +154,15 @@ def test_a_resumed_two_map_run_decides_what_the_uninterrupted_one_would() -> Non
 def test_the_console_cycles_through_both_maps_and_the_journal_keeps_them() -> None:
     """The map fields carry the modulus mean and sd where the run learns the modulus map; `m` then cycles on
     to them and H/E; the journal's codec keeps them; a hardness-only run's fields are as before."""
-    from aeni_console.console.heatmap import FIELD_KEYS, HARDNESS_KEYS, field_array, field_keys_of
+    from aeni_console.console.heatmap import HARDNESS_KEYS, MODULUS_KEYS, field_array, field_keys_of
     from core.journal.codec import map_fields_from_bytes, map_fields_to_bytes
 
     c = _campaign(MapWeights(1.0, 1.0))
     _run_blocks(c, 3)
     fields = c.map_fields(7, display_n=20)
     assert fields.modulus_mean_gpa is not None and fields.modulus_sd_gpa is not None
-    assert field_keys_of(fields) == FIELD_KEYS
+    assert fields.bias_gpa is None  # a CSM-only run has no fast channel's bias to cycle to
+    assert field_keys_of(fields) == HARDNESS_KEYS + MODULUS_KEYS
     e = field_array(fields, "modulus")
     ratio = field_array(fields, "h_over_e")
     assert np.nanmin(e) > 90.0 and np.allclose(

@@ -45,7 +45,7 @@ MEANINGS: dict[str, str] = {
     "campaign.drift": "override the scenario's drift",
     "campaign.truth_csv": "ground truth CSV (x_um, y_um, hardness_gpa[, noise_sd_gpa]), relative to the run file",
     "campaign.seed": "random seed: the same seed gives the same run",
-    "campaign.profile": "instrument profile: a built-in name or a TOML file (default: the scenario's)",
+    "campaign.profile": "instrument profile: a built-in name or a TOML file, relative to the run file (default: the scenario's)",
     "campaign.lattice_n": "candidate centres per side of the lattice (default: the scenario's)",
     "campaign.failure_rate": "the simulated instrument's failures: this share of indents comes back invalid, "
     "and a quarter of it of the blocks each finds no surface or is aborted half way (default: the scenario's, "

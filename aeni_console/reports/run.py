@@ -606,6 +606,17 @@ def _save(fig: Any, plt: Any, target: Path) -> Path:
 # summary
 
 
+def report_head(title: str, data: RunData) -> list[str]:
+    """A report's title and the lines that say which journal it reads and how the run stands."""
+    return [
+        f"# {title}: {data.name}",
+        "",
+        f"- journal: `{data.path}`",
+        f"- state: {data.state}" + ("" if data.finished else " (the engine is still running; a snapshot)"),
+        f"- stop reason: {data.stop_reason or '—'}",
+    ]
+
+
 def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int] | None) -> str:
     hard = [r.hardness_gpa for r in data.indents if r.measured]
     n_failed = sum(1 for r in data.indents if r.status == "failed")
@@ -629,11 +640,7 @@ def summary_markdown(data: RunData, figures: list[Path], mape: tuple[float, int]
             + f" and {n_not_run} not run"
         )
     lines = [
-        f"# Run report: {data.name}",
-        "",
-        f"- journal: `{data.path}`",
-        f"- state: {data.state}" + ("" if data.finished else " (the engine is still running; a snapshot)"),
-        f"- stop reason: {data.stop_reason or '—'}",
+        *report_head("Run report", data),
         f"- policy `{data.policy}`, driver `{data.driver}`, profile `{data.profile_name}`, "
         f"supervision `{data.supervision}`",
         f"- instrument time {data.instrument_s:,.0f} s ({data.instrument_s / 3600:.2f} h)"

@@ -19,7 +19,7 @@ import numpy as np
 
 from aeni_console.files import check_out_folder, write_atomic
 from aeni_console.reports.finalmaps import tray_final_maps
-from aeni_console.reports.run import RunData, _pyplot, read_run, render_report
+from aeni_console.reports.run import RunData, _pyplot, read_run, render_report, report_head
 from core.campaign import campaign_config_to_dict
 from core.errors import InputError
 from core.journal import JournalReader
@@ -182,11 +182,7 @@ def tray_summary_markdown(
     run: RunData, tray: Tray, totals: list[SampleTotals], checks: list[TipCheck]
 ) -> str:
     lines = [
-        f"# Tray report: {run.name}",
-        "",
-        f"- journal: `{run.path}`",
-        f"- state: {run.state}" + ("" if run.finished else " (the engine is still running; a snapshot)"),
-        f"- stop reason: {run.stop_reason or '—'}",
+        *report_head("Tray report", run),
         f"- instrument time {run.instrument_s:,.0f} s ({run.instrument_s / 3600:.2f} h) over "
         f"{len(tray.samples)} samples",
         "",

@@ -257,6 +257,13 @@ def test_rho_linked_to_the_fast_e_over_h_learns_what_a_plane_cannot() -> None:
     mape_plane = _mape(plane.predict(grid).mean, truth)
     mape_linked = _mape(linked.predict(grid).mean, truth)
     assert mape_linked < 0.7 * mape_plane, (mape_linked, mape_plane)
+    # the link is never extrapolated past the E/H the CSM centres have seen
+    assert linked._p is not None
+    cells = link.median_gpa
+    seen = (linked.link_gp.predict_mean(csm.uv) - cells.mean()) / cells.std()
+    z_grid = linked._p.link_grid[:, 0].numpy()
+    assert seen.min() - 1e-9 <= z_grid.min() and z_grid.max() <= seen.max() + 1e-9
+    np.testing.assert_allclose(linked._p.link_grid[:, 1].numpy(), z_grid**2)
     # the journal's record brings the link back: the same map, bit for bit
     record = json.loads(json.dumps(linked.hyper))
     restored = TwoFidelityGP()

@@ -516,18 +516,21 @@ class TwoFidelityGP:
             grid=grid,
             fast_grid_mean=torch.as_tensor((fast_mean - self._loc) / self._scale, dtype=DTYPE),
             fast_grid_cov=torch.as_tensor(fast_cov / self._scale**2, dtype=DTYPE),
-            link_grid=self._link_grid(grid.points().numpy()),
+            link_grid=self._link_grid(grid.points().numpy(), csm.uv),
         )
 
-    def _link_grid(self, grid_uv: np.ndarray) -> torch.Tensor:
+    def _link_grid(self, grid_uv: np.ndarray, csm_uv: np.ndarray) -> torch.Tensor:
         """ρ's link features on the fast grid: z, z² with z the link GP's E/H standardised over the cells
-        (empty without a link: ρ the plane)."""
+        (empty without a link: ρ the plane). z is held within what the CSM centres have seen: the link is a
+        regression on them, never extrapolated (a layer or a phase that reads an E/H no CSM indent has met
+        keeps ρ's value at the edge of that range, and δ and the CSM indents must find it)."""
         if self._link is None:
             return torch.empty(0, dtype=DTYPE)
-        ratio = self.link_gp.predict_mean(grid_uv)
         cells = self._link.median_gpa
-        spread = float(np.std(cells))
-        z = np.clip((ratio - float(np.mean(cells))) / max(spread, 1e-12), -LINK_Z_CLIP, LINK_Z_CLIP)
+        loc, spread = float(np.mean(cells)), max(float(np.std(cells)), 1e-12)
+        seen = (self.link_gp.predict_mean(csm_uv) - loc) / spread
+        lo, hi = max(float(seen.min()), -LINK_Z_CLIP), min(float(seen.max()), LINK_Z_CLIP)
+        z = np.clip((self.link_gp.predict_mean(grid_uv) - loc) / spread, lo, hi)
         return torch.as_tensor(np.column_stack([z, z**2][:N_LINK]), dtype=DTYPE)
 
     def _cold(self, p: CoKrigingProblem) -> tuple[torch.Tensor, float]:

@@ -178,6 +178,7 @@ class TwoFidelityGP:
         self.fast_gp = HeteroskedasticGP(**common, ski_above=1)  # always the interpolated GP
         self.link_gp = HeteroskedasticGP(**common, ski_above=1)  # the fast channel's E/H: ρ's link
         self._link: Observations | None = None  # the link's cells in the current fit
+        self._link_on = False  # ρ's link in use: chosen at each optimisation, by the evidence (BIC)
         self.kernel: KernelName = kernel
         self.floor_uv = float(lengthscale_floor_uv)
         self.guard: GuardName = guard
@@ -224,6 +225,7 @@ class TwoFidelityGP:
                 "cold_n": self._cold_n,
                 "fit_n": self._fit_n,
                 "fast_n": self._fast_n,
+                "link_on": self._link_on,
             }
         return record
 
@@ -259,10 +261,12 @@ class TwoFidelityGP:
             raw = _raw(ck["raw"], version)
             last_good = None if ck.get("last_good") is None else _raw(ck["last_good"], version)
             counters = [int(ck[k]) for k in ("prev_n", "cold_n", "fit_n", "fast_n")]
+            link_on = bool(ck.get("link_on", False))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(_FIELD, f"malformed cokriging record: {exc!r}") from None
         self._theta, self._last_good = raw, last_good
         self._prev_n, self._cold_n, self._fit_n, self._fast_n = counters
+        self._link_on = link_on and self._link is not None
         self._p = self._problem(csm)
         self._cond = self._p.condition(raw)
 
@@ -305,6 +309,8 @@ class TwoFidelityGP:
         self._link = link if link is not None and link.n >= self.min_fast_cells else None
         if self._link is not None:
             self.link_gp.fit(self._link)
+        else:
+            self._link_on = False
         p = self._problem(csm)
         iterations = 0
         if (
@@ -329,6 +335,9 @@ class TwoFidelityGP:
                 if (p.objective(theta) - p.objective(cold)) * csm.n > COLD_WIN_NATS:
                     theta = cold
                 self._cold_n = csm.n
+        if self._link is not None:
+            p, theta, more = self._choose_link(csm, p, theta)
+            iterations += more
         t = unpack_theta(theta, self.floor_uv)
         ls = (float(t.lengthscale[0]), float(t.lengthscale[1]))
         prev_ls = None
@@ -372,7 +381,7 @@ class TwoFidelityGP:
             csm=csm_report,
             fast=fast_report,
             rho_coef=(float(t.rho[0]), float(t.rho[1]), float(t.rho[2])),
-            rho_link_coef=(float(t.rho[3]), float(t.rho[4])) if self._link is not None else None,
+            rho_link_coef=(float(t.rho[3]), float(t.rho[4])) if self._link_on else None,
             delta_lengthscales_uv=(float(t.lengthscale[0]), float(t.lengthscale[1])),
             delta_outputscale_gpa2=delta_var,
             delta_share=delta_var / max(float(np.var(csm.median_gpa, ddof=1)) if csm.n > 1 else 1.0, 1e-12),
@@ -498,6 +507,30 @@ class TwoFidelityGP:
 
     # -- the CSM level's data and fits ---------------------------------------------------------------
 
+    def _choose_link(
+        self, csm: Observations, p: CoKrigingProblem, theta: torch.Tensor
+    ) -> tuple[CoKrigingProblem, torch.Tensor, int]:
+        """ρ with its E/H link or the plane alone, whichever the CSM data support: the link's two numbers
+        must buy more than Schwarz's ln(n) nats of likelihood (BIC, 2 parameters), else they fit noise
+        (a field whose CSM/fast ratio barely varies, as the film's 0.86–0.91, under 10 % CSM noise).
+        ``p`` and ``theta``: the problem as it stands (link on or off) and its optimum."""
+        was_on = self._link_on
+        self._link_on = not was_on
+        other = self._problem(csm)
+        start = theta.clone()
+        if was_on:
+            start[3:N_RHO] = 0.0  # the plane: the link's coefficients have no feature to act on
+        theta_other, iterations = optimise(other, start, self.warm_max_iter)
+        linked, theta_link = (p, theta) if was_on else (other, theta_other)
+        plane, theta_plane = (other, theta_other) if was_on else (p, theta)
+        gain_nats = (plane.objective(theta_plane) - linked.objective(theta_link)) * csm.n
+        self._link_on = bool(math.isfinite(gain_nats) and gain_nats > math.log(csm.n))
+        if self._link_on:
+            return linked, theta_link, iterations
+        theta_plane = theta_plane.clone()
+        theta_plane[3:N_RHO] = 0.0
+        return plane, theta_plane, iterations
+
     def _problem(self, csm: Observations) -> CoKrigingProblem:
         grid, fast_mean, fast_cov = self.fast_gp.latent_grid()
         self._loc, self._scale = standardise(csm.median_gpa)
@@ -524,7 +557,7 @@ class TwoFidelityGP:
         (empty without a link: ρ the plane). z is held within what the CSM centres have seen: the link is a
         regression on them, never extrapolated (a layer or a phase that reads an E/H no CSM indent has met
         keeps ρ's value at the edge of that range, and δ and the CSM indents must find it)."""
-        if self._link is None:
+        if self._link is None or not self._link_on:
             return torch.empty(0, dtype=DTYPE)
         cells = self._link.median_gpa
         loc, spread = float(np.mean(cells)), max(float(np.std(cells)), 1e-12)

@@ -235,7 +235,7 @@ def linked_rho(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def test_rho_linked_to_the_fast_e_over_h_learns_what_a_plane_cannot() -> None:
     rng = np.random.default_rng(RNG_SEED)
-    uf = lattice(30)
+    uf = lattice(40)  # 196 cells: fewer leave the link's evidence under BIC's bar
     hf = fast_truth(uf[:, 0], uf[:, 1]) + 0.15 * rng.standard_normal(len(uf))
     ef = modulus_truth(uf[:, 0], uf[:, 1]) + 3.0 * rng.standard_normal(len(uf))
     uc = rng.random((40, 2))

@@ -58,6 +58,11 @@ def rho_basis(x: torch.Tensor, link: torch.Tensor) -> torch.Tensor:
     return torch.cat([plane_basis(x), link], dim=1)
 
 
+def regression_columns(rho_b: torch.Tensor, fast_mean: torch.Tensor, plane_b: torch.Tensor) -> torch.Tensor:
+    """(n, N_RHO + 3): the mean ρ·f + plane as a linear model in (b, c): ρ's basis times the fast mean, the plane."""
+    return torch.cat([rho_b * fast_mean.unsqueeze(1), plane_b], dim=1)
+
+
 def _kernel(kernel: KernelName, a: torch.Tensor, b: torch.Tensor, ls: torch.Tensor) -> torch.Tensor:
     """Unit-outputscale k(a, b), differentiable in the length-scales."""
     r2 = torch.cdist(a / ls, b / ls).square()
@@ -193,6 +198,11 @@ class CoKrigingProblem(Problem):
                 k = k + JITTER_REL * float(k.diagonal().mean()) * torch.eye(self.n, dtype=DTYPE)
                 chol = torch.linalg.cholesky(k)
             alpha = torch.cholesky_solve((self.y - mean).unsqueeze(-1), chol).squeeze(-1)
+            # the mean's regression (ρ's and δ's planes, the link): its columns at the CSM points, those in use
+            reg = regression_columns(self.rho_basis, self.fast_mean, self.basis)
+            used = reg.abs().sum(dim=0) > 0
+            z = torch.linalg.solve_triangular(chol, reg[:, used], upper=False)
+            a_chol, a_info = torch.linalg.cholesky_ex(z.T @ z)
             return CoKrigingConditioned(
                 kernel=self.kernel,
                 grid=self.grid,
@@ -208,6 +218,9 @@ class CoKrigingProblem(Problem):
                 cross_rho=self.fast_cross * rho.unsqueeze(0),
                 chol_t=chol.T.contiguous(),
                 alpha=alpha,
+                reg_used=used,
+                reg_z=z,
+                reg_a_chol=a_chol if int(a_info) == 0 else None,
             )
 
 
@@ -229,6 +242,13 @@ class CoKrigingConditioned:
     cross_rho: torch.Tensor  # (m, n) Σ_g Wᵀ diag(ρ)
     chol_t: torch.Tensor  # upper factor of K
     alpha: torch.Tensor  # K⁻¹ (y − mean)
+    # universal kriging: the mean's coefficients are estimated from the same CSM data, and their uncertainty
+    # is the map's too: + rᵀ(FᵀK⁻¹F)⁻¹r, r = f(x) − FᵀK⁻¹k(x) (Cressie 1993, §3.4; Santner et al. 2003,
+    # §3.3). Without it the posterior says a map read through ρ is known once the fast map is, while the
+    # calibration of ρ from noisy CSM values is what limits it (the film: 6 numbers from indents of 10 % noise)
+    reg_used: torch.Tensor  # (N_RHO + 3,) bool: the regression columns in use (the link's, only when on)
+    reg_z: torch.Tensor  # (n, p) L⁻¹F
+    reg_a_chol: torch.Tensor | None  # Cholesky of FᵀK⁻¹F (None: not positive definite, no correction)
 
     def rho(self, xs: torch.Tensor) -> torch.Tensor:
         idx, w = self.grid.weights(xs)
@@ -262,5 +282,11 @@ class CoKrigingConditioned:
         fast_var = torch.einsum("ca,cab,cb->c", w, block, w)
         prior_var = rho.square() * fast_var + self.outputscale
         v = torch.linalg.solve_triangular(self.chol_t, cross, upper=True, left=False)
-        var = (prior_var - v.square().sum(dim=1)).clamp_min(0.0)
-        return prior_mean + cross @ self.alpha, var
+        var = prior_var - v.square().sum(dim=1)
+        if self.reg_a_chol is not None:
+            fast = (self.fast_grid_mean[idx] * w).sum(dim=1)
+            f = regression_columns(rho_basis(xs, link_at(self.link_grid, idx, w)), fast, plane_basis(xs))
+            r = f[:, self.reg_used] - v @ self.reg_z
+            g = torch.linalg.solve_triangular(self.reg_a_chol, r.T, upper=False)
+            var = var + g.square().sum(dim=0)
+        return prior_mean + cross @ self.alpha, var.clamp_min(0.0)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gpytorch
 import numpy as np
@@ -173,6 +173,22 @@ def test_the_guard_keeps_the_last_good_bias_kernel(good: Case) -> None:
     second = model.fit(noisy, good.fast)
     assert second.collapse and second.used_last_good, second.collapse_reason
     assert second.delta_lengthscales_uv == pytest.approx(good.report.delta_lengthscales_uv)
+
+
+def test_the_calibration_of_rho_is_part_of_the_posterior(good: Case) -> None:
+    """ρ's and δ's plane coefficients come from the CSM values: their uncertainty adds to the map's variance
+    (universal kriging), most where the CSM centres are fewest, and more CSM values shrink it."""
+    cond = good.model._cond
+    assert cond is not None and cond.reg_a_chol is not None
+    xs = torch.as_tensor(lattice(20), dtype=torch.float64)
+    _, with_calibration = cond.mean_var(xs)
+    _, without = replace(cond, reg_a_chol=None).mean_var(xs)
+    extra = (with_calibration - without).numpy()
+    assert np.all(extra >= -1e-12) and extra.max() > 0.05 * without.numpy().mean()
+    # more CSM values (y-free what-if) calibrate ρ better: the variance falls everywhere
+    sites = lattice(6)
+    after = good.model.csm_variance_after_csm(lattice(20), sites, np.full(len(sites), 1e-3))
+    assert np.all(after <= good.model.predict(lattice(20)).epistemic_sd ** 2 + 1e-12)
 
 
 def test_what_a_fast_array_would_buy(good: Case) -> None:

@@ -9,7 +9,13 @@ random sites; the candidates are the product's 100 × 100 lattice. Measured, one
   candidates;
 - decisions after CSM indents arrive (5 more each time, 5 times, at 10,000 fast): the CSM-only GP's warm refit
   (its noise model), the fast GP and the CSM level conditioned with their kept hyperparameters, the prediction;
-- the CSM-only GP's decision on the same 500 indents, for scale.
+- the CSM-only GP's decision on the same 500 indents, for scale;
+- the planner's pricing at 10,000 fast + 525 CSM (``core.policies.fidelity``'s what-ifs through the run's
+  ``TwoFidelityView``, on the design's 12 × 12 reference lattice): the CSM block's (a block of 5 sites) and
+  ``FastArrays.scored`` arrays' (950 µm and 475 µm at 50 µm pitch, binned into the model's cells), each
+  decision repeated ``--repeat`` times: the median and the worst.
+
+ρ's link (the fast cells' E/H, ``fast_link_observations``) is fitted as a run fits it.
 
 Peak memory is the process's peak resident set (ru_maxrss), the interpreter and torch included.
 
@@ -18,6 +24,7 @@ Peak memory is the process's peak resident set (ru_maxrss), the interpreter and 
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import resource
@@ -27,8 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from core.fidelity import TwoFidelityView
 from core.model.observations import Observations
-from core.model.two_fidelity import TwoFidelityGP, fast_observations
+from core.model.two_fidelity import TwoFidelityGP, fast_link_observations, fast_observations
+from core.policies.fidelity import FastArrays, array_cells
+from core.policies.variance import median_noise_var, reference_lattice
 from drivers.sim.emulator import TernaryField, truth_modulus_gpa, truth_modulus_noise_sd_gpa
 from drivers.sim.fast_channel import CsmAtSites, FastPhysics, read_array
 
@@ -37,7 +47,7 @@ SIDE_UM = 1000.0
 
 def fast_indents(
     truth: TernaryField, x_range_um: tuple[float, float], seed: int, array_id: int
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One fast array at a 10 µm pitch over x in ``x_range_um`` and the whole y side."""
     xs = np.arange(x_range_um[0] + 5.0, x_range_um[1], 10.0)
     ys = np.arange(5.0, SIDE_UM, 10.0)
@@ -50,7 +60,7 @@ def fast_indents(
         truth_modulus_noise_sd_gpa(truth, x, y),
     )
     r = read_array(FastPhysics(peak_load_mn=5.0), seed, array_id, x, y, csm)
-    return np.column_stack([x, y]) / SIDE_UM, r.hardness_gpa
+    return np.column_stack([x, y]) / SIDE_UM, r.hardness_gpa, r.modulus_gpa
 
 
 def csm_singles(truth: TernaryField, m: int, seed: int) -> Observations:
@@ -67,14 +77,54 @@ def peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def array_sites_uv(centre_um: tuple[float, float], extent_um: float, pitch_um: float) -> np.ndarray:
+    n = int(extent_um // pitch_um) + 1
+    c = (np.arange(n) - (n - 1) / 2) * pitch_um
+    gx, gy = np.meshgrid(centre_um[0] + c, centre_um[1] + c)
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    inside = np.all((xy >= 0) & (xy <= SIDE_UM), axis=1)
+    return xy[inside] / SIDE_UM
+
+
+def pricing(view: TwoFidelityView, rng: np.random.Generator, design: FastArrays) -> dict[str, float]:
+    """One decision's what-ifs as ``TwoFidelityPlanner`` makes them (the CSM block's and the scored arrays')."""
+    ref = reference_lattice()
+    t0 = time.perf_counter()
+    var_now = view.variance(ref)
+    t1 = time.perf_counter()
+    sites = rng.random((5, 2))
+    view.variance_after_csm(ref, sites, np.full(5, 0.074**2))
+    t2 = time.perf_counter()
+    arrays = [
+        ((500.0, 500.0), 950.0),
+        ((262.5, 262.5), 475.0),
+        ((737.5, 737.5), 475.0),
+        ((262.5, 737.5), 475.0),
+    ]
+    for centre, extent in arrays[: design.scored]:
+        uv = array_sites_uv(centre, extent, 50.0)
+        cells, counts = array_cells(uv, 50.0 / SIDE_UM)
+        noise = median_noise_var(np.sqrt(view.fast_noise_var(cells)), counts)
+        after = view.variance_after_fast(ref, cells, np.maximum(noise, 1e-12))
+        assert np.all(after <= var_now + 1e-9)
+    t3 = time.perf_counter()
+    return {"variance_s": t1 - t0, "csm_whatif_s": t2 - t1, "arrays_whatif_s": t3 - t2, "pricing_s": t3 - t0}
+
+
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--repeat", type=int, default=5, help="decisions after CSM indents to time (median, worst)"
+    )
+    ap.add_argument("--out", default="benchmarks/results/two_fidelity_scale.json")
+    args = ap.parse_args()
     truth = TernaryField()
     c = (np.arange(100) + 0.5) / 100
     gu, gv = np.meshgrid(c, c)
     candidates = np.column_stack([gu.ravel(), gv.ravel()])
-    uv0, h0 = fast_indents(truth, (0.0, 700.0), 0, 0)  # the first array: 7,000 indents
-    uv1, h1 = fast_indents(truth, (700.0, SIDE_UM), 0, 1)  # the second: 3,000 more
-    fast_uv, fast_h = np.vstack([uv0, uv1]), np.concatenate([h0, h1])
+    uv0, h0, e0 = fast_indents(truth, (0.0, 700.0), 0, 0)  # the first array: 7,000 indents
+    uv1, h1, e1 = fast_indents(truth, (700.0, SIDE_UM), 0, 1)  # the second: 3,000 more
+    fast_uv, fast_h, fast_e = np.vstack([uv0, uv1]), np.concatenate([h0, h1]), np.concatenate([e0, e1])
     all_csm = csm_singles(truth, 525, 0)
 
     def first(n: int) -> Observations:
@@ -92,14 +142,15 @@ def main() -> None:
     }
     model = TwoFidelityGP()
     t0 = time.perf_counter()
-    report = model.fit(first(500), fast_observations(uv0, h0))
+    report = model.fit(first(500), fast_observations(uv0, h0), fast_link_observations(uv0, h0, e0))
     out["cold_fit_first_array_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fast = fast_observations(fast_uv, fast_h)
+    link = fast_link_observations(fast_uv, fast_h, fast_e)
     out["fast_cells_s"] = time.perf_counter() - t0
     out["fast_cells"] = fast.n
     t0 = time.perf_counter()
-    report = model.fit(first(500), fast)
+    report = model.fit(first(500), fast, link)
     t1 = time.perf_counter()
     model.predict(candidates)
     out["decision_after_second_array_s"] = time.perf_counter() - t0
@@ -107,20 +158,30 @@ def main() -> None:
     out["decision_after_second_array_predict_s"] = time.perf_counter() - t1
     out["fast_grid_per_side"] = model.fast_gp.latent_grid()[0].per_side
     out["rho_coef"] = report.rho_coef
+    out["rho_link_coef"] = report.rho_link_coef
     decisions = []
-    fits, predicts = [], []
-    for k in range(1, 6):
+    fits, predicts, prices = [], [], []
+    whatifs: list[dict[str, float]] = []
+    rng = np.random.default_rng(36)
+    view = TwoFidelityView(model)
+    for k in range(1, args.repeat + 1):
         t0 = time.perf_counter()
-        model.fit(first(500 + 5 * k), fast)
+        model.fit(first(500 + 5 * (k % 5 + 1)), fast, link)
         t1 = time.perf_counter()
         model.predict(candidates)
+        t2 = time.perf_counter()
+        whatifs.append(pricing(view, rng, FastArrays()))
         fits.append(t1 - t0)
-        predicts.append(time.perf_counter() - t1)
+        predicts.append(t2 - t1)
+        prices.append(time.perf_counter() - t2)
         decisions.append(time.perf_counter() - t0)
     out["decision_after_csm_fit_median_s"] = statistics.median(fits)
     out["decision_after_csm_predict_median_s"] = statistics.median(predicts)
     out["decision_after_csm_s"] = decisions
+    out["decision_after_csm_pricing_median_s"] = statistics.median(prices)
+    out["decision_after_csm_pricing_parts"] = whatifs
     out["decision_after_csm_median_s"] = statistics.median(decisions)
+    out["decision_after_csm_worst_s"] = max(decisions)
     csm_only = TwoFidelityGP()
     csm_only.fit(first(500), None)
     t0 = time.perf_counter()
@@ -130,7 +191,7 @@ def main() -> None:
     out["peak_rss_mb"] = peak_mb()
     out["load_average_end"] = os.getloadavg()
     print(json.dumps(out, indent=1, default=float))
-    path = Path("benchmarks/results/two_fidelity_scale.json")
+    path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1, default=float), encoding="utf-8")
 

@@ -28,7 +28,7 @@ import numpy as np
 from core.cost import price_sequence
 from core.fast_array import FastArray, price_fast_array
 from core.model.observations import Observations
-from core.model.two_fidelity import TwoFidelityGP, fast_observations
+from core.model.two_fidelity import TwoFidelityGP, fast_link_observations, fast_observations
 from core.plan import Block, IndentSpec
 from core.profile import InstrumentProfile, load_profile
 from drivers.sim.emulator import (
@@ -55,6 +55,7 @@ TILE_UM = 1000.0  # the profile's fast.max_extent_um: one array per tile
 class Survey:
     uv: np.ndarray
     hardness_gpa: np.ndarray
+    modulus_gpa: np.ndarray
     time_s: float
     end_um: tuple[float, float]
     n_failed: int
@@ -85,6 +86,7 @@ def fast_survey(
     time_s, program_open = 0.0, False
     uvs: list[np.ndarray] = []
     values: list[np.ndarray] = []
+    moduli: list[np.ndarray] = []
     failed = 0
     truth = scenario.truth
     for j in range(ny):
@@ -107,9 +109,10 @@ def fast_survey(
             u, v = scenario.calibration.to_uv(sx, sy)
             uvs.append(np.column_stack([u, v]))
             values.append(r.hardness_gpa)
+            moduli.append(r.modulus_gpa)
             failed += int(r.failed.sum())
             pos = (float(sites[-1, 0]), float(sites[-1, 1]))
-    return Survey(np.vstack(uvs), np.concatenate(values), time_s, pos, failed)
+    return Survey(np.vstack(uvs), np.concatenate(values), np.concatenate(moduli), time_s, pos, failed)
 
 
 def csm_design(scenario: Scenario, m: int, seed: int) -> np.ndarray:
@@ -169,7 +172,9 @@ def mape(pred: np.ndarray, truth: np.ndarray) -> float:
     return float(100.0 * np.mean(np.abs(pred - truth) / truth))
 
 
-def run_case(case: str, seed: int, n_fast_list: list[int], m_list: list[int]) -> list[dict[str, object]]:
+def run_case(
+    case: str, seed: int, n_fast_list: list[int], m_list: list[int], use_link: bool = True
+) -> list[dict[str, object]]:
     scenario = make_scenario(CASES[case], seed)
     profile = load_profile(scenario.profile_name)
     physics = physics_for(case, scenario, profile)
@@ -182,6 +187,9 @@ def run_case(case: str, seed: int, n_fast_list: list[int], m_list: list[int]) ->
     for n_fast in n_fast_list:
         survey = fast_survey(scenario, profile, physics, n_fast, seed)
         fast = fast_observations(survey.uv, survey.hardness_gpa)
+        link = (
+            fast_link_observations(survey.uv, survey.hardness_gpa, survey.modulus_gpa) if use_link else None
+        )
         model = TwoFidelityGP()
         for m in m_list:
             sites = csm_design(scenario, m, seed)
@@ -192,7 +200,7 @@ def run_case(case: str, seed: int, n_fast_list: list[int], m_list: list[int]) ->
             )
             _, csm_alone_s = csm_indents(scenario, profile, sites, centre, False)
             t0 = time.perf_counter()
-            report = model.fit(obs, fast)
+            report = model.fit(obs, fast, link)
             two = model.predict(lattice_uv)
             fit_s = time.perf_counter() - t0
             one = model.csm_gp.predict(lattice_uv)
@@ -210,6 +218,8 @@ def run_case(case: str, seed: int, n_fast_list: list[int], m_list: list[int]) ->
                 "csm_time_s": csm_alone_s,
                 "total_time_two_fidelity_s": survey.time_s + csm_after_fast_s,
                 "rho_coef": report.rho_coef,
+                "rho_link_coef": report.rho_link_coef,
+                "link": use_link,
                 "delta_share": report.delta_share,
                 "delta_lengthscales_uv": report.delta_lengthscales_uv,
                 "delta_collapse": report.collapse,
@@ -345,6 +355,7 @@ def main() -> None:
     ap.add_argument("--n-fast", default="2500,10000")
     ap.add_argument("--m-csm", default="50,150")
     ap.add_argument("--out", default="benchmarks/results/two_fidelity_study")
+    ap.add_argument("--no-link", action="store_true", help="ρ a plane only (the first version's model)")
     ap.add_argument(
         "--equal-time-from",
         help="a results JSON of this script: add the CSM-only MAPE at equal time, rewrite",
@@ -367,7 +378,8 @@ def main() -> None:
     t0 = time.perf_counter()
     for case in args.cases.split(","):
         for seed in range(args.seeds):
-            rows.extend(run_case(case, seed, n_fast if case not in MISLEADING else n_fast[-1:], m_csm))
+            ns = n_fast if case not in MISLEADING else n_fast[-1:]
+            rows.extend(run_case(case, seed, ns, m_csm, use_link=not args.no_link))
     table = summarise(rows)
     print(table)
     out = Path(args.out)

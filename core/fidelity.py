@@ -15,7 +15,12 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
-from core.model.two_fidelity import TwoFidelityGP, TwoFidelityReport, fast_observations
+from core.model.two_fidelity import (
+    TwoFidelityGP,
+    TwoFidelityReport,
+    fast_link_observations,
+    fast_observations,
+)
 from core.plan import IndentResult
 
 ToUv = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -84,14 +89,25 @@ class FastChannel:
         u, v = to_uv(xy[:, 0], xy[:, 1])
         return fast_observations(np.column_stack([u, v]), np.array(self.hardness_gpa))
 
+    def link_observations(self, to_uv: ToUv) -> Observations | None:
+        """The fast cells' E/H (ρ's link in the two-fidelity model), None without a measured modulus."""
+        if not self.hardness_gpa:
+            return None
+        xy = np.array(self.xy_um, dtype=float)
+        u, v = to_uv(xy[:, 0], xy[:, 1])
+        return fast_link_observations(
+            np.column_stack([u, v]), np.array(self.hardness_gpa), np.array(self.modulus_gpa)
+        )
+
     def fit(self, csm: Observations, csm_report: FitReport, to_uv: ToUv) -> TwoFidelityReport:
-        """The fast GP and the CSM level on the campaign's CSM fit (``csm_report``)."""
-        self.last_report = self.model.fit_levels(csm, self.observations(to_uv), csm_report)
+        """The fast GP, its E/H link and the CSM level on the campaign's CSM fit (``csm_report``)."""
+        fast, link = self.observations(to_uv), self.link_observations(to_uv)
+        self.last_report = self.model.fit_levels(csm, fast, csm_report, link=link)
         return self.last_report
 
     def restore(self, record: object, csm: Observations, to_uv: ToUv) -> None:
         """Condition on the data with the journaled record (a resumed run maps and plans as before)."""
-        self.model.set_hyper(record, csm, self.observations(to_uv))
+        self.model.set_hyper(record, csm, self.observations(to_uv), self.link_observations(to_uv))
 
     def predict(self, uv: np.ndarray) -> Prediction:
         return self.model.predict(uv)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gpytorch
 import numpy as np
@@ -18,7 +18,12 @@ from hypothesis import strategies as st
 from core.errors import InputError
 from core.model.cokriging import unpack_theta
 from core.model.observations import Observations
-from core.model.two_fidelity import TwoFidelityGP, TwoFidelityReport, fast_observations
+from core.model.two_fidelity import (
+    TwoFidelityGP,
+    TwoFidelityReport,
+    fast_link_observations,
+    fast_observations,
+)
 
 RNG_SEED = 36
 N_FAST_SIDE = 60  # 3,600 fast indents
@@ -170,6 +175,22 @@ def test_the_guard_keeps_the_last_good_bias_kernel(good: Case) -> None:
     assert second.delta_lengthscales_uv == pytest.approx(good.report.delta_lengthscales_uv)
 
 
+def test_the_calibration_of_rho_is_part_of_the_posterior(good: Case) -> None:
+    """ρ's and δ's plane coefficients come from the CSM values: their uncertainty adds to the map's variance
+    (universal kriging), most where the CSM centres are fewest, and more CSM values shrink it."""
+    cond = good.model._cond
+    assert cond is not None and cond.reg_a_chol is not None
+    xs = torch.as_tensor(lattice(20), dtype=torch.float64)
+    _, with_calibration = cond.mean_var(xs)
+    _, without = replace(cond, reg_a_chol=None).mean_var(xs)
+    extra = (with_calibration - without).numpy()
+    assert np.all(extra >= -1e-12) and extra.max() > 0.05 * without.numpy().mean()
+    # more CSM values (y-free what-if) calibrate ρ better: the variance falls everywhere
+    sites = lattice(6)
+    after = good.model.csm_variance_after_csm(lattice(20), sites, np.full(len(sites), 1e-3))
+    assert np.all(after <= good.model.predict(lattice(20)).epistemic_sd ** 2 + 1e-12)
+
+
 def test_what_a_fast_array_would_buy(good: Case) -> None:
     """Precise fast cells around one place lower the CSM map's variance most there, and nowhere raise it."""
     grid = lattice(20)
@@ -213,6 +234,66 @@ def test_resume_from_the_record_is_the_same_model(good: Case) -> None:
     record["cokriging"]["raw"] = record["cokriging"]["raw"][:5]
     with pytest.raises(InputError, match="malformed"):
         TwoFidelityGP().set_hyper(record, good.csm, good.fast)
+
+
+def modulus_truth(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A modulus field unrelated to the hardness's shape (as across a library: E and H follow different
+    compositions)."""
+    return 150.0 + 25.0 * np.sin(4.0 * u + 3.0 * v) + 10.0 * np.cos(7.0 * v)
+
+
+def linked_rho(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The CSM/fast ratio as Nix–Gao makes it: a smooth non-linear function of the fast E/H, no plane in x."""
+    r = modulus_truth(u, v) / fast_truth(u, v)
+    z = (r - 30.0) / 5.0
+    return 0.75 - 0.06 * z + 0.01 * z**2
+
+
+def test_rho_linked_to_the_fast_e_over_h_learns_what_a_plane_cannot() -> None:
+    rng = np.random.default_rng(RNG_SEED)
+    uf = lattice(40)  # 196 cells: fewer leave the link's evidence under BIC's bar
+    hf = fast_truth(uf[:, 0], uf[:, 1]) + 0.15 * rng.standard_normal(len(uf))
+    ef = modulus_truth(uf[:, 0], uf[:, 1]) + 3.0 * rng.standard_normal(len(uf))
+    uc = rng.random((40, 2))
+    csm_truth = linked_rho(uc[:, 0], uc[:, 1]) * fast_truth(uc[:, 0], uc[:, 1]) + 0.2
+    vals = csm_truth[:, None] + 0.05 * rng.standard_normal((40, 9))
+    csm = Observations(
+        uv=uc,
+        median_gpa=np.median(vals, axis=1),
+        spread_var_gpa2=np.var(vals, axis=1, ddof=1),
+        n_indents=np.full(40, 9),
+    )
+    fast, link = fast_observations(uf, hf), fast_link_observations(uf, hf, ef)
+    assert link is not None and link.n == fast.n
+    grid = lattice(30)
+    truth = linked_rho(grid[:, 0], grid[:, 1]) * fast_truth(grid[:, 0], grid[:, 1]) + 0.2
+    plane, linked = TwoFidelityGP(), TwoFidelityGP()
+    plane_report, linked_report = plane.fit(csm, fast), linked.fit(csm, fast, link)
+    assert plane_report.rho_link_coef is None and linked_report.rho_link_coef is not None
+    mape_plane = _mape(plane.predict(grid).mean, truth)
+    mape_linked = _mape(linked.predict(grid).mean, truth)
+    assert mape_linked < 0.7 * mape_plane, (mape_linked, mape_plane)
+    # the link is never extrapolated past the E/H the CSM centres have seen
+    assert linked._p is not None
+    cells = link.median_gpa
+    seen = (linked.link_gp.predict_mean(csm.uv) - cells.mean()) / cells.std()
+    z_grid = linked._p.link_grid[:, 0].numpy()
+    assert seen.min() - 1e-9 <= z_grid.min() and z_grid.max() <= seen.max() + 1e-9
+    np.testing.assert_allclose(linked._p.link_grid[:, 1].numpy(), z_grid**2)
+    # the journal's record brings the link back: the same map, bit for bit
+    record = json.loads(json.dumps(linked.hyper))
+    restored = TwoFidelityGP()
+    restored.set_hyper(record, csm, fast, link)
+    np.testing.assert_array_equal(restored.predict(grid).mean, linked.predict(grid).mean)
+    # a record of the first version (ρ a plane: nine numbers) reads as ρ with no link
+    old = json.loads(json.dumps(plane.hyper))
+    old["version"] = 1
+    for key in ("raw", "last_good"):
+        raw = old["cokriging"][key]
+        old["cokriging"][key] = raw[:3] + raw[5:]
+    again = TwoFidelityGP()
+    again.set_hyper(old, csm, fast)
+    np.testing.assert_allclose(again.predict(grid).mean, plane.predict(grid).mean, rtol=1e-12)
 
 
 @settings(max_examples=30, deadline=None)

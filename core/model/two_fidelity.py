@@ -7,7 +7,13 @@ Three parts, each the project's own:
 - the CSM noise: the heteroskedastic GP on the CSM centres alone (its noise model, and the CSM-only map
   where there is no fast channel to learn from);
 - the CSM level: co-kriging on the fast channel's posterior (``core.model.cokriging``), H_csm = ρ(x)·H_fast
-  + δ(x), ρ a plane and δ a GP, both fitted to the CSM data, the CSM noise fixed from the CSM noise model.
+  + δ(x), ρ a plane plus a quadratic link in the fast channel's E/H and δ a GP, all fitted to the CSM data,
+  the CSM noise fixed from the CSM noise model;
+- the link: where the fast indents report a modulus, a third interpolated GP on the cells' E/H gives ρ its
+  feature. Nix–Gao's h* grows as (E/H)², so the fast channel's size effect (and its ratio to the CSM value)
+  follows E/H, which varies across a library independently of H: on the emulator's ternary the best plane ρ
+  leaves a 0.12 GPa residual (1.7× the CSM noise) for δ, a ρ linked to E/H leaves 0.005 GPa
+  (docs/two-fidelity.md).
 
 The collapse guard covers both channels: the fast GP's own, and the same rule on δ's length-scales. The CSM
 channel's posterior has the surrogate's four fields (``Prediction``), so a planner reads it as it reads the
@@ -26,6 +32,8 @@ import torch
 
 from core.errors import InputError
 from core.model.cokriging import (
+    N_LINK,
+    N_RHO,
     N_THETA,
     CoKrigingConditioned,
     CoKrigingProblem,
@@ -48,18 +56,23 @@ CELL_SPACINGS = 3.0
 CELL_UV_BOUNDS = (0.005, 0.1)
 DELTA_COLD_STARTS = ((0.3, 0.3), (0.1, 0.15))  # δ's (outputscale, length-scale) of the cold starts
 PREDICT_CHUNK = 1024  # candidates per block of the predictive diagonal
-HYPER_VERSION = 1
+HYPER_VERSION = 2  # 1: ρ a plane (9 numbers; read as version 2 with no link)
+LINK_Z_CLIP = 4.0  # the standardised link feature, clipped off the data (the grid's margin)
 _FIELD = "surrogate.two_fidelity"
 
 
-def _raw(values: object) -> torch.Tensor:
+def _raw(values: object, version: int = HYPER_VERSION) -> torch.Tensor:
+    n = N_THETA if version == HYPER_VERSION else N_THETA - N_LINK
     if (
         not isinstance(values, list)
-        or len(values) != N_THETA
+        or len(values) != n
         or not all(isinstance(v, int | float) and math.isfinite(v) for v in values)
     ):
-        raise ValueError(f"expected {N_THETA} finite numbers, got {values!r}")
-    return torch.tensor([float(v) for v in values], dtype=DTYPE)
+        raise ValueError(f"expected {n} finite numbers, got {values!r}")
+    raw = [float(v) for v in values]
+    if n != N_THETA:  # a version-1 record: ρ the plane, no link
+        raw = raw[:3] + [0.0] * N_LINK + raw[3:]
+    return torch.tensor(raw, dtype=DTYPE)
 
 
 def fast_observations(uv: np.ndarray, hardness_gpa: np.ndarray, cell_uv: float | None = None) -> Observations:
@@ -84,6 +97,21 @@ def fast_observations(uv: np.ndarray, hardness_gpa: np.ndarray, cell_uv: float |
     return Observations.from_indents(pts, h, ids, detrend=True)
 
 
+def fast_link_observations(
+    uv: np.ndarray, hardness_gpa: np.ndarray, modulus_gpa: np.ndarray, cell_uv: float | None = None
+) -> Observations | None:
+    """The fast indents' E/H in the cells ``fast_observations`` makes (None where no indent has both)."""
+    h = np.asarray(hardness_gpa, dtype=float).ravel()
+    e = np.asarray(modulus_gpa, dtype=float).ravel()
+    ok = np.isfinite(h) & np.isfinite(e) & (h > 0)
+    if not ok.any():
+        return None
+    pts = np.asarray(uv, dtype=float).reshape(-1, 2)
+    if cell_uv is None:
+        cell_uv = CELL_SPACINGS * _median_spacing(pts[np.isfinite(h)])
+    return fast_observations(pts[ok], e[ok] / h[ok], cell_uv)
+
+
 def _median_spacing(pts: np.ndarray) -> float:
     if pts.shape[0] < 2:
         return CELL_UV_BOUNDS[1]
@@ -98,7 +126,8 @@ class TwoFidelityReport:
     mode: FidelityMode
     csm: FitReport  # the CSM-only GP: the CSM noise model (and the map in csm-only mode)
     fast: FitReport | None
-    rho_coef: tuple[float, float, float] | None  # ρ(x) = b₀ + b₁(u − ½) + b₂(v − ½)
+    rho_coef: tuple[float, float, float] | None  # ρ's plane: b₀ + b₁(u − ½) + b₂(v − ½)
+    rho_link_coef: tuple[float, float] | None  # ρ's link: + b₃·z + b₄·z², z the standardised fast E/H
     delta_lengthscales_uv: tuple[float, float] | None
     delta_outputscale_gpa2: float | None  # δ's prior variance: what the fast channel does not explain
     delta_share: (
@@ -147,6 +176,9 @@ class TwoFidelityGP:
         }
         self.csm_gp = HeteroskedasticGP(**common) if csm_gp is None else csm_gp
         self.fast_gp = HeteroskedasticGP(**common, ski_above=1)  # always the interpolated GP
+        self.link_gp = HeteroskedasticGP(**common, ski_above=1)  # the fast channel's E/H: ρ's link
+        self._link: Observations | None = None  # the link's cells in the current fit
+        self._link_on = False  # ρ's link in use: chosen at each optimisation, by the evidence (BIC)
         self.kernel: KernelName = kernel
         self.floor_uv = float(lengthscale_floor_uv)
         self.guard: GuardName = guard
@@ -184,6 +216,8 @@ class TwoFidelityGP:
         record: dict[str, Any] = {"version": HYPER_VERSION, "csm": csm}
         if self._cond is not None and self._theta is not None:
             record["fast"] = self.fast_gp.hyper
+            if self._link is not None:
+                record["link"] = self.link_gp.hyper
             record["cokriging"] = {
                 "raw": self._theta.tolist(),
                 "last_good": None if self._last_good is None else self._last_good.tolist(),
@@ -191,13 +225,26 @@ class TwoFidelityGP:
                 "cold_n": self._cold_n,
                 "fit_n": self._fit_n,
                 "fast_n": self._fast_n,
+                "link_on": self._link_on,
             }
         return record
 
-    def set_hyper(self, record: object, csm: Observations, fast: Observations | None) -> None:
-        """Condition on the data with a recorded fit, no optimisation (crash-resume: the same model as before)."""
-        if not isinstance(record, dict) or record.get("version") != HYPER_VERSION or "csm" not in record:
-            raise InputError(_FIELD, f"not a version-{HYPER_VERSION} two-fidelity record")
+    def set_hyper(
+        self,
+        record: object,
+        csm: Observations,
+        fast: Observations | None,
+        link: Observations | None = None,
+    ) -> None:
+        """Condition on the data with a recorded fit, no optimisation (crash-resume: the same model as before).
+        ``link``: the fast cells' E/H (``fast_link_observations``), as given to the fit."""
+        if (
+            not isinstance(record, dict)
+            or record.get("version") not in (1, HYPER_VERSION)
+            or "csm" not in record
+        ):
+            raise InputError(_FIELD, f"not a version-1 or -{HYPER_VERSION} two-fidelity record")
+        version = int(record["version"])
         self.csm_gp.set_hyper(record["csm"], csm)
         if "cokriging" not in record:
             self._cond = None
@@ -205,33 +252,48 @@ class TwoFidelityGP:
         if fast is None or "fast" not in record:
             raise InputError(_FIELD, "records a fast channel but no fast data (or no fast record) was given")
         self.fast_gp.set_hyper(record["fast"], fast)
+        self._link = None
+        if "link" in record and link is not None:
+            self.link_gp.set_hyper(record["link"], link)
+            self._link = link
         ck = record["cokriging"]
         try:
-            raw = _raw(ck["raw"])
-            last_good = None if ck.get("last_good") is None else _raw(ck["last_good"])
+            raw = _raw(ck["raw"], version)
+            last_good = None if ck.get("last_good") is None else _raw(ck["last_good"], version)
             counters = [int(ck[k]) for k in ("prev_n", "cold_n", "fit_n", "fast_n")]
+            link_on = bool(ck.get("link_on", False))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(_FIELD, f"malformed cokriging record: {exc!r}") from None
         self._theta, self._last_good = raw, last_good
         self._prev_n, self._cold_n, self._fit_n, self._fast_n = counters
+        self._link_on = link_on and self._link is not None
         self._p = self._problem(csm)
         self._cond = self._p.condition(raw)
 
-    def fit(self, csm: Observations, fast: Observations | None) -> TwoFidelityReport:
-        """Fit the CSM-only GP, the fast GP and the CSM level (warm from the previous fit)."""
+    def fit(
+        self, csm: Observations, fast: Observations | None, link: Observations | None = None
+    ) -> TwoFidelityReport:
+        """Fit the CSM-only GP, the fast GP (and its E/H link) and the CSM level (warm from the previous fit)."""
         t0 = time.perf_counter()
-        return self.fit_levels(csm, fast, self.csm_gp.fit(csm), t0)
+        return self.fit_levels(csm, fast, self.csm_gp.fit(csm), t0, link)
 
     def fit_levels(
-        self, csm: Observations, fast: Observations | None, csm_report: FitReport, t0: float | None = None
+        self,
+        csm: Observations,
+        fast: Observations | None,
+        csm_report: FitReport,
+        t0: float | None = None,
+        link: Observations | None = None,
     ) -> TwoFidelityReport:
-        """The fast GP and the CSM level on a CSM-only GP already fitted to ``csm`` (its ``csm_report``)."""
+        """The fast GP and the CSM level on a CSM-only GP already fitted to ``csm`` (its ``csm_report``);
+        ``link``: the fast cells' E/H (``fast_link_observations``; None: ρ the plane)."""
         t0 = time.perf_counter() if t0 is None else t0
         if fast is None or fast.n < self.min_fast_cells or csm.n < MIN_CSM_CENTRES:
             self._cond = None
             return TwoFidelityReport(
                 "csm-only",
                 csm_report,
+                None,
                 None,
                 None,
                 None,
@@ -244,6 +306,11 @@ class TwoFidelityGP:
                 time.perf_counter() - t0,
             )
         fast_report = self.fast_gp.fit(fast)
+        self._link = link if link is not None and link.n >= self.min_fast_cells else None
+        if self._link is not None:
+            self.link_gp.fit(self._link)
+        else:
+            self._link_on = False
         p = self._problem(csm)
         iterations = 0
         if (
@@ -268,6 +335,9 @@ class TwoFidelityGP:
                 if (p.objective(theta) - p.objective(cold)) * csm.n > COLD_WIN_NATS:
                     theta = cold
                 self._cold_n = csm.n
+        if self._link is not None:
+            p, theta, more = self._choose_link(csm, p, theta)
+            iterations += more
         t = unpack_theta(theta, self.floor_uv)
         ls = (float(t.lengthscale[0]), float(t.lengthscale[1]))
         prev_ls = None
@@ -278,7 +348,7 @@ class TwoFidelityGP:
         used_last_good = False
         if collapse and self.guard != "off":
             if self._last_good is not None:
-                theta = torch.cat([theta[:6], self._last_good[6:N_THETA]])  # δ's last good kernel
+                theta = torch.cat([theta[: N_RHO + 3], self._last_good[N_RHO + 3 : N_THETA]])  # δ's kernel
                 used_last_good = True
                 reason += "; kept the last good bias kernel"
             else:
@@ -311,6 +381,7 @@ class TwoFidelityGP:
             csm=csm_report,
             fast=fast_report,
             rho_coef=(float(t.rho[0]), float(t.rho[1]), float(t.rho[2])),
+            rho_link_coef=(float(t.rho[3]), float(t.rho[4])) if self._link_on else None,
             delta_lengthscales_uv=(float(t.lengthscale[0]), float(t.lengthscale[1])),
             delta_outputscale_gpa2=delta_var,
             delta_share=delta_var / max(float(np.var(csm.median_gpa, ddof=1)) if csm.n > 1 else 1.0, 1e-12),
@@ -436,6 +507,30 @@ class TwoFidelityGP:
 
     # -- the CSM level's data and fits ---------------------------------------------------------------
 
+    def _choose_link(
+        self, csm: Observations, p: CoKrigingProblem, theta: torch.Tensor
+    ) -> tuple[CoKrigingProblem, torch.Tensor, int]:
+        """ρ with its E/H link or the plane alone, whichever the CSM data support: the link's two numbers
+        must buy more than Schwarz's ln(n) nats of likelihood (BIC, 2 parameters), else they fit noise
+        (a field whose CSM/fast ratio barely varies, as the film's 0.86–0.91, under 10 % CSM noise).
+        ``p`` and ``theta``: the problem as it stands (link on or off) and its optimum."""
+        was_on = self._link_on
+        self._link_on = not was_on
+        other = self._problem(csm)
+        start = theta.clone()
+        if was_on:
+            start[3:N_RHO] = 0.0  # the plane: the link's coefficients have no feature to act on
+        theta_other, iterations = optimise(other, start, self.warm_max_iter)
+        linked, theta_link = (p, theta) if was_on else (other, theta_other)
+        plane, theta_plane = (other, theta_other) if was_on else (p, theta)
+        gain_nats = (plane.objective(theta_plane) - linked.objective(theta_link)) * csm.n
+        self._link_on = bool(math.isfinite(gain_nats) and gain_nats > math.log(csm.n))
+        if self._link_on:
+            return linked, theta_link, iterations
+        theta_plane = theta_plane.clone()
+        theta_plane[3:N_RHO] = 0.0
+        return plane, theta_plane, iterations
+
     def _problem(self, csm: Observations) -> CoKrigingProblem:
         grid, fast_mean, fast_cov = self.fast_gp.latent_grid()
         self._loc, self._scale = standardise(csm.median_gpa)
@@ -454,7 +549,22 @@ class TwoFidelityGP:
             grid=grid,
             fast_grid_mean=torch.as_tensor((fast_mean - self._loc) / self._scale, dtype=DTYPE),
             fast_grid_cov=torch.as_tensor(fast_cov / self._scale**2, dtype=DTYPE),
+            link_grid=self._link_grid(grid.points().numpy(), csm.uv),
         )
+
+    def _link_grid(self, grid_uv: np.ndarray, csm_uv: np.ndarray) -> torch.Tensor:
+        """ρ's link features on the fast grid: z, z² with z the link GP's E/H standardised over the cells
+        (empty without a link: ρ the plane). z is held within what the CSM centres have seen: the link is a
+        regression on them, never extrapolated (a layer or a phase that reads an E/H no CSM indent has met
+        keeps ρ's value at the edge of that range, and δ and the CSM indents must find it)."""
+        if self._link is None or not self._link_on:
+            return torch.empty(0, dtype=DTYPE)
+        cells = self._link.median_gpa
+        loc, spread = float(np.mean(cells)), max(float(np.std(cells)), 1e-12)
+        seen = (self.link_gp.predict_mean(csm_uv) - loc) / spread
+        lo, hi = max(float(seen.min()), -LINK_Z_CLIP), min(float(seen.max()), LINK_Z_CLIP)
+        z = np.clip((self.link_gp.predict_mean(grid_uv) - loc) / spread, lo, hi)
+        return torch.as_tensor(np.column_stack([z, z**2][:N_LINK]), dtype=DTYPE)
 
     def _cold(self, p: CoKrigingProblem) -> tuple[torch.Tensor, float]:
         """A few deterministic starts, ρ₀ from the least-squares slope of the CSM values on the fast map."""

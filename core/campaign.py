@@ -733,27 +733,17 @@ class Campaign:
         def grid(a: np.ndarray) -> np.ndarray:
             return np.where(inside, a, np.nan).reshape(shape).astype(np.float32)
 
-        modulus: dict[str, np.ndarray] = {}
+        # the modulus map and the fast channel's bias, where the run has them
+        extra: dict[str, np.ndarray] = {}
         if self.modulus_map.prediction is not None and not self.modulus_map.stale:
             # shown where the run keeps it fitted (map_weights), never fitted for the display alone
             pm = self.predict_modulus_stage(gx.ravel(), gy.ravel())
-            modulus = {"modulus_mean_gpa": grid(pm.mean), "modulus_sd_gpa": grid(pm.epistemic_sd)}
-        bias: dict[str, np.ndarray] = {}
+            extra = {"modulus_mean_gpa": grid(pm.mean), "modulus_sd_gpa": grid(pm.epistemic_sd)}
         if self.fast is not None and self.fast.active:  # the two-fidelity map's learnt bias, for the console
             u, v = self.calibration.to_uv(gx.ravel(), gy.ravel())
-            bias = {"bias_gpa": grid(self.fast.bias_gpa(np.column_stack([u, v])))}
-        return MapFields(
-            snapshot_id,
-            xs,
-            ys,
-            grid(pred.mean),
-            grid(pred.epistemic_sd),
-            grid(pred.noise_sd),
-            grid(pred.total_sd),
-            next_candidate_um,
-            **modulus,
-            **bias,
-        )
+            extra["bias_gpa"] = grid(self.fast.bias_gpa(np.column_stack([u, v])))
+        means = (grid(pred.mean), grid(pred.epistemic_sd), grid(pred.noise_sd), grid(pred.total_sd))
+        return MapFields(snapshot_id, xs, ys, *means, next_candidate_um, **extra)
 
     def queued_stretch(self) -> tuple[Block, ...]:
         """The arrays of the loaded stretch still to run after the current one, in load order."""

@@ -757,7 +757,7 @@ class Campaign:
     def export_state(self) -> dict[str, Any]:
         return {
             "gp": self.surrogate.hyper,
-            **({"two_fidelity": self.fast.model.hyper} if self.fast is not None and self.fast.active else {}),
+            **({"two_fidelity": self.fast.model.hyper} if self.fast is not None and self.fast.fitted else {}),
             "vetoes": [[v.x_um, v.y_um, v.until_blocks_done] for v in self.vetoes],
             "settings": settings_to_dict(self.settings),
             "blocks_done": len(self.blocks),

@@ -4,8 +4,11 @@ The campaign keeps its CSM-only GP (its noise rules, its guard, its journal reco
 prices fast arrays (``PolicyParts.fast``), one ``FastChannel``: the measured fast indents (failed ones are
 kept apart, never learnt from) and a ``TwoFidelityGP`` built on the campaign's own GP, so the CSM level is
 fitted on the same CSM fit. Once the fast data are enough (``MIN_FAST_CELLS`` cells), the map the run shows,
-scores and plans on is the two-fidelity one; before, the CSM-only GP's. The collapse guard covers both
-channels (the fast GP's own guard; the same rule on δ's length-scales).
+scores and plans on is the two-fidelity one, as long as it predicts the CSM values it has not seen better
+than the CSM-only GP does (leave-one-out at every CSM centre, ``core.model.held_out``): a fast channel that
+misleads (a bias the model's ρ and δ do not follow) is caught by the CSM indents themselves, and the run maps
+and plans on the CSM-only GP until the evidence turns. The collapse guard covers both channels (the fast GP's
+own guard; the same rule on δ's length-scales).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
+from core.model.held_out import HeldOut, compare
+from core.policies.fidelity import HeldOutView
 from core.model.two_fidelity import (
     TwoFidelityGP,
     TwoFidelityReport,
@@ -63,15 +68,31 @@ class FastChannel:
         self.modulus_gpa: list[float] = []
         self.failed = 0  # fast indents the instrument made without a value (recorded, never learnt)
         self.last_report: TwoFidelityReport | None = None
+        self.held_out: HeldOut | None = None  # the two maps' held-out errors at the last fit (None: no fit)
 
     @property
     def n(self) -> int:
         return len(self.hardness_gpa)
 
     @property
-    def active(self) -> bool:
-        """The two-fidelity map is the run's map (enough fast cells and CSM centres to learn a bias)."""
+    def fitted(self) -> bool:
+        """The two-fidelity model has a fit (enough fast cells and CSM centres to learn a bias)."""
         return self.model.mode == "two-fidelity"
+
+    @property
+    def active(self) -> bool:
+        """The two-fidelity map is the run's map: fitted, and better than the CSM-only GP on held-out values."""
+        return self.fitted and self.held_out is not None and self.held_out.two_fidelity_wins
+
+    def _judge(self, csm: Observations) -> None:
+        """Both maps' leave-one-out errors at the CSM centres (deterministic in the data and the fits: a
+        resumed run judges the same)."""
+        if not self.fitted:
+            self.held_out = None
+            return
+        two, _ = self.model.loo_residuals()
+        only, _ = self.model.csm_gp.loo_residuals()
+        self.held_out = compare(csm.median_gpa, two, only)
 
     def record(self, results: Sequence[IndentResult]) -> None:
         for r in results:
@@ -103,11 +124,13 @@ class FastChannel:
         """The fast GP, its E/H link and the CSM level on the campaign's CSM fit (``csm_report``)."""
         fast, link = self.observations(to_uv), self.link_observations(to_uv)
         self.last_report = self.model.fit_levels(csm, fast, csm_report, link=link)
+        self._judge(csm)
         return self.last_report
 
     def restore(self, record: object, csm: Observations, to_uv: ToUv) -> None:
         """Condition on the data with the journaled record (a resumed run maps and plans as before)."""
         self.model.set_hyper(record, csm, self.observations(to_uv), self.link_observations(to_uv))
+        self._judge(csm)
 
     def predict(self, uv: np.ndarray) -> Prediction:
         return self.model.predict(uv)
@@ -121,5 +144,11 @@ class FastChannel:
             return np.full(len(np.asarray(uv).reshape(-1, 2)), np.nan)
         return self.model.bias_gpa(uv)
 
-    def view(self) -> TwoFidelityView | None:
-        return TwoFidelityView(self.model) if self.active else None
+    def view(self) -> TwoFidelityView | HeldOutView | None:
+        """The planner's view: the two-fidelity model's where it is the run's map; where the held-out values
+        reject it, a view that buys no more fast data; None before any fit (the planner's prior)."""
+        if self.active:
+            return TwoFidelityView(self.model)
+        if self.fitted and self.held_out is not None:
+            return HeldOutView(self.held_out)
+        return None

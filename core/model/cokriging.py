@@ -164,6 +164,11 @@ class CoKrigingProblem(Problem):
         k = k + torch.diag(self.noise_fixed)
         return rho, mean, k
 
+    def data_covariance(self, theta: torch.Tensor) -> torch.Tensor:
+        """K: the CSM values' covariance (noise included) under ``theta``."""
+        with torch.no_grad():
+            return self._moments(unpack_theta(theta, self.floor_uv))[2]
+
     def _neg(self, theta: torch.Tensor) -> torch.Tensor:
         t = unpack_theta(theta, self.floor_uv)
         _, mean, k = self._moments(t)

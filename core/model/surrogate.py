@@ -25,7 +25,16 @@ from core.model.exact import ExactProblem, objective
 from core.model.fitting import COLD_WIN_NATS, cold_search_due, fit_problem, optimisation_due
 from core.model.guard import GUARDS, CollapseRule, GuardName, cold_search_confirms
 from core.model.hyper import Hyperparameters, ModelKind, NoiseKind
-from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName, lengthscales_of, unpack
+from core.model.held_out import loo_residuals
+from core.model.kernels import (
+    DTYPE,
+    MIN_NOISE_STD,
+    KernelName,
+    lengthscales_of,
+    pair_sq_diffs,
+    unit_kernel,
+    unpack,
+)
 from core.model.noise import MIN_SPREADS_FOR_GP, NoiseData, NoiseField, noise_data, noise_kind_for
 from core.model.observations import Observations, pooled_var, spread_mask, standardise
 from core.model.problem import Predictor, Problem
@@ -309,6 +318,22 @@ class HeteroskedasticGP:
                 parts.append(self._mean.mean(xs[start : start + PREDICT_CHUNK]).numpy())
         mean = np.concatenate(parts) if parts else np.empty(0)
         return np.asarray(mean * self._y_scale + self._y_loc, dtype=float)
+
+    def loo_residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each centre's value less its prediction from the others (GPa), and that prediction's variance
+        (GPa², noise included), hyperparameters held (``core.model.held_out``). The interpolated GP is read
+        through its exact kernel at the centres (n × n: a few thousand centres at most)."""
+        pm, hyper = self._mean_problem, self._hyper
+        if pm is None or hyper is None:
+            raise RuntimeError("HeteroskedasticGP.loo_residuals before fit() or set_hyper()")
+        with torch.no_grad():
+            u = unpack(torch.tensor(hyper.mean_raw, dtype=DTYPE), self.floor_uv, pm.learn_noise)
+            d0, d1 = pair_sq_diffs(pm.x)
+            r2 = d0 / float(u.lengthscale[0]) ** 2 + d1 / float(u.lengthscale[1]) ** 2
+            k = unit_kernel(self.kernel, r2).mul_(float(u.outputscale))
+            k.diagonal().add_(pm.noise(u))
+            resid, var = loo_residuals(k, pm.y, torch.ones(pm.n, 1, dtype=DTYPE))
+        return resid * self._y_scale, var * self._y_scale**2
 
     def latent_grid(self) -> tuple[Grid, np.ndarray, np.ndarray]:
         """The interpolated GP's posterior over its grid values in GPa: (grid, mean (m,), covariance (m, m)).

@@ -38,11 +38,13 @@ from core.model.cokriging import (
     CoKrigingConditioned,
     CoKrigingProblem,
     interpolation_matrix,
+    regression_columns,
     start_theta,
     unpack_theta,
 )
 from core.model.fitting import COLD_WIN_NATS, cold_search_due, optimisation_due, optimise
 from core.model.guard import GUARDS, CollapseRule, GuardName
+from core.model.held_out import loo_residuals
 from core.model.kernels import DTYPE, MIN_NOISE_STD, KernelName
 from core.model.observations import Observations, standardise
 from core.model.surrogate import FitReport, HeteroskedasticGP, Prediction
@@ -487,6 +489,19 @@ class TwoFidelityGP:
                 ]
             )
         return np.asarray(mean.numpy() * self._scale + self._loc, dtype=float)
+
+    def loo_residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each CSM centre's value less the two-fidelity map's prediction of it from the other centres and
+        the fast data (GPa), and its variance (GPa², noise included): ρ's and δ's planes estimated again
+        without the centre, every other hyperparameter held (``core.model.held_out``)."""
+        if self._cond is None or self._p is None or self._theta is None:
+            raise RuntimeError("TwoFidelityGP.loo_residuals: no fast channel in this fit")
+        p = self._p
+        with torch.no_grad():
+            k = p.data_covariance(self._theta)
+            reg = regression_columns(p.rho_basis, p.fast_mean, p.basis)
+            resid, var = loo_residuals(k, p.y, reg[:, self._cond.reg_used])
+        return resid * self._scale, var * self._scale**2
 
     def predict_fast(self, uv: np.ndarray) -> Prediction:
         """The fast channel's own map (what a fast indent reads), from the fast data alone."""

@@ -21,7 +21,7 @@ from core.profile import InstrumentProfile
 if TYPE_CHECKING:
     from core.geometry import Calibration, CandidateLattice
     from core.model import Prediction
-    from core.policies.fidelity import FidelityView
+    from core.policies.fidelity import FidelityView, HeldOutView
     from core.policies.parts import PolicyParts
     from core.sample import Sample
 
@@ -97,7 +97,7 @@ class PlanContext:
     # attended, as always before
     unattended: LoadWindow | None = None
     # the two-fidelity model's view (core.policies.fidelity) once fast data are in; None: the CSM-only GP
-    fidelity: FidelityView | None = None
+    fidelity: FidelityView | HeldOutView | None = None
 
     @property
     def fixed_hold_s(self) -> float:

@@ -15,7 +15,10 @@ What a measurement would teach is read off a ``FidelityView`` of the model:
   reduce, so the CSM block wins there;
 - before any fast data, ``PriorFidelityView``: the CSM-only GP with the fast channel as the CSM map plus a bias
   GP of the same kernel holding ``prior_bias_share`` of its variance, read with ``prior_noise_ratio`` × the CSM
-  noise (assumptions, named in ``FastArrays``; the first array's data replace them).
+  noise (assumptions, named in ``FastArrays``; the first array's data replace them);
+- with fast data whose two-fidelity map predicts the held-out CSM values worse than the CSM-only GP
+  (``HeldOutView``): the fast channel misleads as the model reads it, so no array is bought, only CSM blocks,
+  until the held-out values say otherwise.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from core.fast_array import FastArray, check_fast_array, fast_block, fast_block_cost_s
 from core.geometry import SafeBand, exclusion_mask
+from core.model.held_out import HeldOut
 from core.plan import Decision
 from core.policies.variance import median_noise_var, nearest_lattice, posterior
 
@@ -65,6 +69,15 @@ class FidelityView(Protocol):
     def fast_noise_var(self, uv: np.ndarray) -> np.ndarray:
         """One fast indent's noise variance."""
         ...
+
+
+class HeldOutView:
+    """The fast channel is measured, but its map predicts held-out CSM values worse than the CSM-only GP."""
+
+    mode = "held out"
+
+    def __init__(self, held_out: HeldOut) -> None:
+        self.held_out = held_out
 
 
 @dataclass(frozen=True)
@@ -203,7 +216,7 @@ class TwoFidelityPlanner:
         """A stretch is the design's CSM arrays (fast arrays are priced block by block)."""
         return self.inner.propose_stretch(ctx)
 
-    def view(self, ctx: PlanContext) -> FidelityView | None:
+    def view(self, ctx: PlanContext) -> FidelityView | HeldOutView | None:
         if ctx.fidelity is not None:
             return ctx.fidelity
         if ctx.gp is None or ctx.prediction is None or ctx.tested_noise_var_gpa2 is None:
@@ -219,6 +232,8 @@ class TwoFidelityPlanner:
         view = self.view(ctx)
         if view is None:
             return csm
+        if isinstance(view, HeldOutView):
+            return None if csm is None else _noted(csm, f"; no fast array: {view.held_out.words()}")
         ref_uv, w = self.inner.ivr.weights(ctx, ctx.prediction)
         w = w / float(np.mean(w))
         var_now = view.variance(ref_uv)

@@ -22,6 +22,7 @@ from core.interlock import Interlock
 from core.journal import DriverState, Journal, JournalReader
 from core.journal.schema import SCHEMA_SQL, SCHEMA_VERSION
 from core.plan import Block, Decision, IndentResult, IndentSpec, PlannerSettings
+from core.fidelity import TwoFidelityView
 from core.policies.fidelity import FastArrays, PriorFidelityView, TwoFidelityPlanner, candidate_arrays
 from core.profile import load_profile
 from core.sample import Sample
@@ -129,7 +130,10 @@ def _rates(campaign: Campaign) -> tuple[float, float]:
     policy = campaign.policy
     assert isinstance(policy, TwoFidelityPlanner)
     ctx = campaign.context(10_000.0, (500.0, 500.0), False, 2)
-    assert ctx.prediction is not None and ctx.fidelity is not None
+    assert ctx.prediction is not None and campaign.fast is not None
+    # the model's own what-ifs, whichever map the held-out values keep
+    ctx = dataclasses.replace(ctx, fidelity=TwoFidelityView(campaign.fast.model))
+    assert ctx.fidelity is not None
     # a CSM block of 16 singles spread over the sample (the design's own would be placed better still)
     xy = np.random.default_rng(2).uniform(100, 900, (16, 2))
     sites = tuple(IndentSpec(float(x), float(y), 80.0) for x, y in xy)
@@ -153,6 +157,11 @@ def test_a_misleading_fast_channel_makes_another_array_worth_less_than_csm_inden
     csm_faithful, fast_faithful = _rates(_after_one_array(1.0, faithful=True))
     csm_misled, fast_misled = _rates(_after_one_array(1.0, faithful=False))
     assert fast_misled / csm_misled < 0.5 * fast_faithful / csm_faithful
+    # and the held-out CSM values catch it first: the misleading channel's map does not beat the CSM-only
+    # GP's on them, so the run keeps the CSM-only map and buys no array; the faithful one's does
+    misled, faithful = _after_one_array(1.0, faithful=False).fast, _after_one_array(1.0, faithful=True).fast
+    assert misled is not None and faithful is not None
+    assert misled.fitted and not misled.active and faithful.active
 
 
 def test_before_any_fast_data_a_cheap_fast_mode_wins_and_a_dear_one_loses() -> None:

@@ -121,7 +121,7 @@ def test_a_rejected_fast_channel_buys_no_array_and_the_map_is_the_csm_only_gps()
     assert fast is not None
     saved = fast.held_out
     try:
-        fast.held_out = HeldOut(two_fidelity_pct=3.0, csm_only_pct=2.0, centres=30)
+        fast.held_out = HeldOut(two_fidelity_pct=3.0, csm_only_pct=2.0, centres=30, z=-1.0)
         assert not fast.active and fast.fitted
         uv = campaign.lattice.uv
         assert np.allclose(campaign._map_model().predict_mean(uv), campaign.surrogate.predict_mean(uv))
@@ -137,3 +137,23 @@ def test_a_rejected_fast_channel_buys_no_array_and_the_map_is_the_csm_only_gps()
         assert "two_fidelity" in campaign.export_state()
     finally:
         fast.held_out = saved
+
+
+def test_a_chance_win_on_noisy_values_keeps_the_csm_only_map_and_a_clear_one_takes_the_two_fidelity_map() -> None:
+    """Both maps' residuals share each held-out value's noise. Under 10 % noise (the film's) a map error of
+    0.9 % against 1.0 % is a tie and the CSM-only GP stays, and a two-fidelity map off by 2.5 % is rejected
+    outright; under 2 % noise (the ternary's) 0.3 % against 1.0 % over 300 centres is a clear win."""
+    rng = np.random.default_rng(7)
+    n = 300
+    v = np.full(n, 6.0)
+
+    def judged(noise_rel: float, two_rel: float, csm_rel: float) -> HeldOut:
+        noise = rng.normal(0, noise_rel * 6.0, n)
+        return compare(v, noise + rng.normal(0, two_rel * 6.0, n), noise + rng.normal(0, csm_rel * 6.0, n))
+
+    tie = judged(0.10, 0.009, 0.010)
+    assert not tie.two_fidelity_wins and abs(tie.z) < 2.0
+    misled = judged(0.10, 0.025, 0.005)
+    assert not misled.two_fidelity_wins and misled.z < 0.0
+    clear = judged(0.02, 0.003, 0.010)
+    assert clear.two_fidelity_wins and clear.z > 2.0

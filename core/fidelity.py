@@ -19,7 +19,6 @@ import numpy as np
 
 from core.model import FitReport, HeteroskedasticGP, Observations, Prediction
 from core.model.held_out import HeldOut, compare
-from core.policies.fidelity import HeldOutView
 from core.model.two_fidelity import (
     TwoFidelityGP,
     TwoFidelityReport,
@@ -27,6 +26,7 @@ from core.model.two_fidelity import (
     fast_observations,
 )
 from core.plan import IndentResult
+from core.policies.fidelity import HeldOutView
 
 ToUv = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 

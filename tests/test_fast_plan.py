@@ -18,11 +18,11 @@ from aeni_console.cli.main import main as cli_main
 from core.campaign import Campaign, CampaignConfig
 from core.cost import block_costs_for, block_steps
 from core.fast_array import FastArray, fast_block, fast_block_cost_s, price_fast_array
+from core.fidelity import TwoFidelityView
 from core.interlock import Interlock
 from core.journal import DriverState, Journal, JournalReader
 from core.journal.schema import SCHEMA_SQL, SCHEMA_VERSION
 from core.plan import Block, Decision, IndentResult, IndentSpec, PlannerSettings
-from core.fidelity import TwoFidelityView
 from core.policies.fidelity import FastArrays, PriorFidelityView, TwoFidelityPlanner, candidate_arrays
 from core.profile import load_profile
 from core.sample import Sample

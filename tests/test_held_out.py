@@ -139,7 +139,9 @@ def test_a_rejected_fast_channel_buys_no_array_and_the_map_is_the_csm_only_gps()
         fast.held_out = saved
 
 
-def test_a_chance_win_on_noisy_values_keeps_the_csm_only_map_and_a_clear_one_takes_the_two_fidelity_map() -> None:
+def test_a_chance_win_on_noisy_values_keeps_the_csm_only_map_and_a_clear_one_takes_the_two_fidelity_map() -> (
+    None
+):
     """Both maps' residuals share each held-out value's noise. Under 10 % noise (the film's) a map error of
     0.9 % against 1.0 % is a tie and the CSM-only GP stays, and a two-fidelity map off by 2.5 % is rejected
     outright; under 2 % noise (the ternary's) 0.3 % against 1.0 % over 300 centres is a clear win."""

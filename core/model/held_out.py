@@ -30,7 +30,9 @@ def loo_residuals(k: torch.Tensor, y: torch.Tensor, basis: torch.Tensor) -> tupl
         k = 0.5 * (k + k.T)
         chol, info = torch.linalg.cholesky_ex(k)
         if int(info) != 0:
-            chol = torch.linalg.cholesky(k + JITTER_REL * float(k.diagonal().mean()) * torch.eye(n, dtype=DTYPE))
+            chol = torch.linalg.cholesky(
+                k + JITTER_REL * float(k.diagonal().mean()) * torch.eye(n, dtype=DTYPE)
+            )
         p = torch.cholesky_inverse(chol)
         if basis.numel():
             kf = p @ basis
@@ -54,7 +56,9 @@ class HeldOut:
     two_fidelity_pct: float  # root mean square of the relative LOO residuals, two-fidelity map
     csm_only_pct: float  # ... CSM-only GP
     centres: int
-    z: float = 0.0  # the mean paired difference (CSM-only − two-fidelity squared errors) over its standard error
+    z: float = (
+        0.0  # the mean paired difference (CSM-only − two-fidelity squared errors) over its standard error
+    )
 
     @property
     def two_fidelity_wins(self) -> bool:
@@ -81,6 +85,4 @@ def compare(values_gpa: np.ndarray, two_fidelity_resid: np.ndarray, csm_only_res
     d = rb**2 - ra**2
     se = float(np.std(d, ddof=1)) / math.sqrt(n) if n > 1 else math.inf
     z = float(np.mean(d)) / se if se > 0 else (math.inf if float(np.mean(d)) > 0 else 0.0)
-    return HeldOut(
-        float(100.0 * np.sqrt(np.mean(ra**2))), float(100.0 * np.sqrt(np.mean(rb**2))), n, z
-    )
+    return HeldOut(float(100.0 * np.sqrt(np.mean(ra**2))), float(100.0 * np.sqrt(np.mean(rb**2))), n, z)

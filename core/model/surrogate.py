@@ -24,8 +24,8 @@ from core.errors import InputError
 from core.model.exact import ExactProblem, objective
 from core.model.fitting import COLD_WIN_NATS, cold_search_due, fit_problem, optimisation_due
 from core.model.guard import GUARDS, CollapseRule, GuardName, cold_search_confirms
-from core.model.hyper import Hyperparameters, ModelKind, NoiseKind
 from core.model.held_out import loo_residuals
+from core.model.hyper import Hyperparameters, ModelKind, NoiseKind
 from core.model.kernels import (
     DTYPE,
     MIN_NOISE_STD,

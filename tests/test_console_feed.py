@@ -132,8 +132,10 @@ def test_poke_wakes_the_feed_early(live_run: LiveRunFactory) -> None:
     got = Collector()
     feed = Feed(run.source(), got, poll_s=30.0, max_rate_hz=100.0)
     feed.start()
-    deadline = time.monotonic() + 30  # a loaded machine (a bench beside the suite) delivered late at 5 s
-    while feed.polls < 1 and time.monotonic() < deadline:
+    deadline = time.monotonic() + 30
+    # the first snapshot delivered, not only its poll begun: a poll counted but still reading could read the
+    # state after the advance below, and the poke's poll would then rightly find nothing new
+    while len(got.of(SnapshotArrived)) < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
     run.advance(1)
     feed.poke()

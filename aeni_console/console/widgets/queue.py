@@ -20,7 +20,10 @@ class QueuePanel(DataTable[str]):
         self.cursor_type = "none"
         self.zebra_stripes = True
         self.show_cursor = False
-        self.add_columns("blk.#", "x µm", "y µm", "g", "hold", "ETA")
+        self.add_columns("blk.#", "x µm", "y µm", "g", "hold")
+        # a fixed width (h:mm:ss up to 99 h): an auto width follows the rows a refresh later, and a screen
+        # drawn in between clipped the clock to "7:2"
+        self.add_column("ETA", width=8)
 
     def show(self, snap: RunSnapshot) -> None:
         self.clear()

@@ -26,20 +26,13 @@ from core.describe import block_words
 from core.driver import InstrumentWait
 from core.fast_array import FastArray, fast_block
 from core.journal import map_fields_from_bytes, map_fields_to_bytes
-from core.plan import Block, IndentResult, IndentSpec
+from core.plan import Block, IndentSpec
 from core.runview import IndentMark, MapFields
 from drivers.sim.scenarios import make_scenario
+from tests.test_fast_plan import _measured
 
 ANSI = re.compile(r"\x1b\[[0-9;]*m")
 BOUNDS = (0.0, 1000.0, 0.0, 1000.0)
-
-
-def _measured(block_id: int, xy: np.ndarray, h: np.ndarray, channel: str = "csm") -> list[IndentResult]:
-    return [
-        IndentResult(block_id, i, x, y, x, y, 0.0 if channel == "fast" else 80.0, float(v), 150.0, 0.01, 0.0,
-                     channel=channel)  # type: ignore[arg-type]
-        for i, ((x, y), v) in enumerate(zip(xy, h, strict=True))
-    ]  # fmt: skip
 
 
 @functools.cache

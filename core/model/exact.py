@@ -159,14 +159,20 @@ class Conditioned:
         return mean, var
 
 
+def data_covariance(p: Problem, u: Unpacked, d0: torch.Tensor, d1: torch.Tensor) -> torch.Tensor:
+    """K + D at the data: the scaled kernel from the per-axis squared differences, each point's noise added."""
+    r2 = d0 / float(u.lengthscale[0]) ** 2 + d1 / float(u.lengthscale[1]) ** 2
+    k = unit_kernel(p.kernel, r2).mul_(float(u.outputscale))
+    k.diagonal().add_(p.noise(u))
+    return k
+
+
 def condition(p: ExactProblem, theta: torch.Tensor) -> Conditioned:
     with torch.no_grad():
         u = unpack(theta, p.floor_uv, p.learn_noise)
         os = float(u.outputscale)
-        r2 = p.d0 / float(u.lengthscale[0]) ** 2 + p.d1 / float(u.lengthscale[1]) ** 2
-        k = unit_kernel(p.kernel, r2).mul_(os)
         noise = p.noise(u)
-        k.diagonal().add_(noise)
+        k = data_covariance(p, u, p.d0, p.d1)
         chol, info = torch.linalg.cholesky_ex(k)
         if int(info) != 0:
             k.diagonal().add_(1e-6 * float(k.diagonal().mean()))

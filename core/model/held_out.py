@@ -17,9 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from core.model.cokriging import JITTER_REL
 from core.model.kernels import DTYPE
-
-JITTER_REL = 1e-8  # on K's diagonal, relative to its mean, when a Cholesky fails
 
 
 def loo_residuals(k: torch.Tensor, y: torch.Tensor, basis: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:

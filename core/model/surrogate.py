@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from core.errors import InputError
-from core.model.exact import ExactProblem, objective
+from core.model.exact import ExactProblem, data_covariance, objective
 from core.model.fitting import COLD_WIN_NATS, cold_search_due, fit_problem, optimisation_due
 from core.model.guard import GUARDS, CollapseRule, GuardName, cold_search_confirms
 from core.model.held_out import loo_residuals
@@ -32,7 +32,6 @@ from core.model.kernels import (
     KernelName,
     lengthscales_of,
     pair_sq_diffs,
-    unit_kernel,
     unpack,
 )
 from core.model.noise import MIN_SPREADS_FOR_GP, NoiseData, NoiseField, noise_data, noise_kind_for
@@ -328,10 +327,7 @@ class HeteroskedasticGP:
             raise RuntimeError("HeteroskedasticGP.loo_residuals before fit() or set_hyper()")
         with torch.no_grad():
             u = unpack(torch.tensor(hyper.mean_raw, dtype=DTYPE), self.floor_uv, pm.learn_noise)
-            d0, d1 = pair_sq_diffs(pm.x)
-            r2 = d0 / float(u.lengthscale[0]) ** 2 + d1 / float(u.lengthscale[1]) ** 2
-            k = unit_kernel(self.kernel, r2).mul_(float(u.outputscale))
-            k.diagonal().add_(pm.noise(u))
+            k = data_covariance(pm, u, *pair_sq_diffs(pm.x))
             resid, var = loo_residuals(k, pm.y, torch.ones(pm.n, 1, dtype=DTYPE))
         return resid * self._y_scale, var * self._y_scale**2
 

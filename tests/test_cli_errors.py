@@ -189,6 +189,27 @@ def test_simulate_json_stdout_is_only_json_even_when_libraries_warn(tmp_path: Pa
     assert "aeni: warning: RuntimeWarning: numerical trouble in a library" in proc.stderr
 
 
+def test_a_reader_that_has_gone_ends_the_command_quietly(tmp_path: Path) -> None:
+    """`aeni … | head`: the reader closes early; the command ends with 141 (as a SIGPIPE'd Unix tool
+    does), nothing on stderr, no traceback and no 'Exception ignored' at exit."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before a line is written
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "aeni_console.cli.main", "scenarios"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=tmp_path,
+            timeout=120,
+            check=False,
+        )
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141, proc.stderr
+    assert proc.stderr == ""
+
+
 def test_scenarios_exists_and_simulate_help_points_to_it(capsys: pytest.CaptureFixture[str]) -> None:
     from drivers.sim.scenarios import SCENARIOS
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import select
 import sys
 import warnings
 from collections.abc import Sequence
@@ -64,6 +65,24 @@ def _warning_line(
     print(f"aeni: warning: {category.__name__}: {text}", file=sys.stderr)
 
 
+def _stdout_closed() -> bool:
+    """Whether stdout's reader has gone (a pipe whose reader closed polls as an error); if so, point stdout
+    at /dev/null so the interpreter's last flush stays quiet."""
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        events = poller.poll(0)
+    except (OSError, ValueError, AttributeError):  # no real file behind stdout (a test's capture)
+        return False
+    if not any(ev & (select.POLLERR | select.POLLHUP) for _, ev in events):
+        return False
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
+    return True
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -71,8 +90,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.showwarning = _warning_line
     try:
         code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a reader gone shows here, inside the handlers below, not in the exit's flush
     except InputError as exc:
         print(f"aeni: error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError as exc:
+        if _stdout_closed():  # `aeni … | head`: the reader has what it wanted; end quietly, as Unix tools do
+            return 141
+        if os.environ.get("AENI_TRACEBACK"):
+            raise
+        print(f"aeni: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:  # the environment refused: a path that cannot be made, read or written
         if os.environ.get("AENI_TRACEBACK"):

@@ -35,7 +35,7 @@ from core.sample_change import change_s
 from drivers.kla.array_run import ArrayEnd
 from drivers.kla.driver import KlaDriver
 from drivers.kla.exchange import Ticket, make_ticket, ticket_panel, ticket_text
-from drivers.kla.fake_inview import FakeInView
+from drivers.kla.fake_inview import Fault, FakeInView, parse_fault
 from drivers.kla.inbox import SiteOutcome
 from drivers.kla.tray import KlaTray
 from drivers.registry import DRIVERS, sim_scenario
@@ -105,14 +105,16 @@ def _spec(tray_file: Path, exchange: Path) -> RunSpec:
 
 
 @contextmanager
-def fake_inview(exchange: Path, tray_file: Path, wear: float = 0.0) -> Iterator[FakeInView]:
+def fake_inview(
+    exchange: Path, tray_file: Path, wear: float = 0.0, faults: tuple[Fault, ...] = ()
+) -> Iterator[FakeInView]:
     """The fake InView over the tray (as `aeni kla fake-inview --tray`), serving in a thread."""
     tray, problems = resolve_tray(parse_tray(tray_file), "sim", SEED)
     assert not problems
     options = {"tip_wear_pct_per_h": wear}
     fake = FakeInView(
         exchange, load_profile(tray.libraries[0].placed.profile), None, speed=1e6, invalid_rate=0.0,
-        write_s=0.0, log=lambda _line: None, ledger=exchange.parent / "ledger.jsonl",
+        write_s=0.0, log=lambda _line: None, ledger=exchange.parent / "ledger.jsonl", faults=faults,
         tray_driver=lambda: make_tray_driver(tray, options, SEED, sim_scenario, 1e6),
     )  # fmt: skip
     stop = threading.Event()
@@ -151,6 +153,10 @@ def _check_run(journal: Path, exchange: Path, tray: Tray) -> None:
     for rec in records:
         block, name = rec.block, _sample_of(tray, rec.block)
         entry = tray.by_name(name)
+        charged = sum(s.seconds for s in rec.steps)
+        if all(res.status == "not_run" for res in rec.results):  # its surface not found: nothing ran, the
+            assert charged == 0.0  # tip stayed where it was and no change was charged
+            continue
         for res in rec.results:  # inside the sample the block is on (a library: where it may be indented)
             assert tray.sample_at(res.commanded_x_um, res.commanded_y_um) is entry
             xy = np.array([[res.commanded_x_um, res.commanded_y_um]])
@@ -159,7 +165,6 @@ def _check_run(journal: Path, exchange: Path, tray: Tray) -> None:
         assert ticket.sample == name
         text = (exchange / "outbox" / f"{ticket.run}-{block.block_id:03d}-ticket.txt").read_text("utf-8")
         assert f"1. Sample: {name} on the tray" in text
-        charged = sum(s.seconds for s in rec.steps)
         assert rec.decision is not None
         assert charged == pytest.approx(rec.decision.predicted_cost_s) == pytest.approx(ticket.expected_s)
         own = _own_s(profile, block, ticket.from_um, ticket.program_open)
@@ -186,6 +191,30 @@ def test_a_kla_tray_runs_to_every_goal_against_the_fake_inview(tray_file: Path, 
     assert state is not None and state[0]["tray_run"]["indents"] == {"tern": 24, "film": 24}
     assert spec.tray is not None
     _check_run(journal, exchange, spec.tray)
+
+
+def test_a_surface_not_found_on_another_sample_leaves_the_tip_where_it_was(
+    tray_file: Path, tmp_path: Path
+) -> None:
+    """Block 1 changes from the reference onto a library and its surface is not found: nothing ran, so the
+    tip is still on the reference; the next block onto a library pays the change, priced so by the planner
+    (the price, the ticket and the charge agree for every block: _check_run)."""
+    exchange = tmp_path / "exchange"
+    exchange.mkdir()
+    spec = _spec(tray_file, exchange)
+    journal = tmp_path / "runs" / "snf.sqlite"
+    with fake_inview(exchange, tray_file, faults=(parse_fault("surface-not-found@1"),)):
+        assert run_engine(journal, create=spec, quiet=True) == 0
+    with JournalReader(journal) as r:
+        blocks = [b for b in r.blocks() if b.status == "observed"]
+    assert blocks[1].block.block_id == 1 and all(x.status == "not_run" for x in blocks[1].results)
+    assert spec.tray is not None
+    _check_run(journal, exchange, spec.tray)
+    profile = load_profile(spec.tray.libraries[0].placed.profile)
+    after = blocks[2]
+    assert _sample_of(spec.tray, after.block) != "silica"
+    assert after.decision is not None
+    assert after.decision.predicted_cost_s >= change_s(profile)
 
 
 @pytest.mark.parametrize(

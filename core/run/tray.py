@@ -492,9 +492,12 @@ class TrayCampaign:
     # -- learning -------------------------------------------------------------------------------------
     def observe_block(self, block: Block, results: Sequence[IndentResult]) -> Any:
         name = self._owner.pop(block.block_id, None) or self._name_at(block)
-        if self._on is not None and name != self._on:
-            self.changes += 1
-        self._on = name
+        if any(r.status != "not_run" for r in results):
+            # a block of which nothing ran (its surface not found, no export by the deadline) leaves the tip
+            # where it was, as the drivers charge it: no change paid, so the next block there pays it
+            if self._on is not None and name != self._on:
+                self.changes += 1
+            self._on = name
         if name in self.lanes:
             self._shown = self.lanes[name]
             return self.lanes[name].campaign.observe_block(block, results)

@@ -138,6 +138,11 @@ class TraySimDriver(SimulatedDriver):
             raise ValueError(f"block {block.block_id} starts on no sample of the tray")
         station = self.stations[entry.name]
         self.emulator, self.profile, self.failures = station.emulator, station.profile, station.failures
+        if self.failures.block_fault(block.block_id) == "surface-not-found":
+            # nothing runs: the tip stays on the sample it was on, no change charged (as on the KLA driver,
+            # where the operator's report is all the run learns)
+            yield from super().execute_block(block, start_index)
+            return
         if start_index == 0 and self.on is not None and self.on != entry.name:
             for step in change_steps(self.profile, block.block_id):
                 yield self._advance(step)

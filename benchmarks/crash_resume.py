@@ -90,8 +90,16 @@ def _context() -> Any:
     global _CTX
     if _CTX is None:
         _CTX = mp.get_context("forkserver")
-        _CTX.set_forkserver_preload(
-            ["core.campaign", "core.run.engine", "aeni_console.cli.run", "benchmarks.crash_resume"]
+        _CTX.set_forkserver_preload(  # the engine host imports these where it runs (not at its top)
+            [
+                "core.campaign",
+                "core.run.engine",
+                "core.run.compose",
+                "drivers.registry",
+                "aeni_console.alerts",
+                "aeni_console.cli.run",
+                "benchmarks.crash_resume",
+            ]
         )
     return _CTX
 

@@ -18,9 +18,9 @@ from typing import Any, Literal
 from core.errors import InputError
 from core.plan import MAPS, MapWeights, PlannerSettings
 from core.policies.registry import policy_parts
+from core.run.machine import SUPERVISION_MODES
 
 HOLD_POLICIES: tuple[str, ...] = ("fixed", "adaptive")
-SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
 # what an approval nobody answered within approval_timeout_s does (a collapse alarm or a refused block: never approve)
 ON_TIMEOUT: tuple[str, ...] = ("approve", "veto", "pause", "stop")
 

@@ -32,9 +32,10 @@ class _QuitWhenWaiting:
 
 @pytest.fixture
 def no_screen(monkeypatch: pytest.MonkeyPatch) -> None:
-    import aeni_console.cli.console
+    import aeni_console.console.app
 
-    monkeypatch.setattr(aeni_console.cli.console, "ConsoleApp", _QuitWhenWaiting)
+    # where it is defined: `aeni console` imports it when it opens the screen (not at startup)
+    monkeypatch.setattr(aeni_console.console.app, "ConsoleApp", _QuitWhenWaiting)
 
 
 def test_quitting_the_demo_console_stops_its_engine(

@@ -10,16 +10,21 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from aeni_console.bench.harness import BenchConfig, RunRecord, merge_results, records_from_json, run_bench
 from aeni_console.cli.common import add_operator_args, map_weights_arg, operator_calendar, whole_number
-from aeni_console.reports.bench import write_report
 from core.errors import InputError
-from core.settings import settings_from_dict
 from drivers.sim.failures import FailureModes
+
+if TYPE_CHECKING:
+    from aeni_console.bench.harness import RunRecord
 
 
 def _handler(args: argparse.Namespace) -> int:
+    # imported here, not at the top: the bench and its report pull torch and pandas; `aeni --help` must start fast
+    from aeni_console.bench.harness import BenchConfig, run_bench
+    from aeni_console.reports.bench import write_report
+    from core.settings import settings_from_dict
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -77,6 +82,8 @@ def _handler(args: argparse.Namespace) -> int:
 def _render(sources: list[Path], out: Path) -> int:
     """The report again from one run's results.json (after a change to the report, or if rendering failed),
     or from several merged (a sweep run in pieces). The map figures of each part are carried over."""
+    from aeni_console.bench.harness import merge_results, records_from_json
+    from aeni_console.reports.bench import write_report
 
     if not sources:
         raise InputError("--render-from", "name at least one results.json")

@@ -13,14 +13,15 @@ import os
 import stat
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aeni_console.files import make_folder
-from core.cost import CostLedger
 from core.errors import InputError
 from core.operator import parse_start
-from core.runconfig import load_run_config
-from core.visits import OperatorCalendar
+
+if TYPE_CHECKING:
+    from core.cost import CostLedger
+    from core.visits import OperatorCalendar
 
 
 def _clean(obj: Any) -> Any:
@@ -158,9 +159,12 @@ def add_operator_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--start", default=None, metavar="WHEN", help="the run's start: 'Mon 09:00' (default)")
 
 
-def operator_calendar(args: argparse.Namespace) -> Any:
-    """A core.visits.OperatorCalendar from the flags, checked as the run file's [operator] section; None when
-    no flag was given (the run is not put on a calendar)."""
+def operator_calendar(args: argparse.Namespace) -> OperatorCalendar | None:
+    """An operator calendar from the flags, checked as the run file's [operator] section; None when no flag
+    was given (the run is not put on a calendar)."""
+    # imported here, not at the top: the run file's reader pulls torch, and `aeni --help` must start fast
+    from core.runconfig import load_run_config
+    from core.visits import OperatorCalendar
 
     flags = {
         "operator.hours": args.operator_hours,

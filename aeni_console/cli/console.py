@@ -27,13 +27,8 @@ from typing import Any
 from aeni_console.cli.common import check_new_journal, positive_float, seed_arg
 from aeni_console.cli.host import child_env, launch_engine
 from aeni_console.cli.run import resolve_run
-from aeni_console.console.app import ConsoleApp
-from aeni_console.console.journal_source import JournalReplay, JournalSource
 from core.errors import InputError
-from core.journal import JournalReader, default_journal_path, engine_running
-from core.run.spec import EngineRules, RunSpec
-from core.runconfig import make_campaign_config
-from core.settings import SUPERVISION_MODES
+from core.run.machine import SUPERVISION_MODES
 from drivers.sim.failures import REALISTIC_FAILURE_RATE
 
 DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min) passes in about 6 s
@@ -41,6 +36,8 @@ DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min)
 
 def leave_message(journal: Path, pid: int | None = None) -> str:
     """What to print after the console closes while the engine runs on."""
+    # imported here, not at the top: the journal pulls torch, the console textual; `aeni --help` must start fast
+    from core.journal import JournalReader
 
     try:
         with JournalReader(journal) as reader:
@@ -62,6 +59,8 @@ def leave_message(journal: Path, pid: int | None = None) -> str:
 def run_console(
     journal: Path, replay: bool = False, pid: int | None = None, *, leave: bool = True, **app_kwargs: Any
 ) -> int:
+    from aeni_console.console.app import ConsoleApp
+    from aeni_console.console.journal_source import JournalReplay, JournalSource
 
     source = JournalReplay(journal) if replay else JournalSource(journal)
     try:
@@ -79,6 +78,7 @@ def stop_engine(pid: int, journal: Path, grace_s: float = 30.0) -> str:
     SIGTERM first; SIGKILL only if it has not ended after ``grace_s`` (every finished indent is already in
     the journal, so even that loses nothing). Returns what happened, in words.
     """
+    from core.journal import engine_running
 
     try:
         os.kill(pid, signal.SIGTERM)
@@ -100,6 +100,9 @@ def _cmd_console(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    from core.journal import default_journal_path
+    from core.run.spec import EngineRules, RunSpec
+    from core.runconfig import make_campaign_config
 
     # the simulated instrument fails now and then, as a real one does (a KLA demo's fake InView has its own)
     failure_rate = args.failure_rate
@@ -171,6 +174,7 @@ def kla_demo(
     yields (exchange, engine, fake InView). On leaving, the engine is stopped (its journal keeps every
     measured indent), then the fake InView, and the exchange folder is removed (the accepted exports are
     archived next to the journal)."""
+    from core.run.spec import EngineRules, RunSpec
 
     options = config.driver_options
     exchange = Path(tempfile.mkdtemp(prefix="aeni-demo-exchange-"))

@@ -19,24 +19,17 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aeni_console.alerts import AlertWatcher
 from aeni_console.cli.common import check_new_journal, check_resumable_journal
-from aeni_console.cli.supervisor import supervisor_argv, watch_foreground
 from core.access import journal_gid, protect
-from core.campaign import Campaign, campaign_config_to_dict
 from core.errors import InputError
-from core.journal import Journal, JournalReader, engine_running, lock_path_for
 from core.notifyconfig import load_run_notify, notify_path_for, write_private
-from core.run.compose import Hosting, compose
-from core.run.spec import RunSpec, run_spec_from_meta
-from core.runconfig import RunOptions, run_spec
-from core.runview import EngineState
+from core.run.machine import EngineState
 from drivers.kla.exchange import check_exchange_dir
-from drivers.registry import DRIVERS
 
 if TYPE_CHECKING:
     from core.campaign import Campaign
     from core.journal import Journal
+    from core.run.spec import RunSpec
 
 ENGINE_MODULE = "aeni_console.cli.main"
 _REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -77,6 +70,10 @@ def launch_engine(
     for a run as its file says), the first after ``resume_backoff_s`` (None: the spec's); the process is then
     the supervisor's.
     """
+    # imported here, not at the top: the run's spec and journal pull torch; `aeni --help` must start fast
+    from aeni_console.cli.supervisor import supervisor_argv
+    from core.journal import engine_running
+    from core.run.spec import RunSpec
 
     text = spec if isinstance(spec, str) else spec.to_json()
     parsed = RunSpec.from_json(text, "run spec")
@@ -136,6 +133,7 @@ def start_engine_process(
 ) -> subprocess.Popen[bytes] | int:
     """:func:`launch_engine` for a campaign config and a few run options (the console's demo, the tests):
     the Popen handle, or with ``detach`` the PID."""
+    from core.runconfig import RunOptions, run_spec
 
     if exchange is not None:
         config = dataclasses.replace(config, driver_options={**config.driver_options, "exchange": exchange})
@@ -167,6 +165,8 @@ def _print(line: str) -> None:
 def create_run_journal(path: Path, spec: RunSpec, campaign: Campaign) -> Journal:
     """A new journal for the run of ``spec`` (the engine process, and the console tests' engine): it keeps
     the spec (without its alert URLs) with the sample the campaign runs on."""
+    from core.campaign import campaign_config_to_dict
+    from core.journal import Journal
 
     return Journal.create(
         path,
@@ -186,6 +186,7 @@ def create_run_journal(path: Path, spec: RunSpec, campaign: Campaign) -> Journal
 
 def _discard_new_journal(path: Path) -> None:
     """Remove a journal (and its side files) that a run created but never started on."""
+    from core.journal import lock_path_for
 
     for p in (path, Path(f"{path}-wal"), Path(f"{path}-shm"), notify_path_for(path), lock_path_for(path)):
         with contextlib.suppress(FileNotFoundError):
@@ -206,6 +207,8 @@ def resumed_spec(path: Path, speed: float | None = None, supervision: str | None
     """The spec a journal keeps, as a resume runs it (its supervision as the run last had it, unless
     ``supervision`` says otherwise; ``speed`` overrides the stored one); None when the run already finished.
     A journal written before the spec is read as the spec it describes."""
+    from core.journal import JournalReader
+    from core.run.spec import run_spec_from_meta
 
     with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
         meta = reader.meta
@@ -244,6 +247,13 @@ def run_engine(
     The spec's alerts (or ``notify``) go out from a thread beside the engine; a new run keeps them beside its
     journal, owner-only, for ``aeni resume``. ``watch`` (a foreground run with alerts): a supervisor beside
     this process journals and alerts its death, which this process cannot (kill -9)."""
+    from aeni_console.alerts import AlertWatcher
+    from aeni_console.cli.supervisor import watch_foreground
+    from core.journal import Journal
+    from core.run.compose import Hosting, compose
+    from core.run.spec import RunSpec
+    from core.runconfig import run_spec
+    from drivers.registry import DRIVERS
 
     _prepare_process()
     path = Path(journal_path)
@@ -327,6 +337,8 @@ def preflight_resume(path: Path, speed: float | None) -> RunSpec | None:
     """What a resumed engine checks first, done before detaching so a refusal is an exit 2 and not a line in
     the log of a process that died: the journal, its spec and sample, the driver (a KLA run's exchange
     folder). The spec to resume with; None when the run already finished (nothing to start)."""
+    from core.campaign import Campaign
+    from drivers.registry import DRIVERS
 
     spec = resumed_spec(path, speed)
     if spec is None:

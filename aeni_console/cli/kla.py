@@ -21,19 +21,11 @@ from aeni_console.files import input_file, write_atomic
 from core.cost import block_steps
 from core.errors import InputError
 from core.profile import load_profile
-from core.sample import load_sample
-from core.sample.tray import parse_tray
-from drivers.kla.array_run import ArrayRun
 from drivers.kla.exchange import ExchangeFolder, check_block, check_exchange_dir, make_ticket, ticket_text
-from drivers.kla.export import read_kla_exports, records
-from drivers.kla.fake_inview import FakeInView, parse_fault
-from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
-from drivers.registry import sim_scenario
-from drivers.sim.scenarios import make_scenario
-from drivers.sim.tray import TraySimDriver, make_tray_driver
 
 if TYPE_CHECKING:
     from drivers.kla.export import KlaExport
+    from drivers.sim.tray import TraySimDriver
 
 
 def register(subparsers: Any) -> None:
@@ -146,6 +138,8 @@ def register(subparsers: Any) -> None:
 
 
 def _read(args: argparse.Namespace) -> int:
+    # imported here, not at the top: the export readers pull pandas and scipy; `aeni --help` must start fast
+    from drivers.kla.export import read_kla_exports, records
 
     sources = [Path(f) if Path(f).is_dir() else input_file(f, "export file") for f in args.file]
     export = read_kla_exports(sources)
@@ -205,6 +199,9 @@ def format_table(export: KlaExport) -> str:
 
 
 def _fake_inview(args: argparse.Namespace) -> int:
+    from core.sample import load_sample
+    from drivers.kla.fake_inview import FakeInView, parse_fault
+    from drivers.sim.scenarios import make_scenario
 
     check_exchange_dir(args.exchange)
     if not 0.0 <= args.invalid_rate <= 1.0:
@@ -255,6 +252,10 @@ def _fake_inview(args: argparse.Namespace) -> int:
 def _fake_tray(args: argparse.Namespace) -> tuple[Callable[[], TraySimDriver], str]:
     """The simulated tray a fake InView runs (the run's tray file and seed), and its first library's profile
     (the InView settings, unless --profile names them)."""
+    from core.sample.tray import parse_tray
+    from drivers.registry import sim_scenario
+    from drivers.sim.tray import make_tray_driver
+
     for flag, value in (("--sample", args.sample), ("--noise", args.noise), ("--drift", args.drift)):
         if value is not None:
             raise InputError(
@@ -273,6 +274,8 @@ def _fake_tray(args: argparse.Namespace) -> tuple[Callable[[], TraySimDriver], s
 
 
 def _check(args: argparse.Namespace) -> int:
+    from drivers.kla.array_run import ArrayRun
+    from drivers.kla.inbox import MATCHED_BY_ORDER, ExportArchive, InboxWatcher
 
     profile = load_profile(args.profile)
     profile.check_stage_mm(args.x_mm, "--x-mm")

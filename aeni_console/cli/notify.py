@@ -5,14 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from aeni_console.alerts import Severity, send
 from aeni_console.cli.run import resolve_run
 from core.errors import InputError
 from core.notifyconfig import load_run_notify, notify_path_for
-from core.runconfig import load_run_config
 
 
 def _cmd_test(args: argparse.Namespace) -> int:
+    # imported here, not at the top: alerts and the run file's reader pull torch; `aeni --help` must start fast
+    from aeni_console.alerts import Severity, send
+    from core.runconfig import load_run_config
 
     target = Path(args.target)
     if target.suffix == ".toml":

@@ -7,10 +7,6 @@ from pathlib import Path
 from typing import Any
 
 from aeni_console.cli.run import resolve_run
-from aeni_console.reports.run import write_report
-from aeni_console.reports.tray import write_tray_report
-from core.journal import JournalReader
-from core.run.tray_view import journal_tray
 
 
 def default_out(journal: Path) -> Path:
@@ -19,6 +15,11 @@ def default_out(journal: Path) -> Path:
 
 
 def _handler(args: argparse.Namespace) -> int:
+    # imported here, not at the top: the reports and the journal pull torch; `aeni --help` must start fast
+    from aeni_console.reports.run import write_report
+    from aeni_console.reports.tray import write_tray_report
+    from core.journal import JournalReader
+    from core.run.tray_view import journal_tray
 
     path = resolve_run(args.run)
     out = args.out if args.out is not None else default_out(path)

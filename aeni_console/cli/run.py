@@ -17,7 +17,7 @@ import sys
 import time
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aeni_console.cli.common import check_new_journal, positive_float, whole_number
 from aeni_console.cli.host import (  # re-exported: the engine host's entry points
@@ -29,19 +29,13 @@ from aeni_console.cli.host import (  # re-exported: the engine host's entry poin
 )
 from aeni_console.cli.tray import tray_spec
 from aeni_console.files import check_out_folder
-from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps, tray_final_maps
 from core.errors import InputError
-from core.journal import JournalReader, default_journal_path, engine_running, send_command
 from core.operator import parse_when
 from core.profile import load_profile
-from core.run.spec import RunSpec
-from core.run.tray_view import journal_tray, progress_line, tray_progress
-from core.runconfig import load_run_config
-from core.runview import Command, CommandKind, EngineState
-from core.settings import SUPERVISION_MODES, check_adjust, check_hold_in_force, check_veto
-from drivers.kla.driver import archive_dir_for
-from drivers.kla.inbox import ExportArchive
-from drivers.registry import default_sample
+from core.run.machine import SUPERVISION_MODES, CommandKind, EngineState
+
+if TYPE_CHECKING:
+    from core.run.spec import RunSpec
 
 __all__ = ["engine_argv", "launch_engine", "preflight_resume", "run_engine", "start_engine_process"]
 
@@ -90,6 +84,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: the run's spec and journal pull torch; `aeni --help` must start fast
+    from core.journal import default_journal_path
+    from core.run.spec import RunSpec
+    from core.runconfig import load_run_config
 
     if args.spec_stdin:  # an engine started by launch_engine: its RunSpec comes on stdin
         if not args.journal:
@@ -122,6 +120,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def check_fast_mode(spec: RunSpec) -> None:
     """A fast run on a profile without a fast mode is refused here, before a detached engine starts (the campaign
     refuses it too, in the engine, with the same words; a detached start would leave its log behind)."""
+    from drivers.registry import default_sample
+
     c = spec.campaign
     if not spec.fast or spec.tray is not None or (c.sample is None and spec.driver != "sim"):
         return
@@ -133,6 +133,7 @@ def check_fast_mode(spec: RunSpec) -> None:
 
 def check_not_stopped(path: Path, anyway: bool) -> None:
     """A run the operator aborted or stopped is not resumed by accident: only with ``--continue``."""
+    from core.journal import JournalReader
 
     with JournalReader(path) as reader:  # refuses a bad journal before anything opens it for writing
         row = reader.q.engine_row()
@@ -159,6 +160,7 @@ def with_resume_flags(spec: RunSpec, args: argparse.Namespace) -> RunSpec:
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
+    from core.journal import engine_running
 
     path = resolve_run(args.run)
     if engine_running(path):
@@ -186,6 +188,7 @@ def _fmt_s(v: float | None) -> str:
 
 
 def status_line(path: str | Path) -> str:
+    from core.journal import JournalReader
 
     with JournalReader(path) as r:
         s = r.snapshot()
@@ -213,6 +216,9 @@ def status_line(path: str | Path) -> str:
 
 def tray_lines(path: str | Path) -> list[str]:
     """A line per sample of a tray run (none for a single-sample run)."""
+    from core.journal import JournalReader
+    from core.run.tray_view import journal_tray, progress_line, tray_progress
+
     with JournalReader(path) as r:
         tray = journal_tray(r.meta)
         if tray is None:
@@ -230,6 +236,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from core.journal import JournalReader
 
     path = resolve_run(args.run)
     with JournalReader(path) as r:
@@ -289,6 +296,8 @@ def _replay_line(rec: Any) -> str:
 
 def _export_files(journal: Path, indents: Any) -> list[str]:
     """Each indent's instrument export (a KLA run's archive beside the journal); '' for a simulated run."""
+    from drivers.kla.driver import archive_dir_for
+    from drivers.kla.inbox import ExportArchive
 
     folder = archive_dir_for(journal)
     if not (folder / "manifest.jsonl").is_file():
@@ -304,6 +313,10 @@ def export_run(path: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[
     commands, ledger, gp_snapshots, events, sessions and predictions (both maps' final means and sds, and H/E);
     fast_bias, the fast channel's learnt bias H_csm − H_fast on the same points, where the run has one."""
     import pandas as pd
+
+    from aeni_console.reports.finalmaps import FINAL_MAP_COLUMNS, final_maps, tray_final_maps
+    from core.journal import JournalReader
+    from core.run.tray_view import journal_tray
 
     if fmt not in ("csv", "parquet"):
         raise InputError("--format", f"{fmt!r} is not allowed: expected csv or parquet")
@@ -471,6 +484,9 @@ _INSTRUMENT_REPORTS: dict[str, tuple[str, ...]] = {
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
+    from core.journal import JournalReader, send_command
+    from core.runview import Command
+    from core.settings import check_adjust, check_hold_in_force, check_veto
 
     path = resolve_run(args.run)
     payload: dict[str, Any] = {}
@@ -531,6 +547,7 @@ def wait_for_verdict(
     path: Path, command_id: int, wait_s: float, poll_s: float = 0.05
 ) -> tuple[str, str] | None:
     """The engine's (outcome, reason) for a queued command, or None when it has not answered within wait_s."""
+    from core.journal import JournalReader
 
     deadline = time.monotonic() + wait_s
     with JournalReader(path) as reader:

@@ -14,9 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from aeni_console.cli.common import dumps
-from aeni_console.cli.supervisor import supervisor_pid
 from core.errors import InputError
-from core.journal import JournalReader, engine_running, user_name
 
 
 @dataclass(frozen=True)
@@ -48,6 +46,9 @@ def _seconds_since(utc: str | None, now: float) -> float | None:
 
 def run_row(path: Path, now: float | None = None) -> RunRow:
     """Read one journal read-only; an unreadable one becomes a row naming the problem."""
+    # imported here, not at the top: the journal pulls torch, and `aeni --help` must start fast
+    from aeni_console.cli.supervisor import supervisor_pid
+    from core.journal import JournalReader, engine_running, user_name
 
     now = time.time() if now is None else now
     alive = engine_running(path)

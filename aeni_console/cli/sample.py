@@ -10,13 +10,13 @@ from typing import Any
 import numpy as np
 
 from aeni_console.files import write_new_file
-from core.geometry import CandidateLattice
-from core.policies.base import DEFAULT_PITCH_UM
 from core.profile import load_profile
-from core.sample import SAMPLE_TEMPLATE, CircleExclusion, grid_baseline_s, load_sample
 
 
 def _cmd_new(args: argparse.Namespace) -> int:
+    # imported here, not at the top: the sample's geometry pulls scipy; `aeni --help` must start fast
+    from core.sample import SAMPLE_TEMPLATE
+
     path = write_new_file(args.file, SAMPLE_TEMPLATE, force=args.force)
     print(f"wrote {path}: edit the corners, safety distances and exclusions, then `aeni sample check {path}`")
     return 0
@@ -24,6 +24,8 @@ def _cmd_new(args: argparse.Namespace) -> int:
 
 def allowed_lattice(sample: Any) -> tuple[np.ndarray, np.ndarray]:
     """The campaign's candidate lattice (stage µm) and which centres a run may use on this sample."""
+    from core.geometry import CandidateLattice
+    from core.policies.base import DEFAULT_PITCH_UM
 
     h = 2 * DEFAULT_PITCH_UM
     lattice = CandidateLattice.build(sample.calibration, sample.lattice_n, grid_halfwidth_um=h)
@@ -32,6 +34,8 @@ def allowed_lattice(sample: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def sample_facts(sample: Any) -> list[str]:
     """The lines ``aeni sample check`` prints: what the file says and what it implies."""
+    from core.policies.base import DEFAULT_PITCH_UM
+    from core.sample import grid_baseline_s
 
     cal = sample.calibration
     profile = load_profile(sample.profile)
@@ -65,6 +69,8 @@ def _outline(points: np.ndarray) -> tuple[list[float], list[float]]:
 def draw_sample(sample: Any, width: int = 100, height: int = 32, color: bool = True) -> str:
     """The outline, exclusions, earlier indents and allowed lattice in stage µm, x reversed per the profile."""
     import plotext as plt
+
+    from core.sample import CircleExclusion
 
     profile = load_profile(sample.profile)
     flip = -1.0 if profile.reverse_x else 1.0
@@ -115,6 +121,7 @@ def draw_sample(sample: Any, width: int = 100, height: int = 32, color: bool = T
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
+    from core.sample import load_sample
 
     sample = load_sample(args.file)
     print(f"{args.file}: valid")

@@ -6,11 +6,12 @@ import argparse
 from typing import Any
 
 from aeni_console.cli.common import dumps
-from drivers.sim.scenarios import SCENARIOS
 
 
 def scenario_table() -> list[dict[str, str]]:
     """Every scenario name with its one-line description, in the registry's order."""
+    # imported here, not at the top: the emulator pulls scipy, and `aeni --help` must start fast
+    from drivers.sim.scenarios import SCENARIOS
 
     return [{"name": name, "description": text} for name, text in SCENARIOS.items()]
 

@@ -18,20 +18,11 @@ from aeni_console.cli.common import (
     positive_float,
     seed_arg,
 )
-from core.campaign import Campaign
-from core.policies.registry import RECOMMENDED, policy_names
-from core.run.events import Observed, RunEvent
-from core.run.headless import RunTally, run_headless
-from core.run.spec import RunSpec
-from core.runconfig import make_campaign_config
-from core.sample import load_sample
-from core.settings import settings_to_dict
-from drivers.registry import DRIVERS
-from drivers.sim.emulator import field_extrema
-from drivers.sim.evaluator import TruthEvaluator
+from core.policies.names import RECOMMENDED, policy_names
 
 if TYPE_CHECKING:
-    from core.run.events import Sink
+    from core.campaign import Campaign
+    from core.run.events import RunEvent, Sink
     from core.visits import OperatorCalendar
 
 NOISE_CHOICES = ("hetero", "homo", "10pct")
@@ -73,6 +64,17 @@ def run_simulation(
     With a ``calendar`` a simulated operator loads the blocks, and the run reports its wall clock and visits.
     ``fast``: the plan prices the profile's fast arrays beside its CSM blocks (the policy's ``+fast``).
     """
+    # imported here, not at the top: the campaign pulls torch; `aeni --help` must start fast
+    from core.run.events import Observed
+    from core.run.headless import RunTally, run_headless
+    from core.run.spec import RunSpec
+    from core.runconfig import make_campaign_config
+    from core.sample import load_sample
+    from core.settings import settings_to_dict
+    from drivers.registry import DRIVERS
+    from drivers.sim.emulator import field_extrema
+    from drivers.sim.evaluator import TruthEvaluator
+
     config = make_campaign_config(
         scenario="csv" if truth else scenario,
         noise=noise,

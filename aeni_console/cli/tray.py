@@ -7,35 +7,26 @@ import argparse
 import dataclasses
 import itertools
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aeni_console.files import write_new_file
-from core.campaign import CampaignConfig
 from core.errors import InputError
 from core.profile import load_profile
-from core.run.spec import RunSpec
-from core.run.tray import tray_profiles
-from core.sample import Sample
-from core.sample.tray import (
-    TRAY_TEMPLATE,
-    Tray,
-    TraySample,
-    centre_um,
-    draw_tray,
-    layout_problems,
-    parse_tray,
-    read_tray,
-    visit_order,
-)
-from core.sample_change import change_s, travel_s
-from drivers.kla.tray import KlaTray
-from drivers.registry import KLA_OPTIONS, default_sample
+
+if TYPE_CHECKING:
+    from core.run.spec import RunSpec
+    from core.sample import Sample
+    from core.sample.tray import Tray, TraySample
 
 
 def tray_spec(spec: RunSpec, path: str, tip_wear_pct_per_h: float | None = None) -> RunSpec:
     """``aeni run --tray``: the run's spec over the tray in ``path`` (its policy, seed, lattice and settings
     for every library; the driver's options are the tray's own, e.g. the simulated tip's wear, and the KLA
     driver's exchange folder)."""
+    # imported here, not at the top: the tray's samples and drivers pull torch; `aeni --help` must start fast
+    from core.sample.tray import parse_tray
+    from drivers.registry import KLA_OPTIONS
+
     tray = parse_tray(path)
     if spec.campaign.sample is not None:
         raise InputError("--sample", "a tray names its samples itself: leave out --sample with --tray")
@@ -56,6 +47,8 @@ def tray_spec(spec: RunSpec, path: str, tip_wear_pct_per_h: float | None = None)
 
 
 def _cmd_new(args: argparse.Namespace) -> int:
+    from core.sample.tray import TRAY_TEMPLATE
+
     path = write_new_file(args.file, TRAY_TEMPLATE, force=args.force)
     print(f"wrote {path}: point each sample at its sample file and goal, then `aeni tray check {path}`")
     return 0
@@ -63,6 +56,7 @@ def _cmd_new(args: argparse.Namespace) -> int:
 
 def sim_builtin(seed: int = 0) -> Any:
     """The sim driver's own sample for a tray entry that names a scenario (or truth CSV) and no file."""
+    from drivers.registry import default_sample
 
     def builtin(entry: TraySample) -> Sample:
         if not entry.sim:
@@ -74,6 +68,11 @@ def sim_builtin(seed: int = 0) -> Any:
 
 def resolve_tray(tray: Tray, driver: str, seed: int = 0) -> tuple[Tray, list[str]]:
     """The tray with the sim driver's built-in samples placed (``driver`` sim), and the problems left."""
+    from core.campaign import CampaignConfig
+    from core.run.tray import tray_profiles
+    from core.sample.tray import layout_problems
+    from drivers.kla.tray import KlaTray
+
     problems: list[str] = []
     if driver == "sim":
         try:
@@ -96,6 +95,9 @@ def resolve_tray(tray: Tray, driver: str, seed: int = 0) -> tuple[Tray, list[str
 def move_lines(tray: Tray) -> list[str]:
     """The moves between samples in the order they are first visited, each priced from its target's profile
     (travel lifted, then the new surface's find and settle beyond a block's own overhead)."""
+    from core.sample.tray import centre_um, visit_order
+    from core.sample_change import change_s, travel_s
+
     out = []
     order = visit_order(tray)
     for a, b in itertools.pairwise(order):
@@ -122,6 +124,8 @@ def _goal_text(s: TraySample) -> str:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
+    from core.sample.tray import draw_tray, read_tray
+
     tray, problems = read_tray(args.file)
     if tray is not None and not problems:
         tray, problems = resolve_tray(tray, args.driver)

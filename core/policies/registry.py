@@ -1,4 +1,5 @@
-"""Policies by name: the one table the CLI, the run file, the console, the bench and its report read.
+"""Policies by name: the one table the CLI, the run file, the console, the bench and its report read (the
+names and their descriptions alone are :mod:`core.policies.names`, light enough for ``aeni --help``).
 
 ``aeni`` is the recommended policy and the default everywhere. The paper's policies stay as references, each
 idea measurable against the one before it (``adaptive-grid`` and ``meta-grid`` against ``uncertainty``,
@@ -33,6 +34,7 @@ from core.policies.fidelity import FastArrays, TwoFidelityPlanner
 from core.policies.grid import GridPolicy
 from core.policies.guard import CollapseGuard
 from core.policies.hold import HoldRule
+from core.policies.names import POLICY_DESCRIPTIONS, RECOMMENDED, policy_names
 from core.policies.noise import NoiseModel
 from core.policies.parts import PolicyParts
 from core.policies.planner import BayesPlanner
@@ -41,22 +43,6 @@ from core.policies.scattered import ScatteredPlanner
 if TYPE_CHECKING:
     from core.policies.base import Policy
     from core.profile import InstrumentProfile
-
-RECOMMENDED = "aeni"
-
-POLICY_DESCRIPTIONS: dict[str, str] = {
-    "aeni": "recommended: space-filling start, then scattered single indents placed where the map is least "
-    "known (weighted to its structure), blocks ordered for travel, Student-t noise, drift-aware hold; reads "
-    "the run: stretches to the operator's next visit with a calendar, programs priced over their life where "
-    "the profile's program change is dear",
-    "grid": "fixed 9×9 blocks of 5×5 (the paper's baseline)",
-    "uncertainty": "jump to the highest-σ centre after every block, fixed 5×5, cost ignored",
-    "cost-aware": "σ/cost with staying engaged priced against a global jump, fixed 5×5",
-    "adaptive-grid": "σ/cost, a new program every block, grid size 2×2…5×5 from the noise and the target SEM",
-    "meta-grid": "adaptive grid + sub-grids ≤ 500 µm apart in the safe band, stay-vs-jump after each",
-    "adaptive-hold": "cost-aware with a drift-aware 5 s / 80 s hold and the g²·(80 − 5) switch rule",
-    "aeni-paper": "the paper's real-film workflow: seeds, exploratory phase, meta-grid, adaptive grid and hold",
-}
 
 BENDS_WEIGHT = 1.0  # aeni+bends: curvature weight (core.policies.bends), measured in docs/benchmarks.md
 _PAPER_GRID = ReplicateGrid(adaptive_grid=True, local_hop_um=500.0, exploratory_iterations=4)
@@ -226,11 +212,6 @@ def _ivr(parts: PolicyParts, **changes: object) -> PolicyParts:
             "--policy", "this modifier changes variance reduction, and the base ranks by another"
         )
     return replace(parts, acquisition=CostWeighted(replace(acq.base, **changes)))  # type: ignore[arg-type]
-
-
-def policy_names() -> tuple[str, ...]:
-    """The policies a user chooses from: the recommended one first, then the paper's references."""
-    return tuple(POLICY_DESCRIPTIONS)
 
 
 def describe(name: str) -> str:

@@ -56,6 +56,10 @@ class Trigger(StrEnum):
     FAIL = "fail"
 
 
+# when a block waits for the operator (Trigger.ASK): auto only for one the interlock refuses, supervised also
+# at a global jump or a collapse alarm, step before every block (the engine's _approval_reason)
+SUPERVISION_MODES: tuple[str, ...] = ("auto", "supervised", "step")
+
 S, T = EngineState, Trigger
 RETURN = "return"  # RESUME's target: the state the run was paused from
 

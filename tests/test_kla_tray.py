@@ -35,7 +35,7 @@ from core.sample_change import change_s
 from drivers.kla.array_run import ArrayEnd
 from drivers.kla.driver import KlaDriver
 from drivers.kla.exchange import Ticket, make_ticket, ticket_panel, ticket_text
-from drivers.kla.fake_inview import Fault, FakeInView, parse_fault
+from drivers.kla.fake_inview import FakeInView, Fault, parse_fault
 from drivers.kla.inbox import SiteOutcome
 from drivers.kla.tray import KlaTray
 from drivers.registry import DRIVERS, sim_scenario

@@ -67,9 +67,10 @@ def test_both_maps_learn_from_the_same_indents_and_failed_values_stay_out_of_bot
     assert c.modulus_map.centres[-1].value_gpa == pytest.approx(with_e.modulus_gpa)
 
 
-def test_the_planner_weighs_each_maps_progress_against_its_own_error() -> None:
-    """With both weights a candidate's gain is Σ weight · log(V / (V − reduction)) over the maps, V each
-    map's mean relative error variance; the V the greedy picks use up is what the design has left."""
+def test_the_planner_weighs_what_each_pick_takes_off_the_sum_of_the_maps_errors() -> None:
+    """With both weights a candidate's gain is Σ weight · (√V − √(V − reduction)) over the maps, V each
+    map's mean relative error variance (what a pick takes off the sum of the maps' RMS relative errors);
+    the V the greedy picks use up is what the design has left."""
     c = _campaign(MapWeights(1.0, 1.0))
     _run_blocks(c, 4)
     ctx = c.context(0.0, c.start_position_um(), False, 5)
@@ -87,12 +88,12 @@ def test_the_planner_weighs_each_maps_progress_against_its_own_error() -> None:
     modulus_only = ivr(0.0, 1.0).gains()
     both = ivr(1.0, 1.0)
     v_h, v_e = both.remaining
-    assert np.allclose(both.gains(), np.log(v_h / (v_h - hardness_only)) + np.log(v_e / (v_e - modulus_only)))
-    assert np.allclose(
-        ivr(2.0, 0.5).gains(),
-        2.0 * np.log(v_h / (v_h - hardness_only)) + 0.5 * np.log(v_e / (v_e - modulus_only)),
-    )
-    # scale-free: a modulus map with twice the error everywhere (noise and prior) is ranked the same
+    def off(v: float, reduction: np.ndarray) -> np.ndarray:
+        return np.sqrt(v) - np.sqrt(v - reduction)
+
+    assert np.allclose(both.gains(), off(v_h, hardness_only) + off(v_e, modulus_only))
+    assert np.allclose(ivr(2.0, 0.5).gains(), 2.0 * off(v_h, hardness_only) + 0.5 * off(v_e, modulus_only))
+    # relative: a modulus map with twice the error everywhere (noise and prior) counts twice as much
     m = ctx.modulus
     noisier = dataclasses.replace(
         m,
@@ -102,7 +103,7 @@ def test_the_planner_weighs_each_maps_progress_against_its_own_error() -> None:
         ),
         tested_noise_var_gpa2=4.0 * m.tested_noise_var_gpa2,
     )
-    assert np.allclose(ivr(1.0, 1.0, noisier).gains(), both.gains())
+    assert np.allclose(ivr(1.0, 1.0, noisier).gains(), off(v_h, hardness_only) + 2.0 * off(v_e, modulus_only))
     # the V a pick leaves is the error variance of the design with that pick added (y-free), per map
     j = int(np.argmax(both.gains()))
     before = both.gains()[j]

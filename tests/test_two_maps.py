@@ -88,6 +88,7 @@ def test_the_planner_weighs_what_each_pick_takes_off_the_sum_of_the_maps_errors(
     modulus_only = ivr(0.0, 1.0).gains()
     both = ivr(1.0, 1.0)
     v_h, v_e = both.remaining
+
     def off(v: float, reduction: np.ndarray) -> np.ndarray:
         return np.sqrt(v) - np.sqrt(v - reduction)
 

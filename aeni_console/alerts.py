@@ -125,6 +125,7 @@ class _Seen:
     progress_at: float = 0.0  # monotonic time of the last sign of life while waiting for the instrument
     results: int = 0
     refused: bool = False  # the last news is a refused export, and nothing has moved since
+    asked_id: int = 0  # the last decision that needed approval and has been told (or was never asked)
 
 
 class AlertWatcher:
@@ -176,6 +177,18 @@ class AlertWatcher:
             self._stop.wait(self.poll_s)
 
     # -- one look -------------------------------------------------------------------------------------
+    def _asked(self, asks: list[tuple[int, str]], state: str) -> bool:
+        """Whether a decision was put to someone since the last look: read from the decisions table, not from
+        the engine's state, so an approval that timed out between two looks (a 1 s timeout, a slow poll) is
+        told too. A decision the engine refused itself (auto supervision) was never put to anyone."""
+        told = False
+        for decision_id, by in asks:
+            if not by and state != "awaiting-approval":
+                break  # still open, and nobody is asked yet: look again next time
+            self._seen.asked_id = decision_id
+            told |= by != "engine"
+        return told
+
     def check(self) -> None:
         conn = sqlite3.connect(f"file:{self.journal}?mode=ro", uri=True, timeout=5.0)
         try:
@@ -185,6 +198,11 @@ class AlertWatcher:
                 (self._seen.event_id,),
             ).fetchall()
             (results,) = conn.execute("SELECT COUNT(*) FROM indents").fetchone()
+            asks = conn.execute(
+                "SELECT decision_id, COALESCE(resolved_by, '') FROM decisions "
+                "WHERE needs_approval_reason != '' AND decision_id > ? ORDER BY decision_id",
+                (self._seen.asked_id,),
+            ).fetchall()
         finally:
             conn.close()
         now = self.clock()
@@ -194,6 +212,7 @@ class AlertWatcher:
             self._started = True
             seen.state, seen.results = state, results
             seen.event_id = rows[-1][0] if rows else 0
+            seen.asked_id = asks[-1][0] if asks else 0
             seen.progress_at = now
             return
         if rows or results != seen.results or state != seen.state:
@@ -209,10 +228,10 @@ class AlertWatcher:
                 # the refusal says why nothing moves: no "has not answered" on top while the corrected export
                 # is awaited (it would repeat every silence, and say less)
                 seen.refused = True
+        if self._asked(asks, state):
+            self._alert("approval", f"{self.journal.name}: a decision waits for approval")
         if state != seen.state:
-            if state == "awaiting-approval":
-                self._alert("approval", f"{self.journal.name}: a decision waits for approval")
-            elif state == "stopped":
+            if state == "stopped":
                 # a run that ended on refusals or a timeout is news someone must act on, not just news
                 bad_end = any(w in (reason or "").lower() for w in ("refus", "timed out", "interlock"))
                 self._alert(

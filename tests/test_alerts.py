@@ -199,6 +199,28 @@ def test_a_supervised_run_nobody_answers_goes_on_after_the_timeout_and_alerts(
     assert any("run ended" in b for b in bodies), bodies
 
 
+def test_an_approval_that_timed_out_between_two_looks_is_still_told(
+    receiver: Receiver, tmp_path: Path
+) -> None:
+    """The watcher reads who was asked from the decisions table, not from the engine's state: a look that
+    comes after a 1 s approval timed out (a loaded machine) still sends "waits for approval"."""
+    from aeni_console.cli.run import run_engine
+
+    cfg = make_campaign_config("late", policy="cost-aware", lattice_n=30, settings={"indent_budget": 30})
+    path = tmp_path / "late.sqlite"
+    opts = RunOptions(supervision="supervised", approval_timeout_s=1.0, on_timeout="approve")
+    assert run_engine(path, create=(cfg, opts), quiet=True) == 0  # no watcher while it ran
+    w = AlertWatcher(path, NotifyConfig(urls=(receiver.url,)))
+    w._started = True  # its first look is now, after every approval timed out and the run stopped
+    w.check()
+    _wait(lambda: any("run ended" in b for b in receiver.bodies()))
+    bodies = receiver.bodies()
+    assert sum("waits for approval" in b for b in bodies) == 1, bodies  # told once for the look
+    w.check()  # nothing new: nothing told again
+    time.sleep(0.5)
+    assert sum("waits for approval" in b for b in receiver.bodies()) == 1
+
+
 def test_every_alert_carries_apprises_severity_and_names_its_cause(
     receiver: Receiver, tmp_path: Path
 ) -> None:

@@ -40,7 +40,7 @@ from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
 from core.sample.tray import Goal, Tray, TraySample
 from core.sample_change import change_s
-from core.taken import taken_xy_um
+from core.taken import is_taken, taken_xy_um
 from core.tipcheck import TipCheck, check_block, check_grid_g, judge
 
 if TYPE_CHECKING:
@@ -492,7 +492,7 @@ class TrayCampaign:
     # -- learning -------------------------------------------------------------------------------------
     def observe_block(self, block: Block, results: Sequence[IndentResult]) -> Any:
         name = self._owner.pop(block.block_id, None) or self._name_at(block)
-        if any(r.status != "not_run" for r in results):
+        if any(is_taken(r.status) for r in results):
             # a block of which nothing ran (its surface not found, no export by the deadline) leaves the tip
             # where it was, as the drivers charge it: no change paid, so the next block there pays it
             if self._on is not None and name != self._on:

@@ -25,7 +25,7 @@ def main() -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args()
 
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.run.events import Observed, RunEvent
     from core.run.headless import run_headless
     from core.run.spec import RunSpec

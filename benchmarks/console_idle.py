@@ -87,7 +87,7 @@ def main() -> int:
         return child(*args.child)
 
     from aeni_console.cli.run import start_engine_process
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.journal import JournalReader, send_command
     from core.runview import Command, CommandKind, EngineState
 

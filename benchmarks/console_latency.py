@@ -186,7 +186,7 @@ def main() -> int:
         else:
             from aeni_console.cli.run import start_engine_process
             from aeni_console.console.journal_source import JournalSource
-            from core.campaign import CampaignConfig
+            from core.campaign_config import CampaignConfig
 
             journal = Path(tmp) / "bench.sqlite"
             proc = start_engine_process(CampaignConfig(name="bench", seed=0), journal, "auto", args.speed)

@@ -37,7 +37,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from core.campaign import Campaign, CampaignConfig  # noqa: E402
+from core.campaign import Campaign  # noqa: E402
+from core.campaign_config import CampaignConfig  # noqa: E402
 from core.cost import grid_baseline_blocks  # noqa: E402
 from core.estimators import CentreEstimator, centre_value, estimator_efficiency  # noqa: E402
 from core.metrics import mape_pct  # noqa: E402

@@ -33,7 +33,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from core.campaign import Campaign, CampaignConfig  # noqa: E402
+from core.campaign import Campaign  # noqa: E402
+from core.campaign_config import CampaignConfig  # noqa: E402
 from core.errors import InputError  # noqa: E402
 from core.geometry import Calibration, Corner  # noqa: E402
 from core.interlock import Interlock  # noqa: E402

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from core.campaign import CampaignConfig  # noqa: E402
+from core.campaign_config import CampaignConfig  # noqa: E402
 from core.operator import OperatorAvailability, OperatorHours  # noqa: E402
 from core.plan import PlannerSettings  # noqa: E402
 from core.run.headless import run_headless  # noqa: E402

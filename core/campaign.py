@@ -14,11 +14,12 @@ import functools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from core.campaign_config import CampaignConfig
 from core.cost import indent_steps
 from core.drift import drift_corrected_hardness_gpa, smoothed_drift_rates_nm_s
 from core.errors import InputError
@@ -38,15 +39,15 @@ from core.policies.base import (
     Policy,
     base_mask,
 )
-from core.policies.registry import RECOMMENDED, RunFacts, make_policy
+from core.policies.hold_settings import check_hold_in_force
+from core.policies.registry import RunFacts, make_policy
 from core.policies.stretch import renumbered
 from core.policies.variance import median_noise_var
 from core.profile import InstrumentProfile, load_profile
 from core.runview import MapFields
-from core.sample import Sample, check_avoided_centres, grid_baseline_s, sample_from_dict
+from core.sample import Sample, check_avoided_centres, grid_baseline_s
 from core.settings import (
     adjust_settings,
-    check_hold_in_force,
     check_holds,
     settings_from_dict,
     settings_to_dict,
@@ -56,53 +57,6 @@ from core.taken import taken_xy_um
 VETO_HOLD_BLOCKS = 3
 OUTLIER_REFIT_INFLATION = 4.0  # a value whose noise the outlier rule inflates this much is refitted at once
 DEFAULT_HORIZON_SLACK = 1.02  # the default time budget over the grid baseline's priced time
-
-
-@dataclass(frozen=True)
-class CampaignConfig:
-    """What defines a run (sample + policy + settings, and the driver's own options); stored in the journal.
-
-    ``sample`` None means "the driver's built-in sample" (a simulated scenario's); the run resolves it
-    before the journal is written, so a journal always holds the sample it ran on. ``driver_options`` are
-    for the driver alone (the simulated instrument's scenario, noise, drift, truth CSV); the campaign
-    never reads them.
-    """
-
-    policy: str = RECOMMENDED
-    seed: int = 0
-    profile: str | None = None
-    lattice_n: int | None = None
-    settings: PlannerSettings = field(default_factory=PlannerSettings)
-    name: str = "run"
-    sample: Sample | None = None
-    driver_options: dict[str, Any] = field(default_factory=dict)
-
-
-def campaign_config_to_dict(cfg: CampaignConfig) -> dict[str, Any]:
-    d = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
-    d["settings"] = settings_to_dict(cfg.settings)
-    d["sample"] = None if cfg.sample is None else cfg.sample.to_dict()
-    d["driver_options"] = dict(cfg.driver_options)
-    return d
-
-
-def campaign_config_from_dict(data: dict[str, Any]) -> CampaignConfig:
-    d = dict(data)
-    if "scenario" in d and "driver_options" not in d:
-        raise InputError(
-            "journal",
-            "written before runs had a sample (campaign config with an emulator scenario); "
-            "this version cannot resume it: start the run again",
-        )
-    known = {f.name for f in dataclasses.fields(CampaignConfig)}
-    unknown = sorted(set(d) - known)
-    if unknown:
-        raise InputError("campaign config", f"unknown field(s) {', '.join(unknown)}")
-    d["settings"] = settings_from_dict(d.get("settings", {}))
-    if d.get("sample") is not None:
-        d["sample"] = sample_from_dict(d["sample"], "journal sample")
-    d["driver_options"] = dict(d.get("driver_options") or {})
-    return CampaignConfig(**d)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from core.access import journal_gid
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.errors import InputError
 from core.notifyconfig import (
     DEFAULT_INSTRUMENT_SILENCE_S,
@@ -34,6 +34,7 @@ from core.notifyconfig import (
     make_notify_config,
 )
 from core.operator import OperatorAvailability, OperatorHours
+from core.policies.hold_settings import check_hold_in_force
 from core.policies.registry import policy_names, policy_parts
 from core.profile import BUILTIN_PROFILES
 from core.run.spec import EngineRules, RunSpec
@@ -41,14 +42,13 @@ from core.sample import check_avoided_centres, load_sample
 from core.settings import (
     ADJUSTABLE,
     SUPERVISION_MODES,
-    check_hold_in_force,
     coerce_setting,
     coerce_supervision,
     settings_from_dict,
 )
 
 if TYPE_CHECKING:
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.operator import OperatorAvailability
 
 __all__ = [

@@ -27,7 +27,7 @@ from aeni_console.cli.run import start_engine_process  # noqa: E402
 from aeni_console.console.app import ConsoleApp  # noqa: E402
 from aeni_console.console.journal_source import JournalSource  # noqa: E402
 from aeni_console.testkit.live import wait_until, widget_text  # noqa: E402
-from core.campaign import CampaignConfig  # noqa: E402
+from core.campaign_config import CampaignConfig  # noqa: E402
 from core.runview import EngineState  # noqa: E402
 
 SHOTS = (("waiting-for-instrument-80x24.svg", (80, 24)), ("waiting-for-instrument.svg", (100, 30)))

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from core.acquisition import ei, ucb, ue
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.geometry import edge_penalty
 from core.model import Prediction
 from core.plan import PlannerSettings

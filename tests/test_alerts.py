@@ -133,7 +133,7 @@ def test_the_detached_engine_gets_no_config_on_its_command_line(receiver: Receiv
 def test_a_silent_instrument_and_a_lost_exchange_folder_alert(receiver: Receiver, tmp_path: Path) -> None:
     """A KLA run whose ticket nobody runs: the silence alert; then the folder goes: its alert."""
     from aeni_console.cli.run import run_engine
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.journal import JournalReader, send_command
     from core.runview import Command, CommandKind
 
@@ -256,7 +256,7 @@ def test_a_refused_export_is_alerted_once_as_refused_not_as_a_silent_instrument(
     from dataclasses import replace
 
     from aeni_console.cli.run import run_engine
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.plan import PlannerSettings
     from core.profile import load_profile
     from drivers.kla.fake_inview import FakeInView, parse_fault

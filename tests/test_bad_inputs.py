@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from aeni_console.cli.main import main
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.plan import PlannerSettings
 
 DIR = object()  # a file spec that makes a folder

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.plan import IndentResult, PlannerSettings
 from core.policies.acquisition import CostWeighted, IntegratedVarianceReduction, LatticeSubset
 from core.policies.base import PlanContext

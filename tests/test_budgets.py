@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.plan import PlannerSettings
 from core.run.headless import run_auto
 from drivers.registry import default_sample, make_driver

@@ -7,12 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from core.campaign import (
-    Campaign,
-    CampaignConfig,
-    campaign_config_from_dict,
-    campaign_config_to_dict,
-)
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig, campaign_config_from_dict, campaign_config_to_dict
 from core.cost import block_costs_for
 from core.errors import InputError
 from core.plan import IndentResult, PlannerSettings, StepRecord

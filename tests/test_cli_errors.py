@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from aeni_console.cli.main import main
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.plan import PlannerSettings
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,7 +9,7 @@ import pytest
 
 from aeni_console.cli.main import main
 from aeni_console.cli.run import SEND_NO_VERDICT, SEND_REJECTED, start_engine_process, wait_for_verdict
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.journal import JournalReader
 from core.plan import PlannerSettings
 from core.runview import EngineState

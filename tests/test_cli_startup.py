@@ -38,3 +38,17 @@ def test_the_parser_and_every_command_help_build_without_torch_pandas_or_scipy()
     assert {"run", "simulate", "console", "bench", "kla"} <= helped.keys()
     assert all(helped.values()), helped  # every command printed its own usage
     assert seen["loaded"] == [], f"building the parser imported {seen['loaded']}"
+
+
+def test_the_journal_the_run_spec_and_the_settings_import_no_model() -> None:
+    """`aeni status`, `aeni export` and the alert watcher read a journal and a run spec: neither needs the
+    GP, so neither may pull torch in (the settings once did, through the policy registry, for one rule)."""
+    probe = (
+        "import json, sys; import core.journal, core.run.spec, core.settings, core.campaign_config; "
+        "print(json.dumps([m for m in ('torch', 'gpytorch', 'pandas', 'textual') if m in sys.modules]))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == []

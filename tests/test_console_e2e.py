@@ -26,7 +26,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture
 def engine(tmp_path: Path) -> Iterator[tuple[Path, subprocess.Popen[bytes]]]:
     from aeni_console.cli.run import start_engine_process
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
 
     journal = tmp_path / "e2e.sqlite"
     proc = start_engine_process(CampaignConfig(name="e2e", seed=3, lattice_n=30), journal, "supervised", None)

@@ -21,7 +21,8 @@ from aeni_console.console.heatmap import (
 )
 from aeni_console.console.widgets.ticket import ticket_renderable
 from aeni_console.testkit.live import CannedSource, LiveRun, settle, wait_until, widget_text
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.describe import block_words
 from core.driver import InstrumentWait
 from core.fast_array import FastArray, fast_block

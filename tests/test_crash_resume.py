@@ -187,7 +187,7 @@ def test_start_engine_process_for_the_demo_console(tmp_path: Path) -> None:
     import time
 
     from aeni_console.cli.run import start_engine_process
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.journal import send_command
     from core.plan import PlannerSettings
     from core.runview import Command, CommandKind, EngineState

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.drift import drift_corrected_hardness_gpa, typical_depth_nm
 from core.journal import DriverState, Journal, JournalReader
 from core.plan import Block, IndentResult, StepRecord, local_grid

@@ -15,7 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aeni_console.cli.main import main as cli_main
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.cost import block_costs_for, block_steps
 from core.fast_array import FastArray, fast_block, fast_block_cost_s, price_fast_array
 from core.fidelity import TwoFidelityView

@@ -32,7 +32,7 @@ FAST_PROFILE = (
 @pytest.fixture
 def kla_engine(tmp_path: Path) -> Iterator[tuple[Path, Path, Path]]:
     from aeni_console.cli.run import start_engine_process
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
 
     exchange = tmp_path / "exchange"
     exchange.mkdir()

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.plan import Block, IndentResult, local_grid
 from drivers.sim.scenarios import make_scenario
 

@@ -326,7 +326,7 @@ def test_resume_detach_refuses_at_once_when_the_exchange_folder_is_gone(
 
     from aeni_console.cli.main import main
     from aeni_console.cli.run import run_engine
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.journal import JournalReader, engine_running, send_command
     from core.runconfig import RunOptions
     from core.runview import Command, CommandKind

@@ -17,7 +17,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_kla_driver import PROFILE, SEED, driver, run_block, running_fake
 
-from core.campaign import Campaign, campaign_config_to_dict
+from core.campaign import Campaign
+from core.campaign_config import campaign_config_to_dict
 from core.fast_array import FastArray, fast_block, fast_block_cost_s
 from core.journal import Journal, JournalReader
 from core.plan import Block, Decision, IndentResult

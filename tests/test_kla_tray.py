@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from aeni_console.cli.host import create_run_journal, run_engine
 from aeni_console.cli.main import main as cli_main
 from aeni_console.cli.tray import resolve_tray, tray_spec
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.cost import indent_steps
 from core.journal import JournalReader
 from core.plan import Block, IndentResult, StepRecord, local_grid

@@ -8,7 +8,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.cost import block_costs_for, block_steps
 from core.errors import InputError
 from core.plan import Block, Decision, IndentResult, PlannerSettings, StepRecord

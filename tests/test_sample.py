@@ -260,7 +260,8 @@ def test_allowed_is_the_one_placement_rule_for_planners_the_check_and_the_map() 
     from dataclasses import replace as dc_replace
 
     from aeni_console.cli.sample import allowed_lattice
-    from core.campaign import Campaign, CampaignConfig
+    from core.campaign import Campaign
+    from core.campaign_config import CampaignConfig
     from core.policies.base import DEFAULT_PITCH_UM
 
     s = parse_sample(template(), "t")

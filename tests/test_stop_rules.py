@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.plan import IndentResult, PlannerSettings
 from core.runconfig import parse_run_config
 from drivers.registry import default_sample, make_driver

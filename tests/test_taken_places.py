@@ -61,7 +61,8 @@ def test_measured_failed_and_unverified_indents_take_their_place_and_not_run_one
 
 def test_a_failed_indent_keeps_the_planner_and_the_interlock_off_its_spot() -> None:
     """The stall of issue 23: a failed indent's spot was offered again by the planner, refused by the interlock."""
-    from core.campaign import Campaign, CampaignConfig
+    from core.campaign import Campaign
+    from core.campaign_config import CampaignConfig
 
     sample = real_looking_sample()
     campaign = Campaign(CampaignConfig(policy="aeni", seed=1, sample=sample))

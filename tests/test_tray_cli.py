@@ -16,7 +16,7 @@ from aeni_console.cli.tray import tray_spec
 from aeni_console.console.app import ConsoleApp
 from aeni_console.console.journal_source import JournalSource
 from aeni_console.testkit.live import settle, widget_text
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.driver import Driver
 from core.journal import JournalReader
 from core.operator import OperatorAvailability, OperatorHours

@@ -7,7 +7,7 @@ from datetime import datetime
 import numpy as np
 import pytest
 
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.operator import OperatorAvailability, OperatorHours
 from core.run.headless import run_headless
 from core.run.spec import RunSpec

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aeni_console.alerts import KINDS, Severity, event_kind
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.interlock_tray import TrayInterlock
 from core.operator import OperatorAvailability, OperatorHours
 from core.plan import STRETCH_CONTINUES, Block, local_grid

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.campaign import Campaign, CampaignConfig
+from core.campaign import Campaign
+from core.campaign_config import CampaignConfig
 from core.plan import IndentResult, MapWeights, PlannerSettings
 from core.policies.acquisition import IntegratedVarianceReduction, LatticeSubset
 from core.policies.base import ModulusView

@@ -33,7 +33,7 @@ from aeni_console.bench.catalogue import (
     BenchConfig,
     BenchScenario,
 )
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.errors import InputError
 from core.plan import Block, IndentResult
 from core.run.events import BlockStarted, Decided, Indent, Observed, RunEvent, Sink, Steps

@@ -165,7 +165,7 @@ def _print(line: str) -> None:
 def create_run_journal(path: Path, spec: RunSpec, campaign: Campaign) -> Journal:
     """A new journal for the run of ``spec`` (the engine process, and the console tests' engine): it keeps
     the spec (without its alert URLs) with the sample the campaign runs on."""
-    from core.campaign import campaign_config_to_dict
+    from core.campaign_config import campaign_config_to_dict
     from core.journal import Journal
 
     return Journal.create(

@@ -485,8 +485,9 @@ _INSTRUMENT_REPORTS: dict[str, tuple[str, ...]] = {
 
 def _cmd_send(args: argparse.Namespace) -> int:
     from core.journal import JournalReader, send_command
+    from core.policies.hold_settings import check_hold_in_force
     from core.runview import Command
-    from core.settings import check_adjust, check_hold_in_force, check_veto
+    from core.settings import check_adjust, check_veto
 
     path = resolve_run(args.run)
     payload: dict[str, Any] = {}

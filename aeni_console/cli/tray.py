@@ -68,7 +68,7 @@ def sim_builtin(seed: int = 0) -> Any:
 
 def resolve_tray(tray: Tray, driver: str, seed: int = 0) -> tuple[Tray, list[str]]:
     """The tray with the sim driver's built-in samples placed (``driver`` sim), and the problems left."""
-    from core.campaign import CampaignConfig
+    from core.campaign_config import CampaignConfig
     from core.run.tray import tray_profiles
     from core.sample.tray import layout_problems
     from drivers.kla.tray import KlaTray

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from core.campaign import Campaign, campaign_config_from_dict
+from core.campaign import Campaign
+from core.campaign_config import campaign_config_from_dict
 from core.journal import JournalReader
 from core.run.spec import run_spec_from_meta
 from core.run.tray import TrayCampaign

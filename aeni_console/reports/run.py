@@ -20,7 +20,7 @@ import numpy as np
 from aeni_console.files import check_out_folder, write_atomic
 from aeni_console.reports.fast import FastTally, fast_summary_lines, fast_tally
 from aeni_console.reports.finalmaps import final_maps
-from core.campaign import campaign_config_from_dict
+from core.campaign_config import campaign_config_from_dict
 from core.errors import InputError
 from core.journal import JournalReader
 from core.run.tray_view import journal_tray

@@ -20,7 +20,7 @@ import numpy as np
 from aeni_console.files import check_out_folder, write_atomic
 from aeni_console.reports.finalmaps import tray_final_maps
 from aeni_console.reports.run import RunData, _pyplot, read_run, render_report, report_head
-from core.campaign import campaign_config_to_dict
+from core.campaign_config import campaign_config_to_dict
 from core.errors import InputError
 from core.journal import JournalReader
 from core.run.spec import run_spec_from_meta

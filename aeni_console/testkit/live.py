@@ -25,7 +25,7 @@ from aeni_console.cli.host import create_run_journal
 from aeni_console.console.heatmap import marks_for
 from aeni_console.console.journal_source import JournalReplay, JournalSource
 from aeni_console.console.widgets.mapview import MapPanel
-from core.campaign import CampaignConfig
+from core.campaign_config import CampaignConfig
 from core.driver import DriverEvent
 from core.journal import JournalReader, reader, send_command, writer
 from core.plan import Block, IndentResult, IndentStatus, PlannerSettings

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from core.campaign import CampaignConfig, campaign_config_from_dict, campaign_config_to_dict
+from core.campaign_config import CampaignConfig, campaign_config_from_dict, campaign_config_to_dict
 from core.errors import InputError
 from core.notifyconfig import NotifyConfig
 from core.operator import OperatorAvailability, OperatorHours

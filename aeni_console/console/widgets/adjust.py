@@ -18,6 +18,7 @@ from textual.widgets import Button, Input, Label, Select, Static
 
 from core.errors import InputError
 from core.plan import PlannerSettings
+from core.policies.hold_settings import policy_hold
 from core.settings import (
     HOLD_POLICIES,
     RULE_BY_NAME,
@@ -26,7 +27,6 @@ from core.settings import (
     SettingRule,
     coerce_setting,
     coerce_supervision,
-    policy_hold,
 )
 
 # the text inputs, with core's labels, in core's order; the hold policy (a choice) is a Select

@@ -124,6 +124,9 @@ def test_fast_indents_teach_only_the_two_fidelity_model_and_the_bias_is_learnt()
     # the planner's context carries the model's view; after the fast data a CSM value is worth less
     ctx = campaign.context(10_000.0, (500.0, 500.0), False, 2)
     assert ctx.fidelity is not None and ctx.fidelity.mode == "two-fidelity"
+    # the array takes its places, but the design's rules count the CSM indents and programs alone
+    assert len(ctx.indents_xy_um) == 30 + campaign.fast.n and len(ctx.learnt_xy_um) == 30
+    assert ctx.globals_done == 1
 
 
 def _rates(campaign: Campaign) -> tuple[float, float]:

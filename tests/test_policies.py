@@ -578,7 +578,7 @@ def test_aeni_block_size_follows_what_opening_a_program_costs() -> None:
     """Block sizes 16–48 are priced against each other by gain per second: a program that is dear to open
     serves the most singles, one that costs nothing extra the fewest (a refit sooner)."""
     c, ctx = _context_after("aeni", blocks=5)
-    assert len(ctx.indents_xy_um) >= 64  # past the space-filling start: the model places the indents
+    assert len(ctx.learnt_xy_um) >= 64  # past the space-filling start: the model places the indents
     sizes = ScatteredSingles().block_sizes(100)
     assert sizes == (16, 32, 48) and ScatteredSingles().block_sizes(20) == (16, 20)
     # a block adds at most a quarter to the indents the model was fitted on
@@ -593,7 +593,7 @@ def test_aeni_block_size_follows_what_opening_a_program_costs() -> None:
     )
     assert cheap is not None and dear is not None
     assert cheap.block.kind == dear.block.kind == "global"
-    most = ScatteredSingles().block_sizes(10_000, len(ctx.indents_xy_um))[-1]
+    most = ScatteredSingles().block_sizes(10_000, len(ctx.learnt_xy_um))[-1]
     assert most > 16  # the context leaves room for a bigger block
     assert cheap.block.n_indents == 16 and dear.block.n_indents == most
     # the same posterior picks both: the dear block begins with the cheap one's singles
@@ -606,7 +606,7 @@ def test_aeni_space_filling_jump_opens_where_the_stay_would_not_reach() -> None:
     stay's picks, so the start spreads over programs (anchored on the earlier indents alone, it opened beside
     the engaged program's area, and the ternary reached twice the grid's MAPE later)."""
     c, ctx = _context_after("aeni", blocks=2)
-    assert ctx.program_open and len(ctx.indents_xy_um) < ScatteredSingles().space_filling_indents
+    assert ctx.program_open and len(ctx.learnt_xy_um) < ScatteredSingles().space_filling_indents
     stay = c.policy.propose(replace(ctx, profile=replace(ctx.profile, global_jump_s=1e7)))
     jump = c.policy.propose(replace(ctx, program_hold_s=1e5))  # the stay is on offer, but dear
     closed = c.policy.propose(replace(ctx, program_open=False))  # no stay: plain maximin
@@ -614,7 +614,7 @@ def test_aeni_space_filling_jump_opens_where_the_stay_would_not_reach() -> None:
     assert (stay.block.kind, jump.block.kind, closed.block.kind) == ("local", "global", "global")
     assert jump.phase == closed.phase == "explore"
     picks = np.array([(i.x_um, i.y_um) for i in stay.block.indents])
-    earlier = np.asarray(ctx.indents_xy_um)
+    earlier = np.asarray(ctx.learnt_xy_um)
 
     def gap(block: Block, points: np.ndarray) -> float:
         return float(np.min(np.hypot(points[:, 0] - block.center_x_um, points[:, 1] - block.center_y_um)))
@@ -622,6 +622,42 @@ def test_aeni_space_filling_jump_opens_where_the_stay_would_not_reach() -> None:
     both = np.vstack([earlier, picks])
     assert gap(closed.block, earlier) >= gap(jump.block, earlier)  # maximin on the earlier indents alone
     assert gap(jump.block, both) > gap(closed.block, both)  # but the jump keeps away from the stay too
+
+
+def _taken_elsewhere(ctx: PlanContext, n_side: int = 25) -> PlanContext:
+    """The context with n_side² more taken places packed in one corner (4 µm apart): indents that teach the
+    CSM map nothing, as a fast array's, failed ones or an earlier run's on the same sample."""
+    x0, y0 = ctx.lattice.xy_um.min(axis=0)
+    g = np.arange(n_side) * 4.0
+    corner = np.column_stack([x0 + np.repeat(g, n_side), y0 + np.tile(g, n_side)])
+    return replace(ctx, indents_xy_um=np.vstack([ctx.indents_xy_um, corner]))
+
+
+def test_aeni_design_rules_count_what_the_map_learnt_not_every_taken_place() -> None:
+    """A fast array, failed indents or an earlier run's indents take places (kept free by the exclusion) but
+    teach the CSM map nothing: they must neither end the space-filling start, nor lift a block's cap against
+    the data the model was fitted on, nor lengthen a program's life (an array of 150 fast indents once let
+    the film's next CSM blocks grow to 53 singles on a model of 64, and made new programs look cheap)."""
+    c, start = _context_after("aeni", blocks=2)
+    assert len(start.learnt_xy_um) < ScatteredSingles().space_filling_indents
+    crowded = _taken_elsewhere(start)
+    assert len(crowded.indents_xy_um) > 600
+    both = [c.policy.propose(replace(x, program_open=False)) for x in (start, crowded)]
+    assert all(d is not None and d.phase == "explore" for d in both)
+
+    c, later = _context_after("aeni", blocks=5)
+    dear = replace(later.profile, global_jump_s=50_000.0)  # the biggest block the cap allows wins
+    plain, packed = (
+        c.policy.propose(replace(x, program_open=False, profile=dear)) for x in (later, _taken_elsewhere(later))
+    )
+    assert plain is not None and packed is not None
+    cap = ScatteredSingles().block_sizes(10_000, len(later.learnt_xy_um))[-1]
+    assert plain.block.n_indents == packed.block.n_indents == cap
+
+    from core.policies.scattered import program_life_indents
+
+    assert program_life_indents(_taken_elsewhere(later)) == program_life_indents(later)
+    assert program_life_indents(later) == len(later.learnt_xy_um) / later.globals_done
 
 
 def test_aeni_jump_is_scored_on_the_posterior_before_the_stays_picks() -> None:

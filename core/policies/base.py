@@ -70,7 +70,7 @@ class PlanContext:
     program_hold_s: float | None  # hold programmed for the running program (changing it needs a new program)
     locals_in_program: int  # local blocks run since the last global block
     tested_xy_um: np.ndarray  # (k, 2) centres already tested
-    indents_xy_um: np.ndarray  # (m, 2) every earlier indent (actual positions)
+    indents_xy_um: np.ndarray  # (m, 2) every taken place (actual positions): the places kept free
     best_observed_gpa: float | None
     last_drift_rate_nm_s: float | None
     avoid_xy_um: tuple[tuple[float, float], ...] = ()
@@ -80,7 +80,11 @@ class PlanContext:
     dz_safe_um: float = 5.0
     r_excl_um: float = 20.0
     extras: dict[str, object] = field(default_factory=dict)
-    globals_done: int = 0  # global blocks (programs) run so far, seeds included
+    globals_done: int = 0  # CSM programs (global blocks) run so far, seeds included; fast arrays are not
+    # this run's measured CSM indents, what the map learnt from: the design's own rules (its space-filling
+    # start, a block's cap against the data the model was fitted on, a program's life) count these, never a
+    # fast indent, a failed one or an earlier run's, which take places but teach the CSM map nothing
+    learnt_xy_um: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     tested_noise_var_gpa2: np.ndarray | None = (
         None  # (k,) noise variance of each centre's median, per the model
     )

@@ -227,7 +227,7 @@ class TwoFidelityPlanner:
         csm = self.inner.propose(ctx)
         if ctx.profile.fast is None or ctx.prefer_xy_um is not None or ctx.prediction is None:
             return csm  # no fast mode, a veto's alternative, or no model yet: the design's own block
-        if len(ctx.indents_xy_um) < self.inner.design.space_filling_indents:
+        if len(ctx.learnt_xy_um) < self.inner.design.space_filling_indents:
             return csm
         view = self.view(ctx)
         if view is None:

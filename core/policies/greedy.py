@@ -37,11 +37,11 @@ class GreedyValue:
 
 
 class Maximin(GreedyValue):
-    """Distance (in u, v) to the nearest earlier indent: the greedy space-filling design."""
+    """Distance (in u, v) to the nearest indent the map learnt from: the greedy space-filling design."""
 
     def __init__(self, ctx: PlanContext, cand: np.ndarray) -> None:
         self.uv = ctx.lattice.uv[cand]
-        done = ctx.indents_xy_um
+        done = ctx.learnt_xy_um
         if len(done):
             u, v = ctx.calibration.to_uv(done[:, 0], done[:, 1])
             done_uv = np.column_stack([u, v])

@@ -72,7 +72,7 @@ class ScatteredPlanner:
         """The greedy value that places the next singles among ``cand``, and whether it is the space-filling
         start (a model fitted on a handful of points cannot yet say where the map is unknown)."""
         d = self.design
-        exploring = len(ctx.indents_xy_um) < d.space_filling_indents or ctx.gp is None
+        exploring = len(ctx.learnt_xy_um) < d.space_filling_indents or ctx.gp is None
         return (Maximin(ctx, cand) if exploring else GreedyIvr(ctx, cand, self.ivr)), exploring
 
     def propose(self, ctx: PlanContext) -> Decision | None:
@@ -184,7 +184,7 @@ class ScatteredPlanner:
         """(gain per second, block, cost, gain) of the block size the design allows that pays best."""
         best: tuple[float, Block, float, float] | None = None
         life = program_life_indents(ctx) if self.design.program_life and kind == "global" else None
-        for n in self.design.block_sizes(len(idx), len(ctx.indents_xy_um)):
+        for n in self.design.block_sizes(len(idx), len(ctx.learnt_xy_um)):
             block = self.block(ctx, kind, xy[idx[:n]], hold_s, anchor)
             cost = block_costs_for(ctx.profile, block, ctx.position_um, ctx.program_open)
             gain = float(sum(gains[:n]))
@@ -281,4 +281,4 @@ class ScatteredPlanner:
 
 def program_life_indents(ctx: PlanContext) -> float:
     """How many indents a program has served on average in this run (its life), for pricing a new one."""
-    return len(ctx.indents_xy_um) / max(1, ctx.globals_done)
+    return len(ctx.learnt_xy_um) / max(1, ctx.globals_done)

@@ -95,7 +95,7 @@ def _arrays(
     # in the space-filling start (no model yet) the stretch is the start itself: its maximin design, which
     # asks nothing of the data, loaded in one visit, and no more of it than the start has left
     value, exploring = planner.value(ctx, cand)
-    indents_left = max(d.space_filling_indents - len(ctx.indents_xy_um), 1) if exploring else None
+    indents_left = max(d.space_filling_indents - len(ctx.learnt_xy_um), 1) if exploring else None
     xy = ctx.lattice.xy_um[cand]
     box = BOX_FRACTION * ctx.profile.reconfig_threshold_um
     spacing = d.spacing_um(ctx.r_excl_um)

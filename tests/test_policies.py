@@ -648,7 +648,8 @@ def test_aeni_design_rules_count_what_the_map_learnt_not_every_taken_place() -> 
     c, later = _context_after("aeni", blocks=5)
     dear = replace(later.profile, global_jump_s=50_000.0)  # the biggest block the cap allows wins
     plain, packed = (
-        c.policy.propose(replace(x, program_open=False, profile=dear)) for x in (later, _taken_elsewhere(later))
+        c.policy.propose(replace(x, program_open=False, profile=dear))
+        for x in (later, _taken_elsewhere(later))
     )
     assert plain is not None and packed is not None
     cap = ScatteredSingles().block_sizes(10_000, len(later.learnt_xy_um))[-1]

@@ -4,6 +4,8 @@ held-out CSM values better."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -128,6 +130,10 @@ def test_a_rejected_fast_channel_buys_no_array_and_the_map_is_the_csm_only_gps()
         assert np.isnan(fast.bias_gpa(uv)).all()
         ctx = campaign.context(10_000.0, (500.0, 500.0), False, 2)
         assert isinstance(ctx.fidelity, HeldOutView)
+        # arrays are priced once the design's space-filling start is done (64 learnt CSM indents; the array's
+        # indents do not count): the probe puts the context there, its 30 CSM places counted thrice
+        assert len(ctx.learnt_xy_um) == 30
+        ctx = dataclasses.replace(ctx, learnt_xy_um=np.vstack([ctx.learnt_xy_um] * 3))
         policy = campaign.policy
         assert isinstance(policy, TwoFidelityPlanner)
         decision = policy.propose(ctx)

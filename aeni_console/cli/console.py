@@ -36,7 +36,7 @@ DEMO_SPEED = 600.0  # instrument seconds per wall second: a 5×5 block (~55 min)
 
 def leave_message(journal: Path, pid: int | None = None) -> str:
     """What to print after the console closes while the engine runs on."""
-    # imported here, not at the top: the journal pulls torch, the console textual; `aeni --help` must start fast
+    # imported here, not at the top: the journal pulls scipy, the console textual; `aeni --help` must start fast
     from core.journal import JournalReader
 
     try:

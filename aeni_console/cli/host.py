@@ -70,7 +70,7 @@ def launch_engine(
     for a run as its file says), the first after ``resume_backoff_s`` (None: the spec's); the process is then
     the supervisor's.
     """
-    # imported here, not at the top: the run's spec and journal pull torch; `aeni --help` must start fast
+    # imported here, not at the top: the run's spec and journal pull scipy, the engine torch; `aeni --help` must start fast
     from aeni_console.cli.supervisor import supervisor_argv
     from core.journal import engine_running
     from core.run.spec import RunSpec

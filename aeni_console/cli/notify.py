@@ -11,7 +11,7 @@ from core.notifyconfig import load_run_notify, notify_path_for
 
 
 def _cmd_test(args: argparse.Namespace) -> int:
-    # imported here, not at the top: alerts and the run file's reader pull torch; `aeni --help` must start fast
+    # imported here, not at the top: alerts pull scipy, the run file's reader torch; `aeni --help` must start fast
     from aeni_console.alerts import Severity, send
     from core.runconfig import load_run_config
 

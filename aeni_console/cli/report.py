@@ -15,7 +15,7 @@ def default_out(journal: Path) -> Path:
 
 
 def _handler(args: argparse.Namespace) -> int:
-    # imported here, not at the top: the reports and the journal pull torch; `aeni --help` must start fast
+    # imported here, not at the top: the reports pull torch, the journal scipy; `aeni --help` must start fast
     from aeni_console.reports.run import write_report
     from aeni_console.reports.tray import write_tray_report
     from core.journal import JournalReader

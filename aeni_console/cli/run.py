@@ -84,7 +84,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    # imported here, not at the top: the run's spec and journal pull torch; `aeni --help` must start fast
+    # imported here, not at the top: the run's spec and journal pull scipy, the run file's reader torch; `aeni --help` must start fast
     from core.journal import default_journal_path
     from core.run.spec import RunSpec
     from core.runconfig import load_run_config

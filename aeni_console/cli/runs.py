@@ -46,7 +46,7 @@ def _seconds_since(utc: str | None, now: float) -> float | None:
 
 def run_row(path: Path, now: float | None = None) -> RunRow:
     """Read one journal read-only; an unreadable one becomes a row naming the problem."""
-    # imported here, not at the top: the journal pulls torch, and `aeni --help` must start fast
+    # imported here, not at the top: the journal pulls scipy, and `aeni --help` must start fast
     from aeni_console.cli.supervisor import supervisor_pid
     from core.journal import JournalReader, engine_running, user_name
 

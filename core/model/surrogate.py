@@ -249,6 +249,25 @@ class HeteroskedasticGP:
             hyper, obs, collapse, reason, used_last_good, iterations, time.perf_counter() - t0
         )
 
+    def condition(self, obs: Observations) -> FitReport | None:
+        """Condition on ``obs`` with the hyperparameters in use, no optimisation, as the interpolated GP does
+        between optimisations; None where that cannot be (no fit yet, another GP or noise model for this
+        many points): then only ``fit`` will do. The record keeps its optimisation counters, so the next
+        ``fit`` re-optimises as it would have here (a resumed run does the same)."""
+        t0 = time.perf_counter()
+        prev = self._hyper
+        if (
+            prev is None
+            or obs.n == 0
+            or prev.kernel != self.kernel
+            or prev.model != self.model_for(obs.n)
+            or prev.noise_kind != noise_kind_for(obs, self.heteroskedastic)
+        ):
+            return None
+        hyper = replace(prev, n_points=obs.n)
+        self._install(hyper, obs)
+        return self._report(hyper, obs, False, "", False, 0, time.perf_counter() - t0)
+
     def set_hyper(self, hyper: dict[str, Any] | Hyperparameters, obs: Observations) -> None:
         """Condition on ``obs`` with the given hyperparameters (or their journal record), no optimisation:
         crash-resume."""

@@ -358,6 +358,15 @@ class Campaign:
     def propose(
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
     ) -> Decision | None:
+        decision = self._propose(clock_s, position_um, program_open, block_id)
+        if self.fast is not None:
+            # the decision is made: a new array's re-optimisation may take the machine while the block runs
+            self.fast.model.start_reoptimisation()
+        return decision
+
+    def _propose(
+        self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
+    ) -> Decision | None:
         if self._stretch:
             # a loaded stretch's next array runs as handed out (fitted when planned), stop rule or not: the
             # instrument runs every array the operator loaded, and its indents must be journaled, never lost

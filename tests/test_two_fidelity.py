@@ -144,7 +144,7 @@ def test_a_misleading_fast_channel_costs_little(good: Case, misleading: Case) ->
 
 def test_the_likelihood_is_gpytorchs(good: Case) -> None:
     """The CSM level's objective is the Gaussian log density of its moments, as gpytorch computes it."""
-    p = good.model._problem(good.csm)
+    p = good.model._problem(good.csm, good.model._csm_noise_var(good.csm))
     theta = torch.tensor(good.model.theta, dtype=torch.float64)
     t = unpack_theta(theta, p.floor_uv)
     _, mean, k = p._moments(t)

@@ -22,6 +22,7 @@ CSM-only GP's.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass, replace
@@ -42,6 +43,7 @@ from core.model.cokriging import (
     start_theta,
     unpack_theta,
 )
+from core.model.deferred import Deferred
 from core.model.fitting import COLD_WIN_NATS, cold_search_due, optimisation_due, optimise
 from core.model.guard import GUARDS, CollapseRule, GuardName
 from core.model.held_out import loo_residuals
@@ -199,6 +201,7 @@ class TwoFidelityGP:
         self._p: CoKrigingProblem | None = None  # the CSM level's data, kept for what-if variances
         self._loc = 0.0
         self._scale = 1.0
+        self._pending: Deferred[tuple[TwoFidelityGP, TwoFidelityReport]] | None = None
 
     @property
     def mode(self) -> FidelityMode:
@@ -247,6 +250,7 @@ class TwoFidelityGP:
         ):
             raise InputError(_FIELD, f"not a version-1 or -{HYPER_VERSION} two-fidelity record")
         version = int(record["version"])
+        self._pending = None  # a re-optimisation under way is the old model's: the record is what counts
         self.csm_gp.set_hyper(record["csm"], csm)
         if "cokriging" not in record:
             self._cond = None
@@ -269,15 +273,19 @@ class TwoFidelityGP:
         self._theta, self._last_good = raw, last_good
         self._prev_n, self._cold_n, self._fit_n, self._fast_n = counters
         self._link_on = link_on and self._link is not None
-        self._p = self._problem(csm)
+        self._p = self._problem(csm, self._csm_noise_var(csm))
         self._cond = self._p.condition(raw)
 
     def fit(
-        self, csm: Observations, fast: Observations | None, link: Observations | None = None
+        self,
+        csm: Observations,
+        fast: Observations | None,
+        link: Observations | None = None,
+        defer: bool = False,
     ) -> TwoFidelityReport:
         """Fit the CSM-only GP, the fast GP (and its E/H link) and the CSM level (warm from the previous fit)."""
         t0 = time.perf_counter()
-        return self.fit_levels(csm, fast, self.csm_gp.fit(csm), t0, link)
+        return self.fit_levels(csm, fast, self.csm_gp.fit(csm), t0, link, defer)
 
     def fit_levels(
         self,
@@ -286,10 +294,17 @@ class TwoFidelityGP:
         csm_report: FitReport,
         t0: float | None = None,
         link: Observations | None = None,
+        defer: bool = False,
     ) -> TwoFidelityReport:
         """The fast GP and the CSM level on a CSM-only GP already fitted to ``csm`` (its ``csm_report``);
-        ``link``: the fast cells' E/H (``fast_link_observations``; None: ρ the plane)."""
+        ``link``: the fast cells' E/H (``fast_link_observations``; None: ρ the plane).
+
+        ``defer``: where new fast data (an array) would re-optimise a fitted model, condition on them with
+        the hyperparameters in use now and re-optimise on a thread (``core.model.deferred``) instead, once
+        ``start_reoptimisation`` says the decision is made; the re-optimisation, of the data as they are
+        now, is installed at the next fit."""
         t0 = time.perf_counter() if t0 is None else t0
+        installed = self._collect()
         if fast is None or fast.n < self.min_fast_cells or csm.n < MIN_CSM_CENTRES:
             self._cond = None
             return TwoFidelityReport(
@@ -307,13 +322,123 @@ class TwoFidelityGP:
                 0,
                 time.perf_counter() - t0,
             )
+        noise_var = self._csm_noise_var(csm)
+        if defer and self._theta is not None and self._cond is not None and fast.n != self._fast_n:
+            deferred = self._condition_and_defer(csm, fast, link, csm_report, noise_var, t0)
+            if deferred is not None:
+                return deferred
+        report = self._fit_levels(csm, fast, link, csm_report, noise_var, t0)
+        if installed is not None and report.iterations == 0:
+            # conditioned on the re-optimisation installed just now: its guard's verdict is this fit's
+            report = replace(
+                report,
+                collapse=installed.collapse,
+                collapse_reason=installed.collapse_reason,
+                used_last_good=installed.used_last_good,
+                iterations=installed.iterations,
+            )
+        return report
+
+    @property
+    def reoptimising(self) -> bool:
+        """A re-optimisation of the last array's data is under way (or done and not yet installed)."""
+        return self._pending is not None
+
+    def start_reoptimisation(self) -> None:
+        """The decision on the conditioned model is made: the re-optimisation may take the machine now."""
+        if self._pending is not None:
+            self._pending.start()
+
+    @property
+    def reoptimisation_done(self) -> bool:
+        """The re-optimisation under way has finished (the next fit installs it without waiting)."""
+        return self._pending is not None and self._pending.done
+
+    def _collect(self) -> TwoFidelityReport | None:
+        """Install the re-optimisation started at the last array's landing (waits for it); its report."""
+        pending, self._pending = self._pending, None
+        if pending is None:
+            return None
+        shadow, report = pending.result()
+        self.fast_gp, self.link_gp = shadow.fast_gp, shadow.link_gp
+        self._link, self._link_on = shadow._link, shadow._link_on
+        self._theta, self._last_good = shadow._theta, shadow._last_good
+        self._prev_n, self._cold_n = shadow._prev_n, shadow._cold_n
+        self._fit_n, self._fast_n = shadow._fit_n, shadow._fast_n
+        return report
+
+    def _condition_and_defer(
+        self,
+        csm: Observations,
+        fast: Observations,
+        link: Observations | None,
+        csm_report: FitReport,
+        noise_var: np.ndarray,
+        t0: float,
+    ) -> TwoFidelityReport | None:
+        """Condition every level on the new fast data with the hyperparameters in use, and start their
+        re-optimisation (the fit ``_fit_levels`` would make now) on a copy; None where a level cannot be
+        conditioned (another noise model for the new cells): then the caller fits now."""
+        shadow = self._shadow()  # the model as it is: the fit below starts from here
+        link = link if link is not None and link.n >= self.min_fast_cells else None
+        fast_report = self.fast_gp.condition(fast)
+        if fast_report is None or (
+            link is not None and (self._link is None or self.link_gp.condition(link) is None)
+        ):
+            self.fast_gp, self.link_gp = shadow.fast_gp, shadow.link_gp  # as they were; the caller fits now
+            return None
+        self._link = link
+        if link is None:
+            self._link_on = False
+        assert self._theta is not None
+        p = self._problem(csm, noise_var)
+        self._p, self._cond = p, p.condition(self._theta)
+
+        self._defer(shadow, csm, fast, link, csm_report, noise_var, t0)
+        return self._report(csm_report, fast_report, csm, self._theta, False, "", False, 0, t0)
+
+    def _shadow(self) -> TwoFidelityGP:
+        """A copy to fit on a thread: its own fast and link GPs; the CSM-only GP shared but never touched
+        (the fit reads its noise through ``noise_var``, taken now)."""
+        shadow = copy.copy(self)
+        shadow.fast_gp, shadow.link_gp = copy.deepcopy(self.fast_gp), copy.deepcopy(self.link_gp)
+        shadow._pending = None
+        return shadow
+
+    def _defer(
+        self,
+        shadow: TwoFidelityGP,
+        csm: Observations,
+        fast: Observations,
+        link: Observations | None,
+        csm_report: FitReport,
+        noise_var: np.ndarray,
+        t0: float,
+    ) -> None:
+        """The fit ``_fit_levels`` would make now, on ``shadow``, to run once ``start_reoptimisation`` says."""
+
+        def work() -> tuple[TwoFidelityGP, TwoFidelityReport]:
+            return shadow, shadow._fit_levels(csm, fast, link, csm_report, noise_var, t0)
+
+        self._pending = Deferred(work, torch.get_num_threads())
+
+    def _fit_levels(
+        self,
+        csm: Observations,
+        fast: Observations,
+        link: Observations | None,
+        csm_report: FitReport,
+        noise_var: np.ndarray,
+        t0: float,
+    ) -> TwoFidelityReport:
+        """The fit proper: reads the CSM-only GP only through ``noise_var`` (so it may run on a thread)."""
         fast_report = self.fast_gp.fit(fast)
         self._link = link if link is not None and link.n >= self.min_fast_cells else None
         if self._link is not None:
             self.link_gp.fit(self._link)
         else:
             self._link_on = False
-        p = self._problem(csm)
+        p = self._problem(csm, noise_var)
         iterations = 0
         if (
             self._theta is not None
@@ -338,7 +463,7 @@ class TwoFidelityGP:
                     theta = cold
                 self._cold_n = csm.n
         if self._link is not None:
-            p, theta, more = self._choose_link(csm, p, theta)
+            p, theta, more = self._choose_link(csm, p, theta, noise_var)
             iterations += more
         t = unpack_theta(theta, self.floor_uv)
         ls = (float(t.lengthscale[0]), float(t.lengthscale[1]))
@@ -523,7 +648,7 @@ class TwoFidelityGP:
     # -- the CSM level's data and fits ---------------------------------------------------------------
 
     def _choose_link(
-        self, csm: Observations, p: CoKrigingProblem, theta: torch.Tensor
+        self, csm: Observations, p: CoKrigingProblem, theta: torch.Tensor, noise_var: np.ndarray
     ) -> tuple[CoKrigingProblem, torch.Tensor, int]:
         """ρ with its E/H link or the plane alone, whichever the CSM data support: the link's two numbers
         must buy more than Schwarz's ln(n) nats of likelihood (BIC, 2 parameters), else they fit noise
@@ -531,7 +656,7 @@ class TwoFidelityGP:
         ``p`` and ``theta``: the problem as it stands (link on or off) and its optimum."""
         was_on = self._link_on
         self._link_on = not was_on
-        other = self._problem(csm)
+        other = self._problem(csm, noise_var)
         start = theta.clone()
         if was_on:
             start[3:N_RHO] = 0.0  # the plane: the link's coefficients have no feature to act on
@@ -546,11 +671,14 @@ class TwoFidelityGP:
         theta_plane[3:N_RHO] = 0.0
         return plane, theta_plane, iterations
 
-    def _problem(self, csm: Observations) -> CoKrigingProblem:
+    def _csm_noise_var(self, csm: Observations) -> np.ndarray:
+        """The CSM values' per-indent noise variance (GPa²) from the CSM-only GP's noise model."""
+        return np.asarray(self.csm_gp.predict_noise_sd(csm.uv) ** 2 + self.csm_gp.site_var_gpa2, dtype=float)
+
+    def _problem(self, csm: Observations, noise_var: np.ndarray) -> CoKrigingProblem:
         grid, fast_mean, fast_cov = self.fast_gp.latent_grid()
         self._loc, self._scale = standardise(csm.median_gpa)
         assert csm.efficiency is not None
-        noise_var = self.csm_gp.predict_noise_sd(csm.uv) ** 2 + self.csm_gp.site_var_gpa2
         fixed = np.maximum(csm.efficiency * noise_var / csm.n_indents / self._scale**2, MIN_NOISE_STD)
         x = torch.as_tensor(csm.uv, dtype=DTYPE)
         return CoKrigingProblem(

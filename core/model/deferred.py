@@ -1,0 +1,64 @@
+"""A model's re-optimisation run beside the instrument: started when new data land, collected at the next fit.
+
+Re-optimising the two-fidelity model's hyperparameters after a fast array lands takes seconds at thousands of
+fast indents (docs/two-fidelity.md, "Scale"); the instrument's next block takes minutes (≥ 40 s per CSM
+indent). So the decision after the array is made on the model conditioned with the hyperparameters it had,
+and the re-optimisation, a pure function of the data at the landing, runs on a thread started once that
+decision is made, while the block runs. Its result is installed at the next fit whether the thread has
+finished or not (then the fit waits for it; never started, the fit runs it), so a run's plans do not depend
+on how fast the machine is.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Generic, TypeVar
+
+import torch
+
+T = TypeVar("T")
+
+
+class Deferred(Generic[T]):
+    """``work`` on a thread once ``start``ed (torch on ``threads`` threads, as the caller's fits);
+    ``result`` waits for it, or runs it in the caller where it was never started."""
+
+    def __init__(self, work: Callable[[], T], threads: int) -> None:
+        self._work = work
+        self._threads = threads
+        self._value: T | None = None
+        self._error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        if self._thread is None:
+            # not a daemon: an interpreter that exits mid-fit waits for it (seconds) rather than tearing torch
+            # down under a running thread, which aborts the process
+            self._thread = threading.Thread(target=self._run, name="aeni-reoptimise")
+            self._thread.start()
+
+    def _run(self) -> None:
+        # torch's intra-op thread count is per thread: held to the fits' own, so the result is the one a
+        # synchronous fit would give, bit for bit
+        torch.set_num_threads(self._threads)
+        try:
+            self._value = self._work()
+        except BaseException as exc:  # handed to the caller at ``result``: the run, not the thread, decides
+            self._error = exc
+
+    @property
+    def done(self) -> bool:
+        return self._thread is not None and not self._thread.is_alive()
+
+    def result(self) -> T:
+        """The work's value; its exception is raised here, in the caller's thread."""
+        if self._thread is None:
+            self._thread = threading.current_thread()
+            self._run()
+        elif self._thread is not threading.current_thread():
+            self._thread.join()
+        if self._error is not None:
+            raise self._error
+        assert self._value is not None
+        return self._value

@@ -69,6 +69,7 @@ class FastChannel:
         self.failed = 0  # fast indents the instrument made without a value (recorded, never learnt)
         self.last_report: TwoFidelityReport | None = None
         self.held_out: HeldOut | None = None  # the two maps' held-out errors at the last fit (None: no fit)
+        self._cells_cache: tuple[tuple[int, ToUv], tuple[Observations, Observations | None]] | None = None
 
     @property
     def n(self) -> int:
@@ -103,27 +104,36 @@ class FastChannel:
             self.hardness_gpa.append(r.hardness_gpa)
             self.modulus_gpa.append(r.modulus_gpa)
 
-    def observations(self, to_uv: ToUv) -> Observations | None:
+    def _cells(self, to_uv: ToUv) -> tuple[Observations, Observations | None] | None:
+        """The fast cells (hardness, and E/H for ρ's link), binned again only when fast indents arrive: at
+        10,000 fast indents the binning is a tenth of a second a decision (docs/two-fidelity.md, "Scale")."""
         if not self.hardness_gpa:
             return None
+        key = (self.n, to_uv)
+        if self._cells_cache is not None and self._cells_cache[0] == key:
+            return self._cells_cache[1]
         xy = np.array(self.xy_um, dtype=float)
         u, v = to_uv(xy[:, 0], xy[:, 1])
-        return fast_observations(np.column_stack([u, v]), np.array(self.hardness_gpa))
+        uv, h = np.column_stack([u, v]), np.array(self.hardness_gpa)
+        cells = (fast_observations(uv, h), fast_link_observations(uv, h, np.array(self.modulus_gpa)))
+        self._cells_cache = (key, cells)
+        return cells
+
+    def observations(self, to_uv: ToUv) -> Observations | None:
+        cells = self._cells(to_uv)
+        return None if cells is None else cells[0]
 
     def link_observations(self, to_uv: ToUv) -> Observations | None:
         """The fast cells' E/H (ρ's link in the two-fidelity model), None without a measured modulus."""
-        if not self.hardness_gpa:
-            return None
-        xy = np.array(self.xy_um, dtype=float)
-        u, v = to_uv(xy[:, 0], xy[:, 1])
-        return fast_link_observations(
-            np.column_stack([u, v]), np.array(self.hardness_gpa), np.array(self.modulus_gpa)
-        )
+        cells = self._cells(to_uv)
+        return None if cells is None else cells[1]
 
     def fit(self, csm: Observations, csm_report: FitReport, to_uv: ToUv) -> TwoFidelityReport:
         """The fast GP, its E/H link and the CSM level on the campaign's CSM fit (``csm_report``)."""
         fast, link = self.observations(to_uv), self.link_observations(to_uv)
-        self.last_report = self.model.fit_levels(csm, fast, csm_report, link=link)
+        # a new array's re-optimisation runs beside the next block (core.model.deferred): the decision
+        # after the array waits for conditioning only
+        self.last_report = self.model.fit_levels(csm, fast, csm_report, link=link, defer=True)
         self._judge(csm)
         return self.last_report
 

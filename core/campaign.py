@@ -359,8 +359,9 @@ class Campaign:
         self, clock_s: float, position_um: tuple[float, float], program_open: bool, block_id: int
     ) -> Decision | None:
         decision = self._propose(clock_s, position_um, program_open, block_id)
-        if self.fast is not None:
+        if self.fast is not None and decision is not None:
             # the decision is made: a new array's re-optimisation may take the machine while the block runs
+            # (none: the run ends on the map conditioned on every indent, with no thread left to wait for)
             self.fast.model.start_reoptimisation()
         return decision
 

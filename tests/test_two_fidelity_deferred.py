@@ -107,10 +107,38 @@ def test_the_decision_after_an_array_conditions_and_the_next_fit_is_the_synchron
     np.testing.assert_array_equal(deferred.predict(grid).mean, synchronous.predict(grid).mean)
     np.testing.assert_array_equal(deferred.predict(grid).epistemic_sd, synchronous.predict(grid).epistemic_sd)
 
+    # a run resumed from that record (a crash before the next block's refit) prepares the same
+    # re-optimisation again, and its next fit is the uninterrupted run's, bit for bit
     restored = TwoFidelityGP()
     restored.set_hyper(record, csm, fast, link)
     np.testing.assert_array_equal(restored.predict(grid).mean, now.mean)
-    assert restored.fit(csm_more, fast, link).iterations > 0
+    assert restored.reoptimising
+    restored.fit(csm_more, fast, link, defer=True)
+    assert not restored.reoptimising and restored.theta == deferred.theta
+    np.testing.assert_array_equal(restored.predict(grid).mean, deferred.predict(grid).mean)
+
+
+def test_a_copy_of_a_model_mid_reoptimisation_has_its_own(landed: dict[str, object]) -> None:
+    """A deep copy (the tests copy campaigns) owns its re-optimisation: not started, its own copy of the work;
+    started, the finished result, copied."""
+    base = landed["model"]
+    csm, fast, link = (landed[k] for k in ("csm", "fast", "link"))
+    assert isinstance(base, TwoFidelityGP) and isinstance(csm, Observations)
+    assert isinstance(fast, Observations) and isinstance(link, Observations)
+    model = copy.deepcopy(base)
+    model.fit(csm, fast, link, defer=True)
+    unstarted = copy.deepcopy(model)
+    model.start_reoptimisation()
+    started = copy.deepcopy(model)
+    grid = lattice(10)
+    for other in (unstarted, started):
+        assert other.reoptimising
+        other.fit(csm, fast, link, defer=True)
+    model.fit(csm, fast, link, defer=True)
+    assert model.fast_gp is not unstarted.fast_gp and model.fast_gp is not started.fast_gp
+    for other in (unstarted, started):
+        assert other.theta == model.theta
+        np.testing.assert_array_equal(other.predict(grid).mean, model.predict(grid).mean)
 
 
 def test_a_csm_block_never_defers(landed: dict[str, object]) -> None:

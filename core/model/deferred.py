@@ -11,6 +11,7 @@ on how fast the machine is.
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections.abc import Callable
 from typing import Generic, TypeVar
@@ -21,8 +22,8 @@ T = TypeVar("T")
 
 
 class Deferred(Generic[T]):
-    """``work`` on a thread once ``start``ed (torch on ``threads`` threads, as the caller's fits);
-    ``result`` waits for it, or runs it in the caller where it was never started."""
+    """``work`` on a thread once ``start``ed (torch on ``threads`` threads, as the caller's fits); ``result``
+    waits for it, or runs it in the caller where it was never started."""
 
     def __init__(self, work: Callable[[], T], threads: int) -> None:
         self._work = work
@@ -30,9 +31,10 @@ class Deferred(Generic[T]):
         self._value: T | None = None
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
+        self._ran = False  # run in the caller (never started), or copied finished
 
     def start(self) -> None:
-        if self._thread is None:
+        if self._thread is None and not self._ran:
             # not a daemon: an interpreter that exits mid-fit waits for it (seconds) rather than tearing torch
             # down under a running thread, which aborts the process
             self._thread = threading.Thread(target=self._run, name="aeni-reoptimise")
@@ -42,21 +44,34 @@ class Deferred(Generic[T]):
         # torch's intra-op thread count is per thread: held to the fits' own, so the result is the one a
         # synchronous fit would give, bit for bit
         torch.set_num_threads(self._threads)
+        self._call()
+
+    def _call(self) -> None:
         try:
             self._value = self._work()
         except BaseException as exc:  # handed to the caller at ``result``: the run, not the thread, decides
             self._error = exc
 
+    def __deepcopy__(self, memo: dict[int, object]) -> Deferred[T]:
+        """A copy with its own work: not started, a deep copy of the work (a bound method copies its object);
+        started, the result (waited for), copied."""
+        if self._thread is None and not self._ran:
+            return Deferred(copy.deepcopy(self._work, memo), self._threads)
+        finished: Deferred[T] = Deferred(self._work, self._threads)
+        finished._value = copy.deepcopy(self.result(), memo)
+        finished._ran = True
+        return finished
+
     @property
     def done(self) -> bool:
-        return self._thread is not None and not self._thread.is_alive()
+        return self._ran or (self._thread is not None and not self._thread.is_alive())
 
     def result(self) -> T:
         """The work's value; its exception is raised here, in the caller's thread."""
-        if self._thread is None:
-            self._thread = threading.current_thread()
-            self._run()
-        elif self._thread is not threading.current_thread():
+        if self._thread is None and not self._ran:
+            self._ran = True
+            self._call()
+        elif self._thread is not None:
             self._thread.join()
         if self._error is not None:
             raise self._error

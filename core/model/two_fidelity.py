@@ -144,6 +144,26 @@ class TwoFidelityReport:
     seconds: float
 
 
+@dataclass
+class _Reoptimisation:
+    """The fit ``TwoFidelityGP._fit_levels`` would have made at an array's landing, on a copy of the model
+    (its data and the CSM noise taken then): an object, not a closure, so a deep copy of the model copies it."""
+
+    shadow: TwoFidelityGP
+    csm: Observations
+    fast: Observations
+    link: Observations | None
+    csm_report: FitReport
+    noise_var: np.ndarray
+    t0: float
+
+    def run(self) -> tuple[TwoFidelityGP, TwoFidelityReport]:
+        report = self.shadow._fit_levels(
+            self.csm, self.fast, self.link, self.csm_report, self.noise_var, self.t0
+        )
+        return self.shadow, report
+
+
 class TwoFidelityGP:
     """The CSM map learnt from CSM centres and fast cells together; ``predict`` is the CSM channel's."""
 
@@ -273,8 +293,16 @@ class TwoFidelityGP:
         self._theta, self._last_good = raw, last_good
         self._prev_n, self._cold_n, self._fit_n, self._fast_n = counters
         self._link_on = link_on and self._link is not None
-        self._p = self._problem(csm, self._csm_noise_var(csm))
+        noise_var = self._csm_noise_var(csm)
+        self._p = self._problem(csm, noise_var)
         self._cond = self._p.condition(raw)
+        if fast.n != self._fast_n:
+            # recorded between an array's landing and the fit that installs its re-optimisation: prepare it
+            # again from these data (the landing's, for a run resumed before its next block's refit), so
+            # the resumed run installs what the uninterrupted one did
+            csm_report = self.csm_gp.condition(csm)
+            if csm_report is not None:
+                self._defer(self._shadow(), csm, fast, link, csm_report, noise_var, time.perf_counter())
 
     def fit(
         self,
@@ -323,21 +351,23 @@ class TwoFidelityGP:
                 time.perf_counter() - t0,
             )
         noise_var = self._csm_noise_var(csm)
+        report = None
         if defer and self._theta is not None and self._cond is not None and fast.n != self._fast_n:
-            deferred = self._condition_and_defer(csm, fast, link, csm_report, noise_var, t0)
-            if deferred is not None:
-                return deferred
-        report = self._fit_levels(csm, fast, link, csm_report, noise_var, t0)
-        if installed is not None and report.iterations == 0:
-            # conditioned on the re-optimisation installed just now: its guard's verdict is this fit's
-            report = replace(
-                report,
-                collapse=installed.collapse,
-                collapse_reason=installed.collapse_reason,
-                used_last_good=installed.used_last_good,
-                iterations=installed.iterations,
-            )
-        return report
+            report = self._condition_and_defer(csm, fast, link, csm_report, noise_var, t0)
+        if report is None:
+            report = self._fit_levels(csm, fast, link, csm_report, noise_var, t0)
+        if installed is None:
+            return report
+        # the re-optimisation installed at the start of this fit is part of it: its optimiser steps and its
+        # guard's verdict on δ (the fast GP's guard reports in its own FitReport, ``installed.fast``)
+        reasons = [r for r in (installed.collapse_reason, report.collapse_reason) if r]
+        return replace(
+            report,
+            collapse=installed.collapse or report.collapse,
+            collapse_reason="; ".join(reasons),
+            used_last_good=installed.used_last_good or report.used_last_good,
+            iterations=installed.iterations + report.iterations,
+        )
 
     @property
     def reoptimising(self) -> bool:
@@ -417,10 +447,8 @@ class TwoFidelityGP:
     ) -> None:
         """The fit ``_fit_levels`` would make now, on ``shadow``, to run once ``start_reoptimisation`` says."""
 
-        def work() -> tuple[TwoFidelityGP, TwoFidelityReport]:
-            return shadow, shadow._fit_levels(csm, fast, link, csm_report, noise_var, t0)
-
-        self._pending = Deferred(work, torch.get_num_threads())
+        work = _Reoptimisation(shadow, csm, fast, link, csm_report, noise_var, t0)
+        self._pending = Deferred(work.run, torch.get_num_threads())
 
     def _fit_levels(
         self,

@@ -24,6 +24,7 @@ from tests.test_fast_plan import _after_one_array, _measured
 from tests.test_two_fidelity import delta_truth, fast_truth, lattice, rho_truth
 
 N_CSM = 40
+MAX_ITER, WARM_MAX_ITER = 20, 8  # short optimisations: the tests compare two paths to one fit, not optima
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -58,7 +59,7 @@ def landed() -> dict[str, object]:
         spread_var_gpa2=np.concatenate([csm.spread_var_gpa2, more.spread_var_gpa2]),
         n_indents=np.concatenate([csm.n_indents, more.n_indents]),
     )
-    model = TwoFidelityGP()
+    model = TwoFidelityGP(max_iter=MAX_ITER, warm_max_iter=WARM_MAX_ITER)
     model.fit(
         csm, fast_observations(uf[first], hf[first]), fast_link_observations(uf[first], hf[first], ef[first])
     )
@@ -98,47 +99,32 @@ def test_the_decision_after_an_array_conditions_and_the_next_fit_is_the_synchron
     record = json.loads(json.dumps(deferred.hyper))
     assert record["cokriging"]["fast_n"] == base.hyper["cokriging"]["fast_n"]  # type: ignore[index]
 
+    # a deep copy (the tests copy campaigns) owns its re-optimisation: not started, its own copy of the
+    # work (run at its next fit); started, the finished result, copied
+    unstarted = copy.deepcopy(deferred)
     deferred.start_reoptimisation()  # the decision is made: the thread runs beside the next block
+    started = copy.deepcopy(deferred)
     assert synchronous.fit(csm, fast, link).iterations > 0
-    deferred.fit(csm_more, fast, link, defer=True)
-    synchronous.fit(csm_more, fast, link, defer=True)
-    assert not deferred.reoptimising and not synchronous.reoptimising
-    assert deferred.theta == synchronous.theta
-    np.testing.assert_array_equal(deferred.predict(grid).mean, synchronous.predict(grid).mean)
-    np.testing.assert_array_equal(deferred.predict(grid).epistemic_sd, synchronous.predict(grid).epistemic_sd)
+    for model in (deferred, synchronous, unstarted, started):
+        model.fit(csm_more, fast, link, defer=True)
+        assert not model.reoptimising
+    assert len({id(m.fast_gp) for m in (deferred, unstarted, started)}) == 3
+    for model in (deferred, unstarted, started):
+        assert model.theta == synchronous.theta
+        np.testing.assert_array_equal(model.predict(grid).mean, synchronous.predict(grid).mean)
+        np.testing.assert_array_equal(
+            model.predict(grid).epistemic_sd, synchronous.predict(grid).epistemic_sd
+        )
 
     # a run resumed from that record (a crash before the next block's refit) prepares the same
     # re-optimisation again, and its next fit is the uninterrupted run's, bit for bit
-    restored = TwoFidelityGP()
+    restored = TwoFidelityGP(max_iter=MAX_ITER, warm_max_iter=WARM_MAX_ITER)
     restored.set_hyper(record, csm, fast, link)
     np.testing.assert_array_equal(restored.predict(grid).mean, now.mean)
     assert restored.reoptimising
     restored.fit(csm_more, fast, link, defer=True)
     assert not restored.reoptimising and restored.theta == deferred.theta
     np.testing.assert_array_equal(restored.predict(grid).mean, deferred.predict(grid).mean)
-
-
-def test_a_copy_of_a_model_mid_reoptimisation_has_its_own(landed: dict[str, object]) -> None:
-    """A deep copy (the tests copy campaigns) owns its re-optimisation: not started, its own copy of the work;
-    started, the finished result, copied."""
-    base = landed["model"]
-    csm, fast, link = (landed[k] for k in ("csm", "fast", "link"))
-    assert isinstance(base, TwoFidelityGP) and isinstance(csm, Observations)
-    assert isinstance(fast, Observations) and isinstance(link, Observations)
-    model = copy.deepcopy(base)
-    model.fit(csm, fast, link, defer=True)
-    unstarted = copy.deepcopy(model)
-    model.start_reoptimisation()
-    started = copy.deepcopy(model)
-    grid = lattice(10)
-    for other in (unstarted, started):
-        assert other.reoptimising
-        other.fit(csm, fast, link, defer=True)
-    model.fit(csm, fast, link, defer=True)
-    assert model.fast_gp is not unstarted.fast_gp and model.fast_gp is not started.fast_gp
-    for other in (unstarted, started):
-        assert other.theta == model.theta
-        np.testing.assert_array_equal(other.predict(grid).mean, model.predict(grid).mean)
 
 
 def test_a_csm_block_never_defers(landed: dict[str, object]) -> None:

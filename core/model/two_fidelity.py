@@ -144,12 +144,11 @@ class TwoFidelityReport:
     seconds: float
 
 
-@dataclass
-class _Reoptimisation:
-    """The fit ``TwoFidelityGP._fit_levels`` would have made at an array's landing, on a copy of the model
-    (its data and the CSM noise taken then): an object, not a closure, so a deep copy of the model copies it."""
+@dataclass(frozen=True)
+class _FitInputs:
+    """What a fit of the levels reads: the data, and the CSM-only GP's report and noise taken in the caller's
+    thread (so the fit never touches that GP and may run on another)."""
 
-    shadow: TwoFidelityGP
     csm: Observations
     fast: Observations
     link: Observations | None
@@ -157,11 +156,17 @@ class _Reoptimisation:
     noise_var: np.ndarray
     t0: float
 
+
+@dataclass
+class _Reoptimisation:
+    """The fit ``TwoFidelityGP._fit_levels`` would have made at an array's landing, on a copy of the model:
+    an object, not a closure, so a deep copy of the model copies it."""
+
+    shadow: TwoFidelityGP
+    inputs: _FitInputs
+
     def run(self) -> tuple[TwoFidelityGP, TwoFidelityReport]:
-        report = self.shadow._fit_levels(
-            self.csm, self.fast, self.link, self.csm_report, self.noise_var, self.t0
-        )
-        return self.shadow, report
+        return self.shadow, self.shadow._fit_levels(self.inputs)
 
 
 class TwoFidelityGP:
@@ -302,7 +307,8 @@ class TwoFidelityGP:
             # the resumed run installs what the uninterrupted one did
             csm_report = self.csm_gp.condition(csm)
             if csm_report is not None:
-                self._defer(self._shadow(), csm, fast, link, csm_report, noise_var, time.perf_counter())
+                inputs = _FitInputs(csm, fast, link, csm_report, noise_var, time.perf_counter())
+                self._defer(self._shadow(), inputs)
 
     def fit(
         self,
@@ -350,12 +356,12 @@ class TwoFidelityGP:
                 0,
                 time.perf_counter() - t0,
             )
-        noise_var = self._csm_noise_var(csm)
+        inputs = _FitInputs(csm, fast, link, csm_report, self._csm_noise_var(csm), t0)
         report = None
         if defer and self._theta is not None and self._cond is not None and fast.n != self._fast_n:
-            report = self._condition_and_defer(csm, fast, link, csm_report, noise_var, t0)
+            report = self._condition_and_defer(inputs)
         if report is None:
-            report = self._fit_levels(csm, fast, link, csm_report, noise_var, t0)
+            report = self._fit_levels(inputs)
         if installed is None:
             return report
         # the re-optimisation installed at the start of this fit is part of it: its optimiser steps and its
@@ -397,20 +403,13 @@ class TwoFidelityGP:
         self._fit_n, self._fast_n = shadow._fit_n, shadow._fast_n
         return report
 
-    def _condition_and_defer(
-        self,
-        csm: Observations,
-        fast: Observations,
-        link: Observations | None,
-        csm_report: FitReport,
-        noise_var: np.ndarray,
-        t0: float,
-    ) -> TwoFidelityReport | None:
+    def _condition_and_defer(self, inputs: _FitInputs) -> TwoFidelityReport | None:
         """Condition every level on the new fast data with the hyperparameters in use, and start their
         re-optimisation (the fit ``_fit_levels`` would make now) on a copy; None where a level cannot be
         conditioned (another noise model for the new cells): then the caller fits now."""
         shadow = self._shadow()  # the model as it is: the fit below starts from here
-        link = link if link is not None and link.n >= self.min_fast_cells else None
+        csm, fast = inputs.csm, inputs.fast
+        link = inputs.link if inputs.link is not None and inputs.link.n >= self.min_fast_cells else None
         fast_report = self.fast_gp.condition(fast)
         if fast_report is None or (
             link is not None and (self._link is None or self.link_gp.condition(link) is None)
@@ -421,11 +420,10 @@ class TwoFidelityGP:
         if link is None:
             self._link_on = False
         assert self._theta is not None
-        p = self._problem(csm, noise_var)
+        p = self._problem(csm, inputs.noise_var)
         self._p, self._cond = p, p.condition(self._theta)
-
-        self._defer(shadow, csm, fast, link, csm_report, noise_var, t0)
-        return self._report(csm_report, fast_report, csm, self._theta, False, "", False, 0, t0)
+        self._defer(shadow, inputs)
+        return self._report(inputs.csm_report, fast_report, csm, self._theta, False, "", False, 0, inputs.t0)
 
     def _shadow(self) -> TwoFidelityGP:
         """A copy to fit on a thread: its own fast and link GPs; the CSM-only GP shared but never touched
@@ -435,31 +433,14 @@ class TwoFidelityGP:
         shadow._pending = None
         return shadow
 
-    def _defer(
-        self,
-        shadow: TwoFidelityGP,
-        csm: Observations,
-        fast: Observations,
-        link: Observations | None,
-        csm_report: FitReport,
-        noise_var: np.ndarray,
-        t0: float,
-    ) -> None:
+    def _defer(self, shadow: TwoFidelityGP, inputs: _FitInputs) -> None:
         """The fit ``_fit_levels`` would make now, on ``shadow``, to run once ``start_reoptimisation`` says."""
+        self._pending = Deferred(_Reoptimisation(shadow, inputs).run, torch.get_num_threads())
 
-        work = _Reoptimisation(shadow, csm, fast, link, csm_report, noise_var, t0)
-        self._pending = Deferred(work.run, torch.get_num_threads())
-
-    def _fit_levels(
-        self,
-        csm: Observations,
-        fast: Observations,
-        link: Observations | None,
-        csm_report: FitReport,
-        noise_var: np.ndarray,
-        t0: float,
-    ) -> TwoFidelityReport:
-        """The fit proper: reads the CSM-only GP only through ``noise_var`` (so it may run on a thread)."""
+    def _fit_levels(self, inputs: _FitInputs) -> TwoFidelityReport:
+        """The fit proper: reads the CSM-only GP only through ``inputs`` (so it may run on a thread)."""
+        csm, fast, link, noise_var = inputs.csm, inputs.fast, inputs.link, inputs.noise_var
+        csm_report, t0 = inputs.csm_report, inputs.t0
         fast_report = self.fast_gp.fit(fast)
         self._link = link if link is not None and link.n >= self.min_fast_cells else None
         if self._link is not None:

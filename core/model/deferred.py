@@ -22,7 +22,7 @@ T = TypeVar("T")
 
 
 class Deferred(Generic[T]):
-    """``work`` on a thread once ``start``ed (torch on ``threads`` threads, as the caller's fits); ``result``
+    """``work`` on a thread once ``start``ed (torch on the caller's ``threads``); ``result``
     waits for it, or runs it in the caller where it was never started."""
 
     def __init__(self, work: Callable[[], T], threads: int) -> None:
@@ -41,8 +41,9 @@ class Deferred(Generic[T]):
             self._thread.start()
 
     def _run(self) -> None:
-        # torch's intra-op thread count is per thread: held to the fits' own, so the result is the one a
-        # synchronous fit would give, bit for bit
+        # held to the caller's torch thread count when the work was made: with this build's count process-wide
+        # (a new thread reads what the main thread set: checked) this changes nothing, and with an OpenMP
+        # build whose count is per thread it keeps the result the synchronous fit's, bit for bit
         torch.set_num_threads(self._threads)
         self._call()
 
